@@ -1,0 +1,1 @@
+"""Named, frozen, validated configurations (presets)."""

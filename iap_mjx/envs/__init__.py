@@ -1,0 +1,1 @@
+"""Environments: MJX ports of dm_control tasks with the brax State convention."""

@@ -1,0 +1,1 @@
+"""Evolution strategies: the compiled population evaluation, the update and train()."""

@@ -1,0 +1,1 @@
+"""Policies: observation -> action (IAP + controller, brute-force attention, CNN)."""

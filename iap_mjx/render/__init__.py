@@ -1,0 +1,1 @@
+"""The ray-cast RGB-D camera: MJX state -> pixels."""

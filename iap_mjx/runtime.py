@@ -1,0 +1,55 @@
+"""Process-level JAX set-up: the persistent compilation cache and the number of CPU devices.
+
+Both must be decided before JAX compiles anything (the device count even before JAX
+initialises its backend), so entry points (the CLI, benchmarks, ``tests/conftest.py``) call
+these first. Library code never calls them: importing ``iap_mjx`` changes no global state.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+logger = logging.getLogger(__name__)
+
+CACHE_ENV_VAR = "IAP_MJX_CACHE_DIR"
+
+
+def default_cache_dir() -> Path:
+    """Where compiled programs are kept: ``$IAP_MJX_CACHE_DIR`` or ``~/.cache/iap_mjx/jax``."""
+    return Path(os.environ.get(CACHE_ENV_VAR, Path.home() / ".cache" / "iap_mjx" / "jax"))
+
+
+def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path:
+    """Turns on JAX's persistent compilation cache, so a program compiled once is reused.
+
+    Every compiled program is cached, however quick its compile (the threshold is 0 s), since
+    on a 2-core CPU even small programs add up. Returns the cache directory.
+    """
+    import jax
+
+    path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    logger.debug("JAX persistent compilation cache at %s", path)
+    return path
+
+
+def set_host_device_count(count: int | None = None) -> int:
+    """Splits the CPU into ``count`` XLA devices (default: one per core) for sharding.
+
+    Must run before JAX initialises its backend; an existing
+    ``--xla_force_host_platform_device_count`` in ``XLA_FLAGS`` is left as it is.
+    Returns the count that is in force.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    key = "--xla_force_host_platform_device_count="
+    for flag in flags.split():
+        if flag.startswith(key):
+            return int(flag[len(key):])
+    count = count if count is not None else (os.cpu_count() or 1)
+    os.environ["XLA_FLAGS"] = f"{flags} {key}{count}".strip()
+    return count
