@@ -1,1 +1,58 @@
-"""Policies: observation -> action (IAP + controller, brute-force attention, CNN)."""
+"""Policies: observation -> action (linear and MLP over states; IAP and CNN over pixels).
+
+``make(kind, observation_shape, action_size, **options)`` builds a policy by name;
+``names()`` lists the kinds; ``register(kind, factory)`` adds one (the IAP policies do).
+A factory takes ``(observation_shape, action_size, **options)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+from iap_mjx.policies.base import Policy, param_count
+from iap_mjx.policies.linear import LinearPolicy
+from iap_mjx.policies.mlp import MLPPolicy
+
+_FACTORIES: dict[str, Callable[..., Policy]] = {}
+
+
+def register(kind: str, factory: Callable[..., Policy]) -> None:
+    """Adds a policy kind: ``factory(observation_shape, action_size, **options)``."""
+    _FACTORIES[kind] = factory
+
+
+def names() -> list[str]:
+    """The registered policy kinds, sorted."""
+    return sorted(_FACTORIES)
+
+
+def make(kind: str, observation_shape: Any, action_size: int, **options: Any) -> Policy:
+    """Builds the policy ``kind`` for an env's observation shape and action size."""
+    if kind not in _FACTORIES:
+        raise ValueError(f"unknown policy kind {kind!r}; choose one of {names()}")
+    return _FACTORIES[kind](observation_shape, action_size, **options)
+
+
+def _flat_size(observation_shape: Any) -> int:
+    if not isinstance(observation_shape, tuple):
+        raise ValueError(
+            f"this policy needs an array observation, got shape {observation_shape!r}"
+        )
+    return int(math.prod(observation_shape))
+
+
+register(
+    "linear",
+    lambda shape, action_size, **options: LinearPolicy(
+        _flat_size(shape), action_size, **options
+    ),
+)
+register(
+    "mlp",
+    lambda shape, action_size, **options: MLPPolicy(
+        _flat_size(shape), action_size, **options
+    ),
+)
+
+__all__ = ["LinearPolicy", "MLPPolicy", "Policy", "make", "names", "param_count", "register"]

@@ -1,0 +1,78 @@
+"""Orbax checkpoints of the whole training state plus the config, in ``RUN_DIR/checkpoints``.
+
+Saves are synchronous and atomic (orbax writes a temporary directory and renames it), so a
+run killed at any moment leaves only complete checkpoints behind.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+logger = logging.getLogger(__name__)
+
+CHECKPOINT_DIR = "checkpoints"
+
+
+def _manager(run_dir: str | Path, max_to_keep: int = 3) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(
+        max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False
+    )
+    return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options)
+
+
+def to_host(tree: Any) -> Any:
+    """Numpy copies of a pytree of (possibly replicated, multi-process) arrays."""
+    return jax.tree_util.tree_map(lambda x: np.asarray(x.addressable_data(0))
+                                  if isinstance(x, jax.Array) else np.asarray(x), tree)
+
+
+def latest_step(run_dir: str | Path) -> int | None:
+    """The iteration of the newest complete checkpoint in ``run_dir``, or ``None``."""
+    if not (Path(run_dir) / CHECKPOINT_DIR).is_dir():
+        return None
+    with _manager(run_dir) as manager:
+        return manager.latest_step()
+
+
+def save(run_dir: str | Path, step: int, state: Any, config: dict[str, Any]) -> None:
+    """Writes ``state`` (any pytree of arrays) and the JSON ``config`` as checkpoint ``step``."""
+    with _manager(run_dir) as manager:
+        manager.save(
+            step,
+            args=ocp.args.Composite(
+                state=ocp.args.StandardSave(to_host(state)),
+                config=ocp.args.JsonSave(config),
+            ),
+            force=True,
+        )
+        manager.wait_until_finished()
+    logger.info("checkpoint %d saved in %s", step, run_dir)
+
+
+def load_config(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
+    """The JSON config stored with checkpoint ``step`` (default: the latest)."""
+    with _manager(run_dir) as manager:
+        step = manager.latest_step() if step is None else step
+        if step is None:
+            raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
+        restored = manager.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore()))
+        return dict(restored["config"])
+
+
+def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[int, Any]:
+    """``(step, state)`` restored into the structure, shapes and dtypes of ``like``."""
+    with _manager(run_dir) as manager:
+        step = manager.latest_step() if step is None else step
+        if step is None:
+            raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
+        abstract = jax.tree_util.tree_map(np.asarray, to_host(like))
+        restored = manager.restore(
+            step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
+        )
+        return step, restored["state"]

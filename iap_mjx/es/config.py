@@ -1,0 +1,228 @@
+"""The training configuration: frozen, hashable dataclasses validated on construction.
+
+An invalid value raises ``ValueError`` naming the field and the valid values, before anything
+is compiled. Presets and ``key=value`` overrides live in :mod:`iap_mjx.configs`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+OPTIMIZERS = ("adam", "sgd", "momentum")
+SHAPINGS = ("centred_rank", "z_score", "identity")
+SIGMA_SCHEDULES = ("constant", "linear", "exponential")
+OPEN_ES = "open_es"
+
+
+def _fail(owner: str, field: str, value: Any, why: str) -> None:
+    raise ValueError(f"{owner}.{field} = {value!r}: {why}")
+
+
+def _positive_int(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
+    if not isinstance(value, int) or isinstance(value, bool):
+        _fail(owner, field, value, "must be an integer")
+    if value < 0 or (value == 0 and not allow_zero):
+        _fail(owner, field, value, "must be >= 0" if allow_zero else "must be > 0")
+
+
+def _positive_float(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        _fail(owner, field, value, "must be a number")
+    if value < 0 or (value == 0 and not allow_zero):
+        _fail(owner, field, value, "must be >= 0" if allow_zero else "must be > 0")
+
+
+def _choice(owner: str, field: str, value: Any, valid: Any) -> None:
+    if value not in valid:
+        _fail(owner, field, value, f"choose one of {sorted(valid)}")
+
+
+def _pairs(owner: str, field: str, value: Any) -> None:
+    ok = isinstance(value, tuple) and all(
+        isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) for p in value
+    )
+    if not ok:
+        _fail(owner, field, value, "must be a tuple of (name, value) pairs")
+    try:
+        hash(value)
+    except TypeError:
+        _fail(owner, field, value, "values must be hashable (use tuples, not lists)")
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Which env: a name from ``iap_mjx.envs.names()`` and keyword overrides for ``make``."""
+
+    name: str = "cheetah-run"
+    overrides: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            _fail("env", "name", self.name, "must be a non-empty string")
+        _pairs("env", "overrides", self.overrides)
+
+
+@dataclasses.dataclass(frozen=True)
+class PolicyConfig:
+    """Which policy: a kind from ``iap_mjx.policies.names()`` and its keyword options.
+
+    On the command line ``policy.hidden_sizes=64,64`` sets an option (any name that is not a
+    field of this class goes into ``options``).
+    """
+
+    kind: str = "mlp"
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self):
+        from iap_mjx import policies
+
+        _choice("policy", "kind", self.kind, policies.names())
+        _pairs("policy", "options", self.options)
+
+
+@dataclasses.dataclass(frozen=True)
+class ESConfig:
+    """The evolution strategy.
+
+    Attributes:
+      strategy: ``"open_es"`` (ours) or an evosax algorithm name such as ``"CMA_ES"``.
+      population_size: perturbed members per iteration (even for antithetic OpenES).
+      sigma: perturbation std (initial std for evosax strategies).
+      sigma_schedule: ``constant``, or ``linear``/``exponential`` decay to ``sigma_final``
+        over the run's iterations (OpenES only).
+      sigma_final: the std reached at the last iteration when scheduled.
+      optimizer: optax optimizer for the OpenES centre: ``adam``, ``sgd`` or ``momentum``.
+      learning_rate: its step size.
+      weight_decay: L2 pull ``grad - c * params`` (OpenES).
+      shaping: fitness shaping: ``centred_rank``, ``z_score`` or ``identity``.
+      antithetic: mirrored perturbations ``+eps, -eps`` (OpenES).
+      n_episodes: episodes per member; fitness is their mean return.
+      normalize_observations: running mean/std normalisation of vector observations,
+        updated from every population rollout (Salimans et al.).
+      evosax_options: extra constructor arguments for an evosax strategy.
+    """
+
+    strategy: str = OPEN_ES
+    population_size: int = 256
+    sigma: float = 0.02
+    sigma_schedule: str = "constant"
+    sigma_final: float = 0.01
+    optimizer: str = "adam"
+    learning_rate: float = 0.01
+    weight_decay: float = 0.005
+    shaping: str = "centred_rank"
+    antithetic: bool = True
+    n_episodes: int = 1
+    normalize_observations: bool = True
+    evosax_options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self):
+        if self.strategy != OPEN_ES:
+            from evosax.algorithms import distribution_based_algorithms
+
+            _choice("es", "strategy", self.strategy, [OPEN_ES, *distribution_based_algorithms])
+        _positive_int("es", "population_size", self.population_size)
+        if self.population_size < 2:
+            _fail("es", "population_size", self.population_size, "must be >= 2")
+        if self.strategy == OPEN_ES and self.antithetic and self.population_size % 2:
+            _fail("es", "population_size", self.population_size,
+                  "must be even with antithetic sampling")
+        _positive_float("es", "sigma", self.sigma)
+        _choice("es", "sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
+        _positive_float("es", "sigma_final", self.sigma_final)
+        _choice("es", "optimizer", self.optimizer, OPTIMIZERS)
+        _positive_float("es", "learning_rate", self.learning_rate)
+        _positive_float("es", "weight_decay", self.weight_decay, allow_zero=True)
+        _choice("es", "shaping", self.shaping, SHAPINGS)
+        if not isinstance(self.antithetic, bool):
+            _fail("es", "antithetic", self.antithetic, "must be true or false")
+        _positive_int("es", "n_episodes", self.n_episodes)
+        if not isinstance(self.normalize_observations, bool):
+            _fail("es", "normalize_observations", self.normalize_observations,
+                  "must be true or false")
+        _pairs("es", "evosax_options", self.evosax_options)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """The training loop around the compiled iteration.
+
+    Attributes:
+      iterations: ES iterations in total.
+      seed: the one seed every random draw descends from.
+      eval_every: evaluate the centre params every this many iterations (and at the end).
+      eval_episodes: episodes for that evaluation (their own seeds).
+      checkpoint_every: save a checkpoint every this many iterations (0: only at the end).
+      iterations_per_call: iterations fused into one compiled call (host work between calls);
+        ``eval_every`` and ``checkpoint_every`` must be multiples of it.
+      chunk_size: episodes simulated together by one ``vmap`` (bounds memory); the
+        rest of a device's share runs sequentially in a ``lax.map``.
+      num_devices: devices the population is sharded over (0: all of ``jax.devices()``).
+      tensorboard: also write TensorBoard event files.
+    """
+
+    iterations: int = 100
+    seed: int = 0
+    eval_every: int = 10
+    eval_episodes: int = 8
+    checkpoint_every: int = 10
+    iterations_per_call: int = 1
+    chunk_size: int = 64
+    num_devices: int = 0
+    tensorboard: bool = True
+
+    def __post_init__(self):
+        _positive_int("run", "iterations", self.iterations)
+        _positive_int("run", "seed", self.seed, allow_zero=True)
+        _positive_int("run", "eval_every", self.eval_every)
+        _positive_int("run", "eval_episodes", self.eval_episodes)
+        _positive_int("run", "checkpoint_every", self.checkpoint_every, allow_zero=True)
+        _positive_int("run", "iterations_per_call", self.iterations_per_call)
+        _positive_int("run", "chunk_size", self.chunk_size)
+        _positive_int("run", "num_devices", self.num_devices, allow_zero=True)
+        for name in ("eval_every", "checkpoint_every"):
+            value = getattr(self, name)
+            if value % self.iterations_per_call:
+                _fail("run", name, value,
+                      f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}")
+        if not isinstance(self.tensorboard, bool):
+            _fail("run", "tensorboard", self.tensorboard, "must be true or false")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything ``iap_mjx.es.train`` needs: env, policy, strategy and loop."""
+
+    env: EnvConfig = EnvConfig()
+    policy: PolicyConfig = PolicyConfig()
+    es: ESConfig = ESConfig()
+    run: RunConfig = RunConfig()
+
+    def __post_init__(self):
+        for name, cls in (("env", EnvConfig), ("policy", PolicyConfig), ("es", ESConfig),
+                          ("run", RunConfig)):
+            if not isinstance(getattr(self, name), cls):
+                _fail("config", name, getattr(self, name), f"must be a {cls.__name__}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (tuples become lists)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
+        """The inverse of :meth:`to_dict` (lists become tuples again)."""
+        sections = {"env": EnvConfig, "policy": PolicyConfig, "es": ESConfig, "run": RunConfig}
+        unknown = set(data) - set(sections)
+        if unknown:
+            raise ValueError(f"unknown config sections {sorted(unknown)}; valid: {sorted(sections)}")
+        return cls(**{
+            name: section(**{k: _tuplify(v) for k, v in data.get(name, {}).items()})
+            for name, section in sections.items()
+        })
+
+
+def _tuplify(value: Any) -> Any:
+    if isinstance(value, (list, tuple)):
+        return tuple(_tuplify(v) for v in value)
+    return value

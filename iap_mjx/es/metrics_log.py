@@ -1,0 +1,77 @@
+"""Per-iteration metrics on disk: ``metrics.jsonl``, ``metrics.csv`` and TensorBoard events."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+COLUMNS = (
+    "iteration",
+    "env_steps",
+    "return_mean",
+    "return_max",
+    "return_min",
+    "return_std",
+    "eval_return",
+    "eval_return_std",
+    "nan_episodes",
+    "sigma",
+    "env_steps_per_s",
+    "run_s",
+    "compile_s",
+    "wall_s",
+)
+
+
+def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str, Any]]:
+    """The rows of ``metrics.jsonl`` (only iterations ``<= up_to`` when given)."""
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.exists():
+        return []
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return [r for r in rows if up_to is None or r["iteration"] <= up_to]
+
+
+class MetricsWriter:
+    """Appends rows to the run's metrics files; on resume, drops rows past the checkpoint."""
+
+    def __init__(self, run_dir: str | Path, resume_from: int | None, tensorboard: bool):
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        kept = read_history(self.run_dir, up_to=resume_from if resume_from is not None else -1)
+        self.history = kept
+        self._rewrite(kept)
+        self._tb = None
+        if tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self._tb = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=(
+                resume_from + 1 if resume_from is not None else None))
+
+    def _rewrite(self, rows: list[dict[str, Any]]) -> None:
+        with open(self.run_dir / "metrics.jsonl", "w") as f:
+            for row in rows:
+                f.write(json.dumps(row) + "\n")
+        with open(self.run_dir / "metrics.csv", "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+
+    def write(self, row: dict[str, Any]) -> None:
+        """Appends one iteration's row (keys from ``COLUMNS``; missing ones stay empty)."""
+        self.history.append(row)
+        with open(self.run_dir / "metrics.jsonl", "a") as f:
+            f.write(json.dumps(row) + "\n")
+        with open(self.run_dir / "metrics.csv", "a", newline="") as f:
+            csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore").writerow(row)
+        if self._tb is not None:
+            for name, value in row.items():
+                if name != "iteration" and isinstance(value, (int, float)) and math.isfinite(value):
+                    self._tb.add_scalar(name, value, row["iteration"])
+
+    def close(self) -> None:
+        if self._tb is not None:
+            self._tb.close()

@@ -1,0 +1,438 @@
+"""``train(config) -> TrainResult``: the whole ES iteration compiled, host work in between.
+
+One iteration, all inside one ``jit``: ``ask`` (perturb the centre) -> evaluate every member on
+``n_episodes`` episodes (:mod:`iap_mjx.es.rollout`) -> ``tell`` (shape, estimate, update) ->
+merge the observation statistics. ``run.iterations_per_call`` iterations are fused by a
+``lax.scan``; between calls the host logs metrics, evaluates the centre on its own seeds,
+writes checkpoints and moves the progress bar. Every random draw descends from
+``run.seed`` through ``fold_in(key, iteration)``, so a resumed run continues bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+from jax.flatten_util import ravel_pytree
+from jax.sharding import NamedSharding, PartitionSpec
+
+from iap_mjx.es import checkpoint
+from iap_mjx.es.config import OPEN_ES, ESConfig, TrainConfig
+from iap_mjx.es.metrics_log import MetricsWriter, read_history
+from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
+from iap_mjx.es.rollout import EpisodeResult, make_evaluator, make_mesh
+from iap_mjx.es.shaping import SHAPINGS
+from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
+
+logger = logging.getLogger(__name__)
+
+_TRAIN_STREAM, _EVAL_STREAM, _INIT_STREAM = 0, 1, 2
+
+
+@struct.dataclass
+class TrainState:
+    """Everything a run needs to continue: strategy state, observation statistics, the base
+    key (constant) and the number of iterations done (``()`` int32)."""
+
+    strategy_state: Any
+    obs_stats: ObsStats
+    key: jax.Array
+    iteration: jax.Array
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What ``train`` returns.
+
+    Attributes:
+      params: the centre's policy params (a pytree), the ones to ship.
+      obs_stats: observation statistics the policy was trained with (``None`` if unused).
+      history: one dict per iteration (the columns of ``metrics.csv``).
+      policy_fn: jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one
+        unbatched observation, with the run's observation normalisation applied.
+      initial_policy_state: ``key -> policy_state`` for one episode.
+      config: the config trained.
+      run_dir: where metrics and checkpoints went (``None`` if nowhere).
+      state: the final ``TrainState``.
+    """
+
+    params: Any
+    obs_stats: ObsStats | None
+    history: list[dict[str, Any]]
+    policy_fn: Callable[..., Any]
+    initial_policy_state: Callable[[jax.Array], Any]
+    config: TrainConfig
+    run_dir: Path | None
+    state: TrainState
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Components:
+    """The built pieces of a run (shared by ``train``, ``evaluate_run`` and benchmarks)."""
+
+    config: TrainConfig
+    env: Any
+    policy: Any
+    strategy: Strategy
+    template_params: Any
+    unravel: Callable[[jax.Array], Any]
+    num_dims: int
+    mesh: Any
+    evaluate: Callable[..., EpisodeResult]
+    eval_centre: Callable[..., EpisodeResult]
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Control steps simulated per iteration (members x episodes x horizon)."""
+        es = self.config.es
+        return es.population_size * es.n_episodes * self.env.episode_length
+
+
+def make_sigma(es: ESConfig, iterations: int) -> float | Callable[[jax.Array], jax.Array]:
+    """The perturbation std: a constant or an optax schedule over ``iterations``."""
+    if es.sigma_schedule == "linear":
+        return optax.linear_schedule(es.sigma, es.sigma_final, iterations)
+    if es.sigma_schedule == "exponential":
+        return optax.exponential_decay(es.sigma, iterations, es.sigma_final / es.sigma)
+    return es.sigma
+
+
+def make_optimizer(es: ESConfig) -> optax.GradientTransformation:
+    """The optax optimizer named by ``es.optimizer``."""
+    if es.optimizer == "adam":
+        return optax.adam(es.learning_rate)
+    if es.optimizer == "momentum":
+        return optax.sgd(es.learning_rate, momentum=0.9)
+    return optax.sgd(es.learning_rate)
+
+
+def make_strategy(es: ESConfig, num_dims: int, iterations: int) -> Strategy:
+    """Our OpenES, or the named evosax strategy behind the adapter."""
+    if es.strategy == OPEN_ES:
+        return OpenES(
+            population_size=es.population_size,
+            sigma=make_sigma(es, iterations),
+            optimizer=make_optimizer(es),
+            shaping=SHAPINGS[es.shaping],
+            weight_decay=es.weight_decay,
+            antithetic=es.antithetic,
+        )
+    return EvosaxStrategy(
+        name=es.strategy,
+        population_size=es.population_size,
+        num_dims=num_dims,
+        sigma=es.sigma,
+        options=es.evosax_options,
+    )
+
+
+def build(
+    config: TrainConfig, *, env: Any = None, policy: Any = None, devices: Any = None
+) -> Components:
+    """Builds env, policy, strategy and the compiled-to-be evaluators for ``config``.
+
+    ``env``/``policy`` override the ones the config names (tests, notebooks); ``devices``
+    overrides ``jax.devices()`` for the population mesh.
+    """
+    from iap_mjx import policies
+
+    if env is None:
+        from iap_mjx import envs
+
+        names = envs.names() if hasattr(envs, "names") else []
+        if config.env.name not in names:
+            raise ValueError(f"env.name = {config.env.name!r}: choose one of {names}")
+        env = envs.make(config.env.name, **dict(config.env.overrides))
+    if policy is None:
+        policy = policies.make(
+            config.policy.kind, env.observation_shape, env.action_size,
+            **dict(config.policy.options),
+        )
+    if config.es.normalize_observations and not (
+        isinstance(env.observation_shape, tuple) and len(env.observation_shape) == 1
+    ):
+        raise ValueError(
+            "es.normalize_observations = True needs vector observations, got shape "
+            f"{env.observation_shape!r}; set es.normalize_observations=false"
+        )
+    template = policy.init(jax.random.fold_in(jax.random.PRNGKey(config.run.seed), _INIT_STREAM))
+    flat, unravel = ravel_pytree(template)
+    mesh = make_mesh(config.run.num_devices, devices)
+    track = config.es.normalize_observations
+    evaluate = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, track)
+    eval_centre = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, False)
+    strategy = make_strategy(config.es, flat.shape[0], config.run.iterations)
+    return Components(config, env, policy, strategy, template, unravel, flat.shape[0],
+                      mesh, evaluate, eval_centre)
+
+
+def init_state(parts: Components) -> TrainState:
+    """The state before iteration 0 (replicated over the mesh)."""
+    config = parts.config
+    key = jax.random.PRNGKey(config.run.seed)
+    flat, _ = ravel_pytree(parts.template_params)
+    obs_size = int(np.prod(parts.env.observation_shape)) if config.es.normalize_observations else 1
+
+    def make():
+        return TrainState(
+            strategy_state=parts.strategy.init(jax.random.fold_in(key, _INIT_STREAM), flat),
+            obs_stats=init_stats(obs_size),
+            key=key,
+            iteration=jnp.zeros((), jnp.int32),
+        )
+
+    replicated = NamedSharding(parts.mesh, PartitionSpec())
+    return jax.jit(make, out_shardings=replicated)()
+
+
+def _stats_or_none(parts: Components, stats: ObsStats) -> ObsStats | None:
+    return stats if parts.config.es.normalize_observations else None
+
+
+def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState, dict]]:
+    """One ES iteration ``state -> (state, metrics)``; metrics are ``()`` scalars."""
+    es = parts.config.es
+    population_size, n_episodes = es.population_size, es.n_episodes
+
+    def iteration(state: TrainState):
+        key = jax.random.fold_in(jax.random.fold_in(state.key, _TRAIN_STREAM), state.iteration)
+        ask_key, episode_key, tell_key = jax.random.split(key, 3)
+        population, strategy_state = parts.strategy.ask(ask_key, state.strategy_state)
+        flat = jnp.repeat(population, n_episodes, axis=0)
+        keys = jax.random.split(episode_key, population_size * n_episodes)
+        result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
+        returns = result.ret.reshape(population_size, n_episodes)
+        bad = result.bad.reshape(population_size, n_episodes)
+        fitness = jnp.where(jnp.any(bad > 0, axis=1), jnp.nan, jnp.mean(returns, axis=1))
+        strategy_state = parts.strategy.tell(tell_key, population, fitness, strategy_state)
+        obs_stats = state.obs_stats
+        if es.normalize_observations:
+            obs_stats = update_stats(obs_stats, jnp.sum(result.steps),
+                                     jnp.sum(result.obs_sum, 0), jnp.sum(result.obs_sq_sum, 0))
+        finite = jnp.isfinite(fitness)
+        metrics = {
+            "return_mean": jnp.nanmean(fitness),
+            "return_max": jnp.max(jnp.where(finite, fitness, -jnp.inf)),
+            "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
+            "return_std": jnp.nanstd(fitness),
+            "nan_episodes": jnp.sum(bad),
+        }
+        if isinstance(parts.strategy, OpenES):
+            metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
+        new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
+        return new_state, metrics
+
+    return iteration
+
+
+def make_train_call(parts: Components, count: int):
+    """``count`` fused iterations: ``state -> (state, metrics with a leading (count,) axis)``."""
+    iteration = make_iteration(parts)
+
+    def call(state):
+        return jax.lax.scan(lambda s, _: iteration(s), state, None, length=count)
+
+    return call
+
+
+def make_centre_evaluation(parts: Components, episodes: int):
+    """``state -> returns (episodes,)`` of the centre params on the evaluation seeds."""
+
+    def evaluate(state: TrainState):
+        key = jax.random.fold_in(jax.random.fold_in(state.key, _EVAL_STREAM), state.iteration)
+        keys = jax.random.split(key, episodes)
+        centre = parts.strategy.mean(state.strategy_state)
+        flat = jnp.broadcast_to(centre, (episodes, centre.shape[0]))
+        result = parts.eval_centre(flat, keys, _stats_or_none(parts, state.obs_stats))
+        return result.ret
+
+    return evaluate
+
+
+def _compile(fn, state, mesh):
+    replicated = NamedSharding(mesh, PartitionSpec())
+    start = time.perf_counter()
+    compiled = jax.jit(fn, out_shardings=replicated).lower(state).compile()
+    return compiled, time.perf_counter() - start
+
+
+def _scalar(x) -> float:
+    return float(np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else x)
+
+
+def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
+    """Jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one step."""
+    from iap_mjx.es.normalizer import normalize
+
+    policy = parts.policy
+
+    @jax.jit
+    def policy_fn(params, obs, policy_state=()):
+        seen = obs if obs_stats is None else normalize(obs_stats, obs)
+        return policy.apply(params, seen, policy_state)
+
+    return policy_fn
+
+
+def result_from_state(parts: Components, state: TrainState, history, run_dir) -> TrainResult:
+    """Packs a ``TrainState`` into a ``TrainResult`` (host copies of params and statistics)."""
+    host = checkpoint.to_host(state)
+    params = parts.unravel(jnp.asarray(parts.strategy.mean(host.strategy_state)))
+    obs_stats = (jax.tree_util.tree_map(jnp.asarray, host.obs_stats)
+                 if parts.config.es.normalize_observations else None)
+    return TrainResult(
+        params=params,
+        obs_stats=obs_stats,
+        history=history,
+        policy_fn=make_policy_fn(parts, obs_stats),
+        initial_policy_state=parts.policy.initial_state,
+        config=parts.config,
+        run_dir=Path(run_dir) if run_dir is not None else None,
+        state=state,
+    )
+
+
+def _restore(parts: Components, run_dir, state: TrainState) -> TrainState:
+    step, host_state = checkpoint.restore(run_dir, state)
+    replicated = NamedSharding(parts.mesh, PartitionSpec())
+    restored = jax.tree_util.tree_map(
+        lambda like, x: jax.device_put(np.asarray(x, dtype=like.dtype), replicated),
+        state, host_state,
+    )
+    logger.info("resumed from checkpoint %d in %s", step, run_dir)
+    return restored
+
+
+def train(
+    config: TrainConfig,
+    *,
+    run_dir: str | Path | None = None,
+    progress: bool = True,
+    env: Any = None,
+    policy: Any = None,
+    devices: Any = None,
+    progress_fn: Callable[[dict[str, Any]], None] | None = None,
+) -> TrainResult:
+    """Trains ``config``'s policy on its env with ES; resumes from ``run_dir`` if it holds a
+    checkpoint.
+
+    Args:
+      config: the whole configuration (validated on construction).
+      run_dir: where metrics (``metrics.jsonl``/``.csv``, TensorBoard) and checkpoints go;
+        ``None`` keeps everything in memory.
+      progress: show a ``tqdm`` progress bar.
+      env, policy: use these instead of the ones the config names.
+      devices: the devices to shard the population over (default ``jax.devices()``).
+      progress_fn: called with each iteration's metrics row.
+
+    Returns a :class:`TrainResult`. ``KeyboardInterrupt`` saves a checkpoint of the last
+    finished iteration (when ``run_dir`` is set) and is re-raised.
+    """
+    started = time.perf_counter()
+    parts = build(config, env=env, policy=policy, devices=devices)
+    run = config.run
+    primary = jax.process_index() == 0
+    state = init_state(parts)
+    start = 0
+    if run_dir is not None and checkpoint.latest_step(run_dir) is not None:
+        state = _restore(parts, run_dir, state)
+        start = int(_scalar(state.iteration))
+    writer = (MetricsWriter(run_dir, start if start else None, run.tensorboard)
+              if run_dir is not None and primary else None)
+    history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])
+
+    calls: dict[int, Any] = {}
+    compile_s = 0.0
+
+    def compiled_call(count: int):
+        nonlocal compile_s
+        if count not in calls:
+            calls[count], seconds = _compile(make_train_call(parts, count), state, parts.mesh)
+            compile_s += seconds
+        return calls[count]
+
+    evaluation, seconds = _compile(make_centre_evaluation(parts, run.eval_episodes),
+                                   state, parts.mesh)
+    compile_s += seconds
+    config_dict = config.to_dict()
+    bar = None
+    if progress and primary:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=run.iterations, initial=start, desc="ES", unit="it")
+    done = start
+    try:
+        while done < run.iterations:
+            count = min(run.iterations_per_call, run.iterations - done)
+            call = compiled_call(count)
+            tick = time.perf_counter()
+            new_state, metrics = call(state)
+            metrics = checkpoint.to_host(metrics)
+            run_s = time.perf_counter() - tick
+            state, done = new_state, done + count
+            rows = []
+            for i in range(count):
+                iteration = done - count + i + 1
+                rows.append({
+                    "iteration": iteration,
+                    "env_steps": iteration * parts.steps_per_iteration,
+                    **{name: float(value[i]) for name, value in metrics.items()},
+                    "env_steps_per_s": parts.steps_per_iteration * count / run_s,
+                    "run_s": run_s / count,
+                    "compile_s": compile_s,
+                })
+            if done % run.eval_every == 0 or done == run.iterations:
+                returns = checkpoint.to_host(evaluation(state))
+                rows[-1]["eval_return"] = float(np.mean(returns))
+                rows[-1]["eval_return_std"] = float(np.std(returns))
+            for row in rows:
+                row["wall_s"] = time.perf_counter() - started
+                history.append(row)
+                if writer:
+                    writer.write(row)
+                if progress_fn is not None:
+                    progress_fn(row)
+            if bar is not None:
+                bar.update(count)
+                bar.set_postfix(ret=f"{rows[-1]['return_mean']:.1f}",
+                                eval=f"{rows[-1].get('eval_return', float('nan')):.1f}")
+            if run_dir is not None and (
+                done == run.iterations or (run.checkpoint_every and done % run.checkpoint_every == 0)
+            ):
+                checkpoint.save(run_dir, done, state, config_dict)
+    except KeyboardInterrupt:
+        if run_dir is not None and done > start:
+            logger.warning("interrupted: saving checkpoint %d", done)
+            checkpoint.save(run_dir, done, state, config_dict)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        if writer:
+            writer.close()
+    return result_from_state(parts, state, history, run_dir)
+
+
+def evaluate_run(
+    run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, env: Any = None,
+    policy: Any = None,
+) -> np.ndarray:
+    """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
+    seeds (derived from ``seed``, not the training seeds)."""
+    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    config = dataclasses.replace(
+        config, run=dataclasses.replace(config.run, eval_episodes=episodes)
+    )
+    parts = build(config, env=env, policy=policy)
+    state = _restore(parts, run_dir, init_state(parts))
+    state = state.replace(key=jax.random.PRNGKey(seed))
+    returns = jax.jit(make_centre_evaluation(parts, episodes))(state)
+    return checkpoint.to_host(returns)

@@ -1,0 +1,64 @@
+"""The policy protocol: trainable params, per-episode state, and ``apply``.
+
+A policy is a frozen (hashable) dataclass holding only static settings, so it can be closed
+over by ``jit``. The ES engine relies on three pure functions:
+
+* ``init(key) -> params``: the trainable parameters, a pytree of float32 arrays.
+* ``initial_state(key) -> policy_state``: per-episode, non-trainable state drawn from the
+  episode's key (e.g. IAP's random projections, an LSTM's zero carry). Stateless policies
+  return an empty tuple ``()``.
+* ``apply(params, obs, policy_state) -> (action, policy_state)``: one control step for one
+  episode (no batch axis; the engine ``vmap``-s it). Actions are in ``[-1, 1]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import jax
+import jax.numpy as jnp
+
+Params = Any
+PolicyState = Any
+
+
+class Policy(Protocol):
+    """What the ES engine relies on (see the module docstring)."""
+
+    @property
+    def action_size(self) -> int: ...
+
+    def init(self, key: jax.Array) -> Params: ...
+
+    def initial_state(self, key: jax.Array) -> PolicyState: ...
+
+    def apply(
+        self, params: Params, obs: Any, policy_state: PolicyState
+    ) -> tuple[jax.Array, PolicyState]: ...
+
+
+def param_count(params: Params) -> int:
+    """The number of scalars in a params pytree."""
+    return int(sum(jnp.size(leaf) for leaf in jax.tree_util.tree_leaves(params)))
+
+
+ACTIVATIONS = {
+    "tanh": jnp.tanh,
+    "relu": jax.nn.relu,
+    "elu": jax.nn.elu,
+    "gelu": jax.nn.gelu,
+}
+
+
+def check_choice(owner: str, field: str, value: Any, valid: Any) -> None:
+    """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not among ``valid``."""
+    if value not in valid:
+        raise ValueError(
+            f"{owner}.{field} = {value!r} is not valid; choose one of {sorted(valid)}"
+        )
+
+
+def check_positive(owner: str, field: str, value: Any) -> None:
+    """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not a positive int."""
+    if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+        raise ValueError(f"{owner}.{field} = {value!r} must be a positive integer")
