@@ -19,6 +19,7 @@ COLUMNS = (
     "eval_return_std",
     "nan_episodes",
     "sigma",
+    "params_norm",
     "env_steps_per_s",
     "run_s",
     "compile_s",

@@ -224,6 +224,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
             "return_std": jnp.nanstd(fitness),
             "nan_episodes": jnp.sum(bad),
+            "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
         }
         if isinstance(parts.strategy, OpenES):
             metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
@@ -311,6 +312,23 @@ def _restore(parts: Components, run_dir, state: TrainState) -> TrainState:
     return restored
 
 
+def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
+    """Resuming must not change the run: only ``run.iterations``/``tensorboard`` may differ."""
+    def comparable(c: TrainConfig) -> dict:
+        flat = c.to_dict()
+        flat["run"].pop("iterations")
+        flat["run"].pop("tensorboard")
+        return flat
+
+    ours, theirs = comparable(config), comparable(stored)
+    differ = [f"{section}.{name}: checkpoint {theirs[section][name]!r}, now {value!r}"
+              for section in ours for name, value in ours[section].items()
+              if theirs[section].get(name) != value]
+    if differ:
+        raise ValueError(f"{run_dir} holds a checkpoint of a different config ("
+                         + "; ".join(differ) + "); use another run directory")
+
+
 def train(
     config: TrainConfig,
     *,
@@ -343,6 +361,7 @@ def train(
     state = init_state(parts)
     start = 0
     if run_dir is not None and checkpoint.latest_step(run_dir) is not None:
+        _check_resumable(config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
         state = _restore(parts, run_dir, state)
         start = int(_scalar(state.iteration))
     writer = (MetricsWriter(run_dir, start if start else None, run.tensorboard)

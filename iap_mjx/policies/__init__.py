@@ -31,7 +31,10 @@ def make(kind: str, observation_shape: Any, action_size: int, **options: Any) ->
     """Builds the policy ``kind`` for an env's observation shape and action size."""
     if kind not in _FACTORIES:
         raise ValueError(f"unknown policy kind {kind!r}; choose one of {names()}")
-    return _FACTORIES[kind](observation_shape, action_size, **options)
+    try:
+        return _FACTORIES[kind](observation_shape, action_size, **options)
+    except TypeError as error:
+        raise ValueError(f"policy.options {options!r} do not fit policy {kind!r}: {error}") from None
 
 
 def _flat_size(observation_shape: Any) -> int:

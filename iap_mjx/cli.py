@@ -1,0 +1,132 @@
+"""The ``iap-mjx`` command line: ``train``, ``eval``, ``presets``.
+
+One small function per command; ``build_parser`` wires them to ``argparse`` subparsers, so a
+new command is a new ``add_parser`` call and a function. JAX is imported only inside the
+commands, after ``main`` has split the CPU into devices and turned on the compilation cache.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+from iap_mjx import runtime
+
+logger = logging.getLogger("iap_mjx.cli")
+
+
+def cmd_presets(args: argparse.Namespace) -> int:
+    """Lists the presets with their descriptions."""
+    from iap_mjx import configs
+
+    width = max(len(name) for name in configs.names())
+    for name in configs.names():
+        print(f"{name:<{width}}  {configs.describe(name)}")
+    return 0
+
+
+def default_run_dir(preset: str) -> Path:
+    """``runs/<preset>-<UTC time>`` under the current directory."""
+    return Path("runs") / f"{preset}-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}"
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Trains a preset with overrides; resumes if ``--run-dir`` holds a checkpoint."""
+    from iap_mjx import configs
+
+    try:
+        config = configs.apply_overrides(configs.get(args.preset), args.overrides)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    from iap_mjx import es
+
+    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(args.preset)
+    print(f"run directory: {run_dir}", file=sys.stderr)
+    try:
+        result = es.train(config, run_dir=run_dir, progress=not args.no_progress)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted; checkpoint saved. Resume with: iap-mjx train {args.preset} "
+              f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(), file=sys.stderr)
+        return 130
+    last = next((row for row in reversed(result.history) if "eval_return" in row), None)
+    summary = {"run_dir": str(run_dir), "iterations": config.run.iterations}
+    if last is not None:
+        summary["eval_return"] = last["eval_return"]
+    print(json.dumps(summary))
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    """Evaluates a run's latest checkpoint on fresh seeds; prints mean and std return."""
+    from iap_mjx import es
+
+    try:
+        returns = es.evaluate_run(args.run_dir, episodes=args.episodes, seed=args.seed)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps({
+        "run_dir": str(args.run_dir),
+        "episodes": int(len(returns)),
+        "return_mean": float(returns.mean()),
+        "return_std": float(returns.std()),
+        "returns": [float(r) for r in returns],
+    }))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``iap-mjx`` parser; each subparser sets ``func`` to its command function."""
+    parser = argparse.ArgumentParser(
+        prog="iap-mjx", description="Implicit Attention for Pixels on MJX, trained with ES."
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    presets = commands.add_parser("presets", help="list the named presets")
+    presets.set_defaults(func=cmd_presets)
+
+    train = commands.add_parser(
+        "train", help="train a preset",
+        description="Train PRESET with key=value overrides (e.g. es.population_size=128 "
+                    "iterations=50 policy.hidden_sizes=64,64). Re-running with the same "
+                    "--run-dir resumes from its latest checkpoint; Ctrl-C saves one.",
+    )
+    train.add_argument("preset", help="a name from `iap-mjx presets`")
+    train.add_argument("overrides", nargs="*", metavar="key=value")
+    train.add_argument("--run-dir", help="where metrics and checkpoints go "
+                                         "(default: runs/PRESET-TIME)")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.set_defaults(func=cmd_train)
+
+    evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
+    evaluate.add_argument("run_dir")
+    evaluate.add_argument("--episodes", type=int, default=8)
+    evaluate.add_argument("--seed", type=int, default=12345,
+                          help="evaluation seed (distinct from the training seeds)")
+    evaluate.set_defaults(func=cmd_eval)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: sets up devices and the compilation cache, then runs the command."""
+    runtime.set_host_device_count()
+    runtime.enable_compilation_cache()
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

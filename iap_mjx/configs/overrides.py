@@ -1,0 +1,86 @@
+"""``key=value`` overrides of a ``TrainConfig``, as typed on the command line.
+
+``es.population_size=64`` sets a field; ``iterations=50`` works too when the field name is
+unique across sections; ``policy.hidden_sizes=64,64`` sets a policy option; ``env.X=...``
+(X not a field of ``EnvConfig``) sets an env override passed to ``iap_mjx.envs.make``. Values are
+Python literals (``0.01``, ``true``, ``64,64``, ``'adam'``); anything else is a string. The
+result is validated as a whole, so a bad value fails here with the field's name.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from typing import Any, Iterable
+
+from iap_mjx.es.config import TrainConfig
+
+_OPEN_SECTIONS = {"policy": "options", "env": "overrides"}
+
+
+def parse_value(text: str) -> Any:
+    """``"0.1"`` -> 0.1, ``"true"`` -> True, ``"64,64"`` -> (64, 64), ``"adam"`` -> "adam"."""
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    if lowered in ("none", "null"):
+        return None
+    try:
+        value = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+    return tuple(value) if isinstance(value, list) else value
+
+
+def _coerce(current: Any, value: Any) -> Any:
+    """Matches the type of the field's current value where that is unambiguous."""
+    if isinstance(current, bool) or current is None:
+        return value
+    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(current, tuple) and not isinstance(value, tuple):
+        return (value,)
+    return value
+
+
+def _split(path: str, config: TrainConfig) -> tuple[str, str]:
+    sections = [f.name for f in dataclasses.fields(config)]
+    if "." in path:
+        section, _, name = path.partition(".")
+        if section not in sections:
+            raise ValueError(f"override {path!r}: unknown section {section!r}; valid: {sections}")
+        return section, name
+    owners = [s for s in sections
+              if path in {f.name for f in dataclasses.fields(getattr(config, s))}]
+    if len(owners) != 1:
+        valid = sorted(f"{s}.{f.name}" for s in sections
+                       for f in dataclasses.fields(getattr(config, s)))
+        why = "is ambiguous" if owners else "is not a config field"
+        raise ValueError(f"override {path!r} {why}; valid keys: {valid}")
+    return owners[0], path
+
+
+def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfig:
+    """Returns ``config`` with every ``key=value`` in ``overrides`` applied, validated."""
+    for item in overrides:
+        if "=" not in item:
+            raise ValueError(f"override {item!r} must look like key=value")
+        path, _, text = item.partition("=")
+        section_name, name = _split(path.strip(), config)
+        section = getattr(config, section_name)
+        fields = {f.name for f in dataclasses.fields(section)}
+        value = parse_value(text)
+        if name in fields:
+            section = dataclasses.replace(section, **{name: _coerce(getattr(section, name), value)})
+        elif section_name in _OPEN_SECTIONS:
+            bag = _OPEN_SECTIONS[section_name]
+            pairs = dict(getattr(section, bag))
+            pairs[name] = value
+            section = dataclasses.replace(section, **{bag: tuple(sorted(pairs.items()))})
+        else:
+            raise ValueError(
+                f"override {path!r}: {section_name} has no field {name!r}; "
+                f"valid: {sorted(fields)}"
+            )
+        config = dataclasses.replace(config, **{section_name: section})
+    return config

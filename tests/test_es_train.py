@@ -1,0 +1,198 @@
+"""``train`` end to end on the tiny point-mass env: learning, determinism, devices, metrics,
+checkpoints, interruption and exact resume (also after SIGKILL)."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from iap_mjx.es import ESConfig, EnvConfig, PolicyConfig, RunConfig, TrainConfig, train
+from iap_mjx.es.train import evaluate_run
+from test_es_envs import PointMass
+
+TESTS = Path(__file__).resolve().parent
+
+
+def small_config(**run) -> TrainConfig:
+    return TrainConfig(
+        env=EnvConfig("point-mass"),
+        policy=PolicyConfig("linear"),
+        es=ESConfig(population_size=16, sigma=0.1, learning_rate=0.05, n_episodes=2),
+        run=RunConfig(**{"iterations": 6, "eval_every": 3, "eval_episodes": 4,
+                         "checkpoint_every": 3, "chunk_size": 8, "tensorboard": False, **run}),
+    )
+
+
+def flat(tree) -> np.ndarray:
+    return np.concatenate([np.ravel(np.asarray(x)) for x in jax.tree_util.tree_leaves(tree)])
+
+
+def test_training_beats_the_zero_action_policy():
+    env = PointMass(episode_length=20)
+    config = small_config(iterations=60, eval_every=60, eval_episodes=64, checkpoint_every=0)
+    config = dataclasses.replace(config, es=dataclasses.replace(config.es, population_size=32))
+    result = train(config, env=env, progress=False)
+    eval_return = result.history[-1]["eval_return"]
+    # Reference: the initial (zero) linear policy on 64 episodes, with its sampling spread.
+    keys = jax.random.split(jax.random.PRNGKey(99), 64)
+    from iap_mjx.es.rollout import run_episode
+    from iap_mjx.policies import LinearPolicy
+
+    policy = LinearPolicy(6, 2)
+    zero = np.array([float(run_episode(env, policy, policy.init(None), k, None, False).ret)
+                     for k in keys])
+    stderr = zero.std() / np.sqrt(len(zero))
+    assert eval_return > zero.mean() + 6 * stderr, (eval_return, zero.mean(), stderr)
+
+
+def test_same_seed_is_bit_identical_and_seed_matters():
+    env = PointMass()
+    a = train(small_config(checkpoint_every=0), env=env, progress=False)
+    b = train(small_config(checkpoint_every=0), env=env, progress=False)
+    c = train(small_config(checkpoint_every=0, seed=1), env=env, progress=False)
+    np.testing.assert_array_equal(flat(a.params), flat(b.params))
+    np.testing.assert_array_equal(flat(a.obs_stats), flat(b.obs_stats))
+    assert not np.array_equal(flat(a.params), flat(c.params))
+
+
+def test_one_and_two_devices_agree():
+    assert len(jax.devices()) >= 2, "conftest should provide two CPU devices"
+    env = PointMass()
+    one = train(small_config(num_devices=1, checkpoint_every=0), env=env, progress=False)
+    two = train(small_config(num_devices=2, checkpoint_every=0), env=env, progress=False)
+    np.testing.assert_allclose(flat(one.params), flat(two.params), rtol=1e-4, atol=1e-5)
+    returns = [[row["return_mean"] for row in r.history] for r in (one, two)]
+    np.testing.assert_allclose(returns[0], returns[1], rtol=1e-4)
+
+
+def test_fused_iterations_match_single_iterations():
+    env = PointMass()
+    single = train(small_config(checkpoint_every=0), env=env, progress=False)
+    fused = train(small_config(checkpoint_every=0, iterations_per_call=3), env=env,
+                  progress=False)
+    np.testing.assert_allclose(flat(single.params), flat(fused.params), rtol=1e-5, atol=1e-6)
+
+
+def test_metrics_files_and_policy_fn(tmp_path):
+    env = PointMass()
+    config = dataclasses.replace(small_config(), run=dataclasses.replace(
+        small_config().run, tensorboard=True))
+    result = train(config, env=env, run_dir=tmp_path, progress=False)
+    rows = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert [r["iteration"] for r in rows] == list(range(1, 7))
+    assert [r["iteration"] for r in rows if "eval_return" in r] == [3, 6]
+    with open(tmp_path / "metrics.csv") as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 6 and float(table[2]["eval_return"]) == rows[2]["eval_return"]
+    for row in rows:
+        assert row["env_steps_per_s"] > 0 and row["compile_s"] > 0
+        assert row["return_min"] <= row["return_mean"] <= row["return_max"]
+        assert row["nan_episodes"] == 0
+    assert rows[-1]["env_steps"] == 6 * 16 * 2 * env.episode_length
+    assert any((tmp_path / "tensorboard").iterdir())
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["3", "6"]
+    obs = jnp.ones(6)
+    action, state = result.policy_fn(result.params, obs)
+    assert action.shape == (2,) and state == ()
+    returns = evaluate_run(tmp_path, episodes=5, env=env)
+    assert returns.shape == (5,) and np.all(np.isfinite(returns))
+
+
+def test_nan_episodes_are_counted_and_do_not_poison_the_update():
+    env = PointMass(nan_wall=2.0)  # large perturbations push some members past the wall
+    config = small_config(checkpoint_every=0)
+    config = dataclasses.replace(config, es=dataclasses.replace(config.es, sigma=0.5))
+    result = train(config, env=env, progress=False)
+    bad = [row["nan_episodes"] for row in result.history]
+    assert sum(bad) > 0 and all(b < 32 for b in bad), bad
+    assert all(np.isfinite(row["return_mean"]) for row in result.history)
+    assert np.all(np.isfinite(flat(result.params)))
+
+
+def test_interrupt_saves_checkpoint_and_resume_is_exact(tmp_path):
+    env = PointMass()
+    whole = train(small_config(), env=env, progress=False)
+
+    def interrupt(row):
+        if row["iteration"] == 4:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(small_config(), env=env, run_dir=tmp_path, progress=False, progress_fn=interrupt)
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["3", "4"]
+    resumed = train(small_config(), env=env, run_dir=tmp_path, progress=False)
+    np.testing.assert_array_equal(flat(whole.params), flat(resumed.params))
+    assert [r["iteration"] for r in resumed.history] == list(range(1, 7))
+
+
+def test_resume_with_a_different_config_is_refused(tmp_path):
+    env = PointMass()
+    train(small_config(iterations=3), env=env, run_dir=tmp_path, progress=False)
+    other = dataclasses.replace(small_config(), es=dataclasses.replace(small_config().es,
+                                                                       sigma=0.5))
+    with pytest.raises(ValueError, match="es.sigma"):
+        train(other, env=env, run_dir=tmp_path, progress=False)
+    longer = train(small_config(iterations=6), env=env, run_dir=tmp_path, progress=False)
+    assert longer.history[-1]["iteration"] == 6
+
+
+CHILD = textwrap.dedent("""
+    import sys, time
+    sys.path.insert(0, {tests!r})
+    from iap_mjx import runtime
+    runtime.set_host_device_count(2)
+    runtime.enable_compilation_cache({cache!r})
+    from test_es_train import small_config
+    from test_es_envs import PointMass
+    from iap_mjx.es import train
+    train(small_config(iterations=12), env=PointMass(), run_dir={run_dir!r}, progress=False,
+          progress_fn=lambda row: time.sleep(0.4))
+""")
+
+
+def test_resume_after_sigkill_matches_uninterrupted_run(tmp_path):
+    run_dir = tmp_path / "run"
+    code = CHILD.format(tests=str(TESTS), cache=str(TESTS.parent / ".jax_cache"),
+                        run_dir=str(run_dir))
+    child = subprocess.Popen([sys.executable, "-c", code], env=dict(os.environ))
+    try:
+        deadline = time.time() + 240
+        while not (run_dir / "checkpoints" / "6").exists():
+            assert child.poll() is None, "the child exited before its checkpoint 6"
+            assert time.time() < deadline, "no checkpoint 6 within 240 s"
+            time.sleep(0.05)
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    finally:
+        if child.poll() is None:
+            child.kill()
+    steps = sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
+    assert 6 in steps and 12 not in steps, steps
+    env = PointMass()
+    resumed = train(small_config(iterations=12), env=env, run_dir=run_dir, progress=False)
+    whole = train(small_config(iterations=12), env=env, progress=False)
+    np.testing.assert_array_equal(flat(whole.params), flat(resumed.params))
+    np.testing.assert_array_equal(flat(whole.obs_stats), flat(resumed.obs_stats))
+    assert [r["iteration"] for r in resumed.history] == list(range(1, 13))
+
+
+def test_evosax_strategy_trains_through_the_adapter():
+    config = small_config(checkpoint_every=0)
+    config = dataclasses.replace(config, es=dataclasses.replace(
+        config.es, strategy="CMA_ES", antithetic=False, population_size=10))
+    result = train(config, env=PointMass(), progress=False)
+    assert np.all(np.isfinite(flat(result.params)))
+    assert np.linalg.norm(flat(result.params)) > 0  # moved away from the zero init
