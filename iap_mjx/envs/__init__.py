@@ -1,1 +1,11 @@
-"""Environments: MJX ports of dm_control tasks with the brax State convention."""
+"""Environments: MJX ports of dm_control tasks with the brax State convention.
+
+``make(name, **overrides)`` builds one (see ``names()``); ``EnvConfig`` lists the overrides;
+``batch`` runs large populations in chunks.
+"""
+
+from iap_mjx.envs.base import Env, State
+from iap_mjx.envs.dmc import EnvConfig
+from iap_mjx.envs.registry import make, names
+
+__all__ = ["Env", "EnvConfig", "State", "make", "names"]

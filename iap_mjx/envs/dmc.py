@@ -1,0 +1,316 @@
+"""The machinery shared by the dm_control suite ports: config, model loading, stepping, bad states.
+
+Each task file (``cheetah.py``, ``walker.py``, ...) subclasses ``DmControlEnv`` and supplies
+only what dm_control's task class supplies: the initial-state randomisation, the state
+observation and the reward. Everything else follows dm_control's ``control.Environment``:
+
+- the model is dm_control's own XML (``dm_control.suite.<domain>.get_model_and_assets()``);
+- one control step runs ``n_sub_steps`` physics steps the way dm_control's legacy
+  ``Physics.step`` does (``mj_step2`` then ``mj_step1``), so ``State.data`` always has its
+  position- and velocity-dependent quantities (``xpos``, ``xmat``, ``site_xpos``, sensors)
+  computed at its own ``qpos``/``qvel``; observations and rewards read them directly, as
+  dm_control reads them after ``physics.step``;
+- an episode is ``1000`` control steps (dm_control's time limits), ``action_repeat`` control
+  steps per env step on top, their rewards summed.
+
+Bad states: after every env step, an env whose ``qpos``/``qvel`` are not finite or exceed
+``max_abs_state`` is ended (``done = 1``), keeps its last good ``data``, gets reward 0, and
+``metrics["nan_terminations"]`` becomes 1. ``done`` is sticky: a done env's ``step`` returns
+the same ``data`` and reward 0, so a batch can run to a fixed horizon with a done mask and
+one bad env never touches another's numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from iap_mjx.envs.base import State
+
+OBS_MODES = ("state", "pixels", "pixels_depth", "pixels+state")
+DM_CONTROL_EPISODE_STEPS = 1000
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Static settings of one env (hashable, so jitted code can depend on it).
+
+    Attributes:
+      action_repeat: control steps per env step (the action is held; rewards are summed).
+      episode_length: env steps per episode; ``None`` means dm_control's 1000 control steps,
+        i.e. ``ceil(1000 / action_repeat)`` env steps.
+      solver_iterations: MJX constraint-solver iterations (MuJoCo ``opt.iterations``).
+      ls_iterations: MJX line-search iterations (MuJoCo ``opt.ls_iterations``).
+      max_abs_state: an env whose ``|qpos|`` or ``|qvel|`` exceeds this (or is not finite)
+        is ended as a bad state.
+      obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
+      camera_id, height, width, frame_stack: the camera settings for pixel modes.
+    """
+
+    action_repeat: int = 1
+    episode_length: int | None = None
+    solver_iterations: int = 4
+    ls_iterations: int = 8
+    max_abs_state: float = 1e6
+    obs_mode: str = "state"
+    camera_id: int = 0
+    height: int = 100
+    width: int = 100
+    frame_stack: int = 1
+
+    def __post_init__(self):
+        positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height",
+                         "width", "frame_stack")
+        for name in positive_ints:
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"EnvConfig.{name} must be an int >= 1, got {value!r}.")
+        if self.episode_length is not None and (
+            not isinstance(self.episode_length, int) or self.episode_length < 1
+        ):
+            raise ValueError(
+                f"EnvConfig.episode_length must be None or an int >= 1, got {self.episode_length!r}."
+            )
+        if not self.max_abs_state > 0:
+            raise ValueError(f"EnvConfig.max_abs_state must be > 0, got {self.max_abs_state!r}.")
+        if self.obs_mode not in OBS_MODES:
+            raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
+        if not isinstance(self.camera_id, int) or self.camera_id < 0:
+            raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
+
+
+def position_velocity_stage(model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    """MuJoCo's ``mj_step1``: kinematics, contacts, sensors that depend on qpos and qvel."""
+    data = mjx.fwd_position(model, data)
+    data = mjx.sensor_pos(model, data)
+    data = mjx.fwd_velocity(model, data)
+    return mjx.sensor_vel(model, data)
+
+
+def physics_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    """One physics step as dm_control takes it: ``mj_step2`` then ``mj_step1``.
+
+    ``data`` must have its position/velocity stage computed (``position_velocity_stage``);
+    the result has it too, at the new ``qpos``/``qvel``. The state trajectory is
+    ``mjx.step``'s.
+    """
+    data = mjx.fwd_actuation(model, data)
+    data = mjx.fwd_acceleration(model, data)
+    if data._impl.efc_J.size == 0:  # no constraints in this model: nothing to solve
+        data = data.replace(qacc=data.qacc_smooth)
+    else:
+        data = mjx.solve(model, data)
+    data = mjx.sensor_acc(model, data)
+    if model.opt.integrator == mjx.IntegratorType.RK4:
+        data = mjx.rungekutta4(model, data)
+    else:
+        data = mjx.euler(model, data)
+    return position_velocity_stage(model, data)
+
+
+def _select(pred: jax.Array, on_true: Any, on_false: Any) -> Any:
+    """``where(pred, a, b)`` over two pytrees of the same structure (``pred`` a scalar)."""
+    return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+
+
+class DmControlEnv:
+    """A dm_control suite task on MJX. Subclasses set the class constants and task hooks.
+
+    Attributes:
+      config: the ``EnvConfig``.
+      mj_model: the ``mujoco.MjModel`` built from dm_control's XML, with this env's solver
+        settings (and, for cartpole, the energy flag off), exactly what went into ``mjx_model``.
+      mjx_model: the ``mjx.Model`` the env steps.
+    """
+
+    name: ClassVar[str]
+    domain: ClassVar[Any]  # the dm_control.suite module, e.g. dm_control.suite.cheetah
+    n_sub_steps: ClassVar[int] = 1
+
+    def __init__(self, config: EnvConfig | None = None, **overrides: Any):
+        config = config if config is not None else EnvConfig()
+        self.config = dataclasses.replace(config, **overrides) if overrides else config
+        xml, assets = self.domain.get_model_and_assets()
+        mj_model = mujoco.MjModel.from_xml_string(xml, assets)
+        mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+        mj_model.opt.iterations = self.config.solver_iterations
+        mj_model.opt.ls_iterations = self.config.ls_iterations
+        self.mj_model = mj_model
+        self.mjx_model = mjx.put_model(mj_model)
+        self._action_size = int(mj_model.nu)
+
+    # ---- the Env protocol -------------------------------------------------------------
+
+    @property
+    def action_size(self) -> int:
+        return self._action_size
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        return (self.observation_size,)
+
+    @property
+    def observation_size(self) -> int:
+        data = mjx.make_data(self.mj_model)
+        return int(jax.eval_shape(self.state_observation, data).shape[0])
+
+    @property
+    def episode_length(self) -> int:
+        if self.config.episode_length is not None:
+            return self.config.episode_length
+        return math.ceil(DM_CONTROL_EPISODE_STEPS / self.config.action_repeat)
+
+    @property
+    def control_timestep(self) -> float:
+        """Seconds per control step (before action repeat), as in dm_control."""
+        return float(self.mj_model.opt.timestep) * self.n_sub_steps
+
+    def reset(self, key: jax.Array) -> State:
+        """dm_control's ``initialize_episode`` randomisation, drawn from ``key``."""
+        data, task_info = self._initial_data(key)
+        return self._first_state(data, task_info)
+
+    def reset_to(self, qpos: jax.Array, qvel: jax.Array, **task_info: jax.Array) -> State:
+        """A first state at given ``qpos`` ``(nq,)`` and ``qvel`` ``(nv,)`` (no randomisation).
+
+        ``task_info`` carries task variables that are not in the physics state (reacher's
+        ``target``). Used to start from a dm_control state.
+        """
+        data = mjx.make_data(self.mj_model).replace(
+            qpos=jnp.asarray(qpos, jnp.float32), qvel=jnp.asarray(qvel, jnp.float32)
+        )
+        task_info = {k: jnp.asarray(v, jnp.float32) for k, v in task_info.items()}
+        return self._first_state(self.forward(data, task_info), task_info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """Holds ``action`` ``(action_size,)`` for ``action_repeat`` control steps."""
+        action = self._checked_action(action)
+        data = state.data.replace(ctrl=action)
+
+        def control_step(data: mjx.Data, _: Any) -> tuple[mjx.Data, jax.Array]:
+            data = jax.lax.fori_loop(
+                0, self.n_sub_steps, lambda _, d: physics_step(self.mjx_model, d), data
+            )
+            data = self._sync_task(data, state.info)
+            return data, self.reward(data)
+
+        data, rewards = jax.lax.scan(control_step, data, length=self.config.action_repeat)
+        reward = jnp.sum(rewards)
+
+        bad = ~self._state_is_good(data)
+        ended = state.done > 0
+        frozen = ended | bad
+        data = _select(frozen, state.data, data)
+        reward = jnp.where(frozen, 0.0, reward)
+        steps = state.info["steps"] + jnp.where(ended, 0, 1).astype(jnp.int32)
+        done = frozen | (steps >= self.episode_length)
+        metrics = dict(state.metrics)
+        metrics["nan_terminations"] = jnp.maximum(
+            state.metrics["nan_terminations"], jnp.where(bad & ~ended, 1.0, 0.0)
+        )
+        return state.replace(
+            data=data,
+            obs=self.state_observation(data),
+            reward=reward.astype(jnp.float32),
+            done=done.astype(jnp.float32),
+            metrics=metrics,
+            info={**state.info, "steps": steps},
+        )
+
+    # ---- task hooks (the dm_control Task's methods) -------------------------------------
+
+    def state_observation(self, data: mjx.Data) -> jax.Array:
+        """dm_control's observation dict flattened in its key order, ``(observation_size,)``."""
+        raise NotImplementedError
+
+    def reward(self, data: mjx.Data) -> jax.Array:
+        """dm_control's ``get_reward`` on ``data`` (position/velocity stage current), ``()``."""
+        raise NotImplementedError
+
+    def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict[str, jax.Array]]:
+        """Randomised first physics state (stage computed) and task variables."""
+        raise NotImplementedError
+
+    def _sync_task(self, data: mjx.Data, task_info: dict[str, Any]) -> mjx.Data:
+        """Writes task variables that live outside the physics into ``data`` (default: none)."""
+        return data
+
+    # ---- helpers ----------------------------------------------------------------------
+
+    def forward(self, data: mjx.Data, task_info: dict[str, Any] | None = None) -> mjx.Data:
+        """``data`` with its position/velocity stage computed (dm_control's ``after_reset``)."""
+        data = position_velocity_stage(self.mjx_model, data)
+        return self._sync_task(data, task_info or {})
+
+    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]) -> State:
+        data = data.replace(time=jnp.zeros_like(data.time))
+        return State(
+            data=data,
+            obs=self.state_observation(data),
+            reward=jnp.zeros((), jnp.float32),
+            done=jnp.zeros((), jnp.float32),
+            metrics={"nan_terminations": jnp.zeros((), jnp.float32)},
+            info={**task_info, "steps": jnp.zeros((), jnp.int32)},
+        )
+
+    def _checked_action(self, action: Any) -> jax.Array:
+        shape = getattr(action, "shape", None)
+        if shape != (self.action_size,):
+            raise ValueError(
+                f"{self.name}: action must have shape ({self.action_size},) per env, got "
+                f"{shape!r} (vmap over the batch axis)."
+            )
+        dtype = getattr(action, "dtype", None)
+        if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
+            raise TypeError(f"{self.name}: action must be a floating-point array, got {dtype}.")
+        return jnp.asarray(action, jnp.float32)
+
+    def _state_is_good(self, data: mjx.Data) -> jax.Array:
+        state = jnp.concatenate([data.qpos, data.qvel])
+        return jnp.all(jnp.isfinite(state)) & jnp.all(jnp.abs(state) <= self.config.max_abs_state)
+
+    def _settle(self, data: mjx.Data, n_steps: int) -> mjx.Data:
+        """``n_steps`` physics steps with zero control (cheetah's ``physics.step(nstep=200)``)."""
+        return jax.lax.fori_loop(0, n_steps, lambda _, d: physics_step(self.mjx_model, d), data)
+
+    def _id(self, obj: mujoco.mjtObj, name: str) -> int:
+        index = mujoco.mj_name2id(self.mj_model, obj, name)
+        if index < 0:
+            raise ValueError(f"{self.name}: no {obj.name} named {name!r} in the model.")
+        return int(index)
+
+
+def randomize_limited_and_rotational_joints(
+    mj_model: mujoco.MjModel, key: jax.Array, qpos: jax.Array
+) -> jax.Array:
+    """dm_control's ``randomizers.randomize_limited_and_rotational_joints`` for hinges/slides.
+
+    Limited hinges and slides uniform in their range, unlimited hinges uniform in
+    ``[-pi, pi]``; other joints keep ``qpos`` ``(nq,)``. (Ball and free joints are not used by
+    the five tasks and are rejected.)
+    """
+    lows, highs, addresses = [], [], []
+    for joint in range(mj_model.njnt):
+        joint_type = mj_model.jnt_type[joint]
+        if joint_type in (mujoco.mjtJoint.mjJNT_BALL, mujoco.mjtJoint.mjJNT_FREE):
+            raise NotImplementedError("ball and free joints are not randomised here.")
+        if mj_model.jnt_limited[joint]:
+            low, high = mj_model.jnt_range[joint]
+        elif joint_type == mujoco.mjtJoint.mjJNT_HINGE:
+            low, high = -np.pi, np.pi
+        else:
+            continue
+        lows.append(low)
+        highs.append(high)
+        addresses.append(mj_model.jnt_qposadr[joint])
+    values = jax.random.uniform(
+        key, (len(addresses),), minval=np.asarray(lows), maxval=np.asarray(highs)
+    )
+    return qpos.at[np.asarray(addresses, np.int32)].set(values)

@@ -1,0 +1,47 @@
+"""The env registry: ``make(name, **overrides)`` and ``names()``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from iap_mjx.envs.dmc import DmControlEnv, EnvConfig
+
+
+def _task_classes() -> dict[str, type[DmControlEnv]]:
+    from iap_mjx.envs.cheetah import CheetahRun
+
+    classes = [CheetahRun]
+    return {cls.name: cls for cls in classes}
+
+
+def names() -> tuple[str, ...]:
+    """The registered task names, sorted."""
+    return tuple(sorted(_task_classes()))
+
+
+def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
+    """Builds the env ``name`` with ``config`` and/or ``EnvConfig`` field ``overrides``.
+
+    For ``obs_mode`` other than ``"state"`` the env is wrapped by
+    ``iap_mjx.envs.pixels.with_pixels`` with the config's camera settings.
+
+    Raises:
+      ValueError: unknown ``name`` (the message lists the valid ones) or a bad config field.
+    """
+    classes = _task_classes()
+    if name not in classes:
+        raise ValueError(f"Unknown env {name!r}; valid names: {', '.join(sorted(classes))}.")
+    env = classes[name](config, **overrides)
+    if env.config.obs_mode == "state":
+        return env
+    from iap_mjx.envs.pixels import with_pixels
+
+    cfg = env.config
+    return with_pixels(
+        env,
+        obs_mode=cfg.obs_mode,
+        camera_id=cfg.camera_id,
+        height=cfg.height,
+        width=cfg.width,
+        frame_stack=cfg.frame_stack,
+    )

@@ -1,0 +1,112 @@
+"""Registry, config validation, action checks, done/bad-state handling of the env ports."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from iap_mjx import envs
+
+TASKS = ("ball_in_cup-catch", "cartpole-swingup", "cheetah-run", "reacher-easy", "walker-walk")
+
+
+def test_names_lists_the_five_tasks():
+    assert "cheetah-run" in envs.names()
+
+
+def test_unknown_name_lists_valid_ones():
+    with pytest.raises(ValueError) as error:
+        envs.make("cheetah-walk")
+    for name in envs.names():
+        assert name in str(error.value)
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        dict(action_repeat=0),
+        dict(solver_iterations=0),
+        dict(episode_length=0),
+        dict(obs_mode="rgb"),
+        dict(max_abs_state=-1.0),
+    ],
+)
+def test_bad_config_field_is_named(overrides):
+    (field,) = overrides
+    with pytest.raises(ValueError, match=field):
+        envs.make("cheetah-run", **overrides)
+
+
+@pytest.fixture(scope="module")
+def cheetah():
+    return envs.make("cheetah-run", episode_length=5)
+
+
+@pytest.fixture(scope="module")
+def cheetah_batch(cheetah):
+    """Four cheetahs reset from four keys, and a jitted batched step."""
+    states = jax.jit(jax.vmap(cheetah.reset))(jax.random.split(jax.random.key(0), 4))
+    return states, jax.jit(jax.vmap(cheetah.step))
+
+
+def test_config_and_models_are_exposed(cheetah):
+    assert cheetah.config.solver_iterations == cheetah.mj_model.opt.iterations
+    assert cheetah.mjx_model.nu == cheetah.action_size == 6
+    assert cheetah.observation_shape == (17,)
+    assert envs.make("cheetah-run", action_repeat=3).episode_length == 334
+
+
+@pytest.mark.parametrize(
+    "action, error",
+    [
+        (jnp.zeros(5), ValueError),
+        (jnp.zeros((1, 6)), ValueError),
+        (jnp.zeros(6, jnp.int32), TypeError),
+    ],
+)
+def test_wrong_action_is_a_trace_time_error(cheetah, cheetah_batch, action, error):
+    state = jax.tree.map(lambda x: x[0], cheetah_batch[0])
+    with pytest.raises(error, match="action"):
+        jax.eval_shape(cheetah.step, state, action)
+
+
+def test_bad_state_ends_only_that_env(cheetah_batch):
+    states, step = cheetah_batch
+    actions = jnp.zeros((4, 6)).at[1].set(jnp.nan)  # env 1 gets a NaN action
+    qvel = states.data.qvel.at[2, 0].set(1e9)  # env 2 starts beyond max_abs_state...
+    clean = step(states, jnp.zeros((4, 6)))
+    states = states.replace(data=states.data.replace(qvel=qvel))
+    # ...which is only looked at after a step, so it is ended by the first step too.
+    after = step(states, actions)
+    assert np.all(np.isfinite(np.asarray(after.reward)))
+    assert np.all(np.isfinite(np.asarray(after.obs)))
+    np.testing.assert_array_equal(after.done, [0, 1, 1, 0])
+    np.testing.assert_array_equal(after.metrics["nan_terminations"], [0, 1, 1, 0])
+    np.testing.assert_array_equal(after.reward[np.array([1, 2])], [0, 0])
+    # The good envs are exactly what they are when stepped without the bad ones.
+    good = np.array([0, 3])
+    np.testing.assert_array_equal(after.obs[good], clean.obs[good])
+    np.testing.assert_array_equal(after.reward[good], clean.reward[good])
+    # A bad env keeps its last good physics state, and stays done.
+    np.testing.assert_array_equal(after.data.qpos[1], states.data.qpos[1])
+    again = step(after, jnp.zeros((4, 6)))
+    np.testing.assert_array_equal(again.done[np.array([1, 2])], [1, 1])
+    np.testing.assert_array_equal(again.data.qpos[1], states.data.qpos[1])
+    np.testing.assert_array_equal(again.metrics["nan_terminations"], [0, 1, 1, 0])
+
+
+def test_time_limit_sets_done_and_freezes(cheetah_batch):
+    states, step = cheetah_batch
+    action = jnp.full((4, 6), 0.5)
+    dones = []
+    for _ in range(7):
+        before = states
+        states = step(states, action)
+        dones.append(np.asarray(states.done))
+    np.testing.assert_array_equal(np.array(dones)[:, 0], [0, 0, 0, 0, 1, 1, 1])
+    np.testing.assert_array_equal(states.info["steps"], [5, 5, 5, 5])
+    np.testing.assert_array_equal(states.reward, np.zeros(4))
+    np.testing.assert_array_equal(states.data.qpos, before.data.qpos)
+    np.testing.assert_array_equal(states.metrics["nan_terminations"], np.zeros(4))
