@@ -1,0 +1,200 @@
+"""Static scene tables for the ray-cast camera, read once from a ``mujoco.MjModel``.
+
+Everything here is a constant of the model (geom types, sizes, colours, visibility, lights,
+floor texture, sky colours); it is computed in numpy at construction time so the compiled
+renderer only sees the per-state poses (``geom_xpos``/``geom_xmat``/``cam_xpos``/``cam_xmat``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+
+import mujoco
+import numpy as np
+
+# MuJoCo geom type codes (mjtGeom).
+PLANE = int(mujoco.mjtGeom.mjGEOM_PLANE)
+SPHERE = int(mujoco.mjtGeom.mjGEOM_SPHERE)
+CAPSULE = int(mujoco.mjtGeom.mjGEOM_CAPSULE)
+ELLIPSOID = int(mujoco.mjtGeom.mjGEOM_ELLIPSOID)
+CYLINDER = int(mujoco.mjtGeom.mjGEOM_CYLINDER)
+BOX = int(mujoco.mjtGeom.mjGEOM_BOX)
+SUPPORTED_TYPES = (PLANE, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX)
+TYPE_NAMES = {
+    PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule",
+    ELLIPSOID: "ellipsoid", CYLINDER: "cylinder", BOX: "box",
+}
+
+_DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Scene:
+    """The static part of a model that the renderer needs (numpy arrays, never traced).
+
+    Attributes:
+      geom_ids: ``(G,)`` int, the MuJoCo ids of the rendered geoms (visible group, alpha > 0,
+        supported type), in model order.
+      geom_type: ``(G,)`` int, mjtGeom codes.
+      geom_size: ``(G, 3)`` float32, MuJoCo sizes (plane size 0 = infinite in that direction).
+      geom_rgb: ``(G, 3)`` float32, the colour MuJoCo's renderer uses (material colour when the
+        geom keeps the default rgba, as ``mjv`` does).
+      checker: ``(G,)`` bool, geom is a plane with a 2-D texture drawn as a 2x2 checker.
+      checker_rgb: ``(G, 2, 3)`` float32, the two checker colours (texture quadrant centres,
+        times the material colour).
+      checker_scale: ``(G, 2)`` float32, texture repeats per unit length along local x, y.
+      light_dirs: ``(L, 3)`` float32, world directions the model's lights shine along
+        (lights are treated as directional; light_bodyid says which body they turn with).
+      light_bodyid: ``(L,)`` int, body whose orientation turns the light (0 = fixed in the world,
+        also for tracking lights, whose orientation MuJoCo keeps in the world frame).
+      light_diffuse: ``(L, 3)`` float32.
+      ambient: ``(3,)`` float32, headlight plus model-light ambient.
+      headlight_diffuse: ``(3,)`` float32 (zero if the headlight is off).
+      sky_mid, sky_slope: ``(3,)`` float32, sky colour ``mid + slope * z`` for a world ray
+        direction with unit ``z`` (fitted to the model's skybox texture; flat if it has none).
+      znear, zfar: the clip planes of MuJoCo's renderer in metres (``vis.map`` times extent).
+    """
+
+    geom_ids: np.ndarray
+    geom_type: np.ndarray
+    geom_size: np.ndarray
+    geom_rgb: np.ndarray
+    checker: np.ndarray
+    checker_rgb: np.ndarray
+    checker_scale: np.ndarray
+    light_dirs: np.ndarray
+    light_bodyid: np.ndarray
+    light_diffuse: np.ndarray
+    ambient: np.ndarray
+    headlight_diffuse: np.ndarray
+    sky_mid: np.ndarray
+    sky_slope: np.ndarray
+    znear: float
+    zfar: float
+
+    def digest(self) -> str:
+        """A content hash, so equal scenes give equal (hashable) cameras."""
+        h = hashlib.sha1()
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            h.update(field.name.encode())
+            h.update(np.ascontiguousarray(np.asarray(value)).tobytes())
+        return h.hexdigest()
+
+
+def _geom_colour(m: mujoco.MjModel, geom: int) -> np.ndarray:
+    rgba = np.asarray(m.geom_rgba[geom], np.float32)
+    matid = int(m.geom_matid[geom])
+    if matid >= 0 and np.allclose(rgba, _DEFAULT_GEOM_RGBA):
+        rgba = np.asarray(m.mat_rgba[matid], np.float32)
+    return rgba
+
+
+def _geom_alpha_visible(m: mujoco.MjModel, geom: int) -> bool:
+    """mj_ray's rule: a geom with a transparent material or rgba is not hit."""
+    matid = int(m.geom_matid[geom])
+    if matid >= 0:
+        return float(m.mat_rgba[matid, 3]) != 0.0
+    return float(m.geom_rgba[geom, 3]) != 0.0
+
+
+def _texture_rgb(m: mujoco.MjModel, tex: int) -> np.ndarray:
+    """``(height, width, 3)`` float32 texture in [0, 1]."""
+    adr, h, w, c = int(m.tex_adr[tex]), int(m.tex_height[tex]), int(m.tex_width[tex]), int(m.tex_nchannel[tex])
+    data = np.asarray(m.tex_data[adr: adr + h * w * c], np.float32).reshape(h, w, c) / 255.0
+    return data[..., :3] if c >= 3 else np.repeat(data[..., :1], 3, axis=-1)
+
+
+def _material_rgb_texture(m: mujoco.MjModel, matid: int) -> int:
+    """The id of the material's RGB (2-D) texture, or -1."""
+    texid = np.asarray(m.mat_texid[matid]).reshape(-1)
+    role = int(mujoco.mjtTextureRole.mjTEXROLE_RGB) if texid.size > 1 else 0
+    return int(texid[role])
+
+
+def _sky(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """Sky gradient ``mid + slope * z`` fitted to the skybox texture (a side face's top and
+    bottom rows sit at z = +-1/sqrt(2)); a flat black sky if the model has no skybox."""
+    for tex in range(m.ntex):
+        if int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_SKYBOX):
+            rgb = _texture_rgb(m, tex)
+            face = rgb.shape[1]
+            side = rgb[:face]  # first cube face (+x), a side face of a z-up skybox
+            centre = slice(face // 4, 3 * face // 4)
+            top = side[: max(1, face // 50), centre].reshape(-1, 3).mean(0)
+            bottom = side[-max(1, face // 50):, centre].reshape(-1, 3).mean(0)
+            z = 1.0 / np.sqrt(2.0)
+            return ((top + bottom) / 2).astype(np.float32), ((top - bottom) / (2 * z)).astype(np.float32)
+    return np.zeros(3, np.float32), np.zeros(3, np.float32)
+
+
+def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> Scene:
+    """Reads the static scene of ``m``: the geoms MuJoCo's renderer would draw with the given
+    visible groups (mjvOption.geomgroup default: 0, 1, 2), their colours and the lights.
+
+    Geoms of unsupported types (meshes, heightfields, SDFs) are skipped.
+    """
+    ids, types, sizes, rgbs, checker, checker_rgb, checker_scale = [], [], [], [], [], [], []
+    for g in range(m.ngeom):
+        gtype = int(m.geom_type[g])
+        if int(m.geom_group[g]) not in geom_groups or not _geom_alpha_visible(m, g):
+            continue
+        if gtype not in SUPPORTED_TYPES:
+            continue
+        rgba = _geom_colour(m, g)
+        ids.append(g)
+        types.append(gtype)
+        sizes.append(np.asarray(m.geom_size[g], np.float32))
+        rgbs.append(rgba[:3])
+        matid = int(m.geom_matid[g])
+        tex = _material_rgb_texture(m, matid) if matid >= 0 else -1
+        is_checker = (
+            gtype == PLANE and tex >= 0
+            and int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_2D)
+        )
+        checker.append(is_checker)
+        if is_checker:
+            img = _texture_rgb(m, tex)
+            h, w = img.shape[:2]
+            colours = np.stack([img[h // 4, w // 4], img[h // 4, 3 * w // 4]]) * rgba[None, :3]
+            repeat = np.asarray(m.mat_texrepeat[matid], np.float32)
+            if bool(m.mat_texuniform[matid]):
+                scale = repeat
+            else:
+                extent = np.where(m.geom_size[g, :2] > 0, 2 * m.geom_size[g, :2], 1.0)
+                scale = repeat / extent.astype(np.float32)
+            checker_rgb.append(colours.astype(np.float32))
+            checker_scale.append(scale.astype(np.float32))
+        else:
+            checker_rgb.append(np.zeros((2, 3), np.float32))
+            checker_scale.append(np.ones(2, np.float32))
+
+    light_active = np.asarray(m.light_active, bool) if m.nlight else np.zeros(0, bool)
+    lights = np.flatnonzero(light_active)
+    headlight = m.vis.headlight
+    ambient = np.asarray(headlight.ambient, np.float32) * float(bool(headlight.active))
+    ambient = ambient + np.asarray(m.light_ambient[lights], np.float32).sum(0) if lights.size else ambient
+    sky_mid, sky_slope = _sky(m)
+    extent = float(m.stat.extent)
+    return Scene(
+        geom_ids=np.asarray(ids, np.int32),
+        geom_type=np.asarray(types, np.int32),
+        geom_size=np.asarray(sizes, np.float32).reshape(-1, 3),
+        geom_rgb=np.asarray(rgbs, np.float32).reshape(-1, 3),
+        checker=np.asarray(checker, bool),
+        checker_rgb=np.asarray(checker_rgb, np.float32).reshape(-1, 2, 3),
+        checker_scale=np.asarray(checker_scale, np.float32).reshape(-1, 2),
+        light_dirs=np.asarray(m.light_dir[lights], np.float32).reshape(-1, 3),
+        light_bodyid=np.where(
+            np.asarray(m.light_mode[lights]) == int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED),
+            np.asarray(m.light_bodyid[lights]), 0,
+        ).astype(np.int32),
+        light_diffuse=np.asarray(m.light_diffuse[lights], np.float32).reshape(-1, 3),
+        ambient=ambient.astype(np.float32),
+        headlight_diffuse=np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),
+        sky_mid=sky_mid,
+        sky_slope=sky_slope,
+        znear=float(m.vis.map.znear) * extent,
+        zfar=float(m.vis.map.zfar) * extent,
+    )
