@@ -163,3 +163,40 @@ def test_evosax_adapter_maximises(name):
 def test_unknown_evosax_strategy_lists_valid_names():
     with pytest.raises(ValueError, match="CMA_ES"):
         EvosaxStrategy("NoSuchES", population_size=4, num_dims=2)
+
+
+def test_observation_statistics_merge_equals_whole_batch_moments():
+    from iap_mjx.es.normalizer import init_stats, normalize, update_stats
+
+    rng = np.random.default_rng(3)
+    batches = [rng.normal(loc=2.0, scale=3.0, size=(n, 4)) for n in (5, 40, 1, 17)]
+    stats = init_stats(4)
+    for batch in batches:
+        stats = update_stats(stats, jnp.float32(len(batch)), jnp.asarray(batch.sum(0)),
+                             jnp.asarray((batch**2).sum(0)))
+    stats = update_stats(stats, jnp.float32(0), jnp.zeros(4), jnp.zeros(4))  # empty: no-op
+    everything = np.concatenate(batches)
+    np.testing.assert_allclose(stats.count, len(everything))
+    np.testing.assert_allclose(stats.mean, everything.mean(0), rtol=1e-5)
+    np.testing.assert_allclose(stats.var, everything.var(0), rtol=1e-4)
+    z = normalize(stats, jnp.asarray(everything[0]))
+    np.testing.assert_allclose(z, (everything[0] - everything.mean(0)) / everything.std(0),
+                               rtol=1e-3)
+
+
+def test_policies_shapes_counts_and_registry():
+    from iap_mjx import policies
+
+    linear = policies.make("linear", (17,), 6)
+    mlp = policies.make("mlp", (17,), 6, hidden_sizes=(32, 16))
+    assert policies.param_count(linear.init(jax.random.PRNGKey(0))) == 17 * 6 + 6
+    mlp_params = mlp.init(jax.random.PRNGKey(0))
+    assert policies.param_count(mlp_params) == 17 * 32 + 32 + 32 * 16 + 16 + 16 * 6 + 6
+    action, state = mlp.apply(mlp_params, 100 * jnp.ones(17), mlp.initial_state(None))
+    assert action.shape == (6,) and state == () and float(jnp.max(jnp.abs(action))) <= 1.0
+    with pytest.raises(ValueError, match="unknown policy kind"):
+        policies.make("transformer", (17,), 6)
+    with pytest.raises(ValueError, match="policy.options"):
+        policies.make("mlp", (17,), 6, width=3)
+    with pytest.raises(ValueError, match="hidden_sizes"):
+        policies.make("mlp", (17,), 6, hidden_sizes=(0,))

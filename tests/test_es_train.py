@@ -31,7 +31,7 @@ def small_config(**run) -> TrainConfig:
         env=EnvConfig("point-mass"),
         policy=PolicyConfig("linear"),
         es=ESConfig(population_size=16, sigma=0.1, learning_rate=0.05, n_episodes=2),
-        run=RunConfig(**{"iterations": 6, "eval_every": 3, "eval_episodes": 4,
+        run=RunConfig(**{"iterations": 6, "eval_episodes": 4,
                          "checkpoint_every": 3, "chunk_size": 8, "tensorboard": False, **run}),
     )
 
@@ -42,7 +42,7 @@ def flat(tree) -> np.ndarray:
 
 def test_training_beats_the_zero_action_policy():
     env = PointMass(episode_length=20)
-    config = small_config(iterations=60, eval_every=60, eval_episodes=64, checkpoint_every=0)
+    config = small_config(iterations=60, eval_episodes=64, checkpoint_every=0)
     config = dataclasses.replace(config, es=dataclasses.replace(config.es, population_size=32))
     result = train(config, env=env, progress=False)
     eval_return = result.history[-1]["eval_return"]
@@ -93,7 +93,7 @@ def test_metrics_files_and_policy_fn(tmp_path):
     result = train(config, env=env, run_dir=tmp_path, progress=False)
     rows = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
     assert [r["iteration"] for r in rows] == list(range(1, 7))
-    assert [r["iteration"] for r in rows if "eval_return" in r] == [3, 6]
+    assert all(np.isfinite(r["eval_return"]) for r in rows)
     with open(tmp_path / "metrics.csv") as f:
         table = list(csv.DictReader(f))
     assert len(table) == 6 and float(table[2]["eval_return"]) == rows[2]["eval_return"]

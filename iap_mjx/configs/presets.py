@@ -47,7 +47,7 @@ register(
         policy=PolicyConfig("linear"),
         es=ESConfig(population_size=256, sigma=0.02, learning_rate=0.01, weight_decay=0.005,
                     n_episodes=1, normalize_observations=True),
-        run=RunConfig(iterations=400, eval_every=10, eval_episodes=8, checkpoint_every=10),
+        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
     ),
 )
 register(
@@ -58,7 +58,7 @@ register(
         policy=PolicyConfig("mlp", (("hidden_sizes", (32, 32)),)),
         es=ESConfig(population_size=256, sigma=0.02, learning_rate=0.01, weight_decay=0.005,
                     n_episodes=1, normalize_observations=True),
-        run=RunConfig(iterations=400, eval_every=10, eval_episodes=8, checkpoint_every=10),
+        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
     ),
 )
 register(
@@ -69,6 +69,6 @@ register(
         policy=PolicyConfig("linear"),
         es=ESConfig(strategy="CMA_ES", population_size=64, sigma=0.1, antithetic=False,
                     normalize_observations=True),
-        run=RunConfig(iterations=400, eval_every=10, eval_episodes=8, checkpoint_every=10),
+        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
     ),
 )

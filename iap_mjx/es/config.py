@@ -151,11 +151,11 @@ class RunConfig:
     Attributes:
       iterations: ES iterations in total.
       seed: the one seed every random draw descends from.
-      eval_every: evaluate the centre params every this many iterations (and at the end).
-      eval_episodes: episodes for that evaluation (their own seeds).
+      eval_episodes: episodes on which the centre params are evaluated every iteration, on
+        seeds of their own, in the same batch as the population (0: no evaluation).
       checkpoint_every: save a checkpoint every this many iterations (0: only at the end).
       iterations_per_call: iterations fused into one compiled call (host work between calls);
-        ``eval_every`` and ``checkpoint_every`` must be multiples of it.
+        ``checkpoint_every`` must be a multiple of it.
       chunk_size: episodes simulated together by one ``vmap`` (bounds memory); the
         rest of a device's share runs sequentially in a ``lax.map``.
       num_devices: devices the population is sharded over (0: all of ``jax.devices()``).
@@ -164,7 +164,6 @@ class RunConfig:
 
     iterations: int = 100
     seed: int = 0
-    eval_every: int = 10
     eval_episodes: int = 8
     checkpoint_every: int = 10
     iterations_per_call: int = 1
@@ -175,17 +174,14 @@ class RunConfig:
     def __post_init__(self):
         _positive_int("run", "iterations", self.iterations)
         _positive_int("run", "seed", self.seed, allow_zero=True)
-        _positive_int("run", "eval_every", self.eval_every)
-        _positive_int("run", "eval_episodes", self.eval_episodes)
+        _positive_int("run", "eval_episodes", self.eval_episodes, allow_zero=True)
         _positive_int("run", "checkpoint_every", self.checkpoint_every, allow_zero=True)
         _positive_int("run", "iterations_per_call", self.iterations_per_call)
         _positive_int("run", "chunk_size", self.chunk_size)
         _positive_int("run", "num_devices", self.num_devices, allow_zero=True)
-        for name in ("eval_every", "checkpoint_every"):
-            value = getattr(self, name)
-            if value % self.iterations_per_call:
-                _fail("run", name, value,
-                      f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}")
+        if self.checkpoint_every % self.iterations_per_call:
+            _fail("run", "checkpoint_every", self.checkpoint_every,
+                  f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}")
         if not isinstance(self.tensorboard, bool):
             _fail("run", "tensorboard", self.tensorboard, "must be true or false")
 

@@ -30,7 +30,8 @@ class EpisodeResult:
     """What one episode reports (a leading batch axis when batched).
 
     ``ret`` ``()`` the return, ``steps`` ``()`` control steps before ``done``, ``bad``
-    ``()`` 1.0 if a non-finite reward/observation was met, ``obs_sum``/``obs_sq_sum``
+    ``()`` 1.0 if a non-finite reward/observation was met or the env flagged
+    ``metrics["nan_terminations"]``, ``obs_sum``/``obs_sq_sum``
     ``(obs_size,)`` sums over the live steps (zeros when not tracked).
     """
 
@@ -80,6 +81,9 @@ def run_episode(
         live = alive > 0
         ret = ret + jnp.where(live & finite, reward, 0.0)
         bad = jnp.maximum(bad, jnp.where(live & ~finite, 1.0, 0.0))
+        if "nan_terminations" in next_state.metrics:  # the env ended a diverged state itself
+            flagged = next_state.metrics["nan_terminations"] > 0
+            bad = jnp.maximum(bad, jnp.where(live & flagged, 1.0, 0.0))
         if track_obs:
             flat = jnp.where(live & finite, jnp.ravel(obs), 0.0)
             obs_sum = obs_sum + flat

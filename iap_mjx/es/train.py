@@ -1,10 +1,11 @@
 """``train(config) -> TrainResult``: the whole ES iteration compiled, host work in between.
 
 One iteration, all inside one ``jit``: ``ask`` (perturb the centre) -> evaluate every member on
-``n_episodes`` episodes (:mod:`iap_mjx.es.rollout`) -> ``tell`` (shape, estimate, update) ->
-merge the observation statistics. ``run.iterations_per_call`` iterations are fused by a
-``lax.scan``; between calls the host logs metrics, evaluates the centre on its own seeds,
-writes checkpoints and moves the progress bar. Every random draw descends from
+``n_episodes`` episodes, and the centre itself on ``run.eval_episodes`` episodes of separate
+seeds, in the same batch (:mod:`iap_mjx.es.rollout`; one rollout program to compile) ->
+``tell`` (shape, estimate, update) -> merge the observation statistics.
+``run.iterations_per_call`` iterations are fused by a ``lax.scan``; between calls the host
+logs metrics, writes checkpoints and moves the progress bar. Every random draw descends from
 ``run.seed`` through ``fold_in(key, iteration)``, so a resumed run continues bit for bit.
 """
 
@@ -87,7 +88,6 @@ class Components:
     num_dims: int
     mesh: Any
     evaluate: Callable[..., EpisodeResult]
-    eval_centre: Callable[..., EpisodeResult]
 
     @property
     def steps_per_iteration(self) -> int:
@@ -168,10 +168,9 @@ def build(
     mesh = make_mesh(config.run.num_devices, devices)
     track = config.es.normalize_observations
     evaluate = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, track)
-    eval_centre = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, False)
     strategy = make_strategy(config.es, flat.shape[0], config.run.iterations)
     return Components(config, env, policy, strategy, template, unravel, flat.shape[0],
-                      mesh, evaluate, eval_centre)
+                      mesh, evaluate)
 
 
 def init_state(parts: Components) -> TrainState:
@@ -198,17 +197,29 @@ def _stats_or_none(parts: Components, stats: ObsStats) -> ObsStats | None:
 
 
 def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState, dict]]:
-    """One ES iteration ``state -> (state, metrics)``; metrics are ``()`` scalars."""
+    """One ES iteration ``state -> (state, metrics)``; metrics are ``()`` scalars.
+
+    ``eval_return``/``eval_return_std`` are the centre's returns at the start of the
+    iteration (the params after ``iteration - 1`` updates) on the evaluation seeds.
+    """
     es = parts.config.es
     population_size, n_episodes = es.population_size, es.n_episodes
+    members = population_size * n_episodes
+    eval_episodes = parts.config.run.eval_episodes
 
     def iteration(state: TrainState):
         key = jax.random.fold_in(jax.random.fold_in(state.key, _TRAIN_STREAM), state.iteration)
         ask_key, episode_key, tell_key = jax.random.split(key, 3)
+        centre = parts.strategy.mean(state.strategy_state)
         population, strategy_state = parts.strategy.ask(ask_key, state.strategy_state)
-        flat = jnp.repeat(population, n_episodes, axis=0)
-        keys = jax.random.split(episode_key, population_size * n_episodes)
-        result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
+        flat = jnp.concatenate([
+            jnp.repeat(population, n_episodes, axis=0),
+            jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
+        ])
+        keys = jnp.concatenate([jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
+        everything = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
+        result = jax.tree_util.tree_map(lambda x: x[:members], everything)
+        eval_returns = everything.ret[members:]
         returns = result.ret.reshape(population_size, n_episodes)
         bad = result.bad.reshape(population_size, n_episodes)
         fitness = jnp.where(jnp.any(bad > 0, axis=1), jnp.nan, jnp.mean(returns, axis=1))
@@ -226,6 +237,9 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             "nan_episodes": jnp.sum(bad),
             "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
         }
+        if eval_episodes:
+            metrics["eval_return"] = jnp.mean(eval_returns)
+            metrics["eval_return_std"] = jnp.std(eval_returns)
         if isinstance(parts.strategy, OpenES):
             metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
@@ -244,15 +258,19 @@ def make_train_call(parts: Components, count: int):
     return call
 
 
+def _eval_keys(state: TrainState, episodes: int | None = None) -> jax.Array:
+    key = jax.random.fold_in(jax.random.fold_in(state.key, _EVAL_STREAM), state.iteration)
+    return jax.random.split(key, episodes) if episodes is not None else key
+
+
 def make_centre_evaluation(parts: Components, episodes: int):
     """``state -> returns (episodes,)`` of the centre params on the evaluation seeds."""
 
     def evaluate(state: TrainState):
-        key = jax.random.fold_in(jax.random.fold_in(state.key, _EVAL_STREAM), state.iteration)
-        keys = jax.random.split(key, episodes)
+        keys = jax.random.split(_eval_keys(state), episodes)
         centre = parts.strategy.mean(state.strategy_state)
         flat = jnp.broadcast_to(centre, (episodes, centre.shape[0]))
-        result = parts.eval_centre(flat, keys, _stats_or_none(parts, state.obs_stats))
+        result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
         return result.ret
 
     return evaluate
@@ -378,9 +396,6 @@ def train(
             compile_s += seconds
         return calls[count]
 
-    evaluation, seconds = _compile(make_centre_evaluation(parts, run.eval_episodes),
-                                   state, parts.mesh)
-    compile_s += seconds
     config_dict = config.to_dict()
     bar = None
     if progress and primary:
@@ -408,10 +423,6 @@ def train(
                     "run_s": run_s / count,
                     "compile_s": compile_s,
                 })
-            if done % run.eval_every == 0 or done == run.iterations:
-                returns = checkpoint.to_host(evaluation(state))
-                rows[-1]["eval_return"] = float(np.mean(returns))
-                rows[-1]["eval_return_std"] = float(np.std(returns))
             for row in rows:
                 row["wall_s"] = time.perf_counter() - started
                 history.append(row)

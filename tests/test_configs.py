@@ -1,0 +1,84 @@
+"""Configs: validation names the field, overrides parse and coerce, presets round-trip."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from iap_mjx import configs
+from iap_mjx.configs import ESConfig, PolicyConfig, RunConfig, TrainConfig, apply_overrides
+
+
+@pytest.mark.parametrize("name", configs.names())
+def test_every_preset_builds_hashes_and_round_trips_through_json(name):
+    config = configs.get(name)
+    hash(config)
+    again = TrainConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert again == config
+    assert configs.describe(name)
+
+
+def test_unknown_preset_lists_the_valid_ones():
+    with pytest.raises(ValueError) as error:
+        configs.get("no-such-preset")
+    for name in configs.names():
+        assert name in str(error.value)
+
+
+@pytest.mark.parametrize("make, field", [
+    (lambda: ESConfig(population_size=7), "es.population_size"),
+    (lambda: ESConfig(sigma=0.0), "es.sigma"),
+    (lambda: ESConfig(optimizer="adamw"), "es.optimizer"),
+    (lambda: ESConfig(shaping="ranks"), "es.shaping"),
+    (lambda: ESConfig(strategy="NotAnES"), "es.strategy"),
+    (lambda: ESConfig(n_episodes=0), "es.n_episodes"),
+    (lambda: ESConfig(sigma_schedule="cosine"), "es.sigma_schedule"),
+    (lambda: RunConfig(iterations=-1), "run.iterations"),
+    (lambda: RunConfig(iterations_per_call=4, checkpoint_every=10), "run.checkpoint_every"),
+    (lambda: RunConfig(eval_episodes=-1), "run.eval_episodes"),
+    (lambda: RunConfig(chunk_size=0), "run.chunk_size"),
+    (lambda: PolicyConfig(kind="transformer"), "policy.kind"),
+    (lambda: PolicyConfig(options=(("hidden_sizes", [8]),)), "policy.options"),
+])
+def test_invalid_values_fail_naming_the_field(make, field):
+    with pytest.raises(ValueError, match=field.replace(".", r"\.")):
+        make()
+
+
+def test_cmaes_needs_no_even_population():
+    assert ESConfig(strategy="CMA_ES", population_size=7, antithetic=False).population_size == 7
+
+
+def test_overrides_parse_coerce_and_route():
+    base = configs.get("cheetah-run-state-mlp")
+    config = apply_overrides(base, [
+        "iterations=5", "es.sigma=1", "es.antithetic=true", "policy.hidden_sizes=64,64",
+        "es.optimizer=sgd", "env.episode_length=100", "run.seed=3", "policy.activation='relu'",
+    ])
+    assert config.run.iterations == 5 and config.run.seed == 3
+    assert config.es.sigma == 1.0 and isinstance(config.es.sigma, float)
+    assert config.es.optimizer == "sgd"
+    assert dict(config.policy.options) == {"hidden_sizes": (64, 64), "activation": "relu"}
+    assert dict(config.env.overrides) == {"episode_length": 100}
+    assert base == configs.get("cheetah-run-state-mlp")  # presets are fresh values
+    hash(config)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("es.sigma=-1", r"es\.sigma"),
+    ("nope=1", "not a config field"),
+    ("run.nope=1", "run has no field 'nope'"),
+    ("bogus.x=1", "unknown section"),
+    ("es.population_size", "key=value"),
+    ("es.population_size=33", r"es\.population_size"),
+])
+def test_bad_overrides_fail_with_the_field(override, message):
+    with pytest.raises(ValueError, match=message):
+        apply_overrides(configs.get("cheetah-run-state"), [override])
+
+
+def test_configs_are_frozen():
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        configs.get("cheetah-run-state").run.iterations = 3
