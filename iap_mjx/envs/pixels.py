@@ -1,0 +1,118 @@
+"""Pixel observations for any env: the ray-cast camera inside ``reset``/``step``.
+
+``with_pixels(env, obs_mode=...)`` returns an env with the same protocol whose ``State.obs``
+is an image rendered from ``State.data`` by ``iap_mjx.render.Camera``:
+
+- ``"pixels"``: ``(H, W, 3 * frame_stack)`` float32 RGB in [0, 1];
+- ``"pixels_depth"``: ``(H, W, 4 * frame_stack)`` RGB-D, depth in metres along the optical
+  axis (the camera's far plane where nothing is hit);
+- ``"pixels+state"``: ``{"pixels": (H, W, 3 * frame_stack), "state": (n,)}``.
+
+Frames are stacked along channels, oldest first (the newest frame is the last ``C``
+channels); at ``reset`` the first frame fills the whole stack.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from iap_mjx.envs.base import State
+from iap_mjx.render import Camera
+
+PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state")
+
+
+class PixelEnv:
+    """An env whose observations are camera images (see the module docstring).
+
+    Everything not about observations (``mj_model``, ``mjx_model``, ``config``,
+    ``action_size``, ``episode_length``, ``state_observation``, ...) is the wrapped env's.
+
+    Attributes:
+      env: the wrapped (state-observation) env.
+      camera: the ``iap_mjx.render.Camera`` used.
+      obs_mode, frame_stack: as given.
+    """
+
+    def __init__(self, env: Any, obs_mode: str = "pixels", camera_id: int = 0,
+                 height: int = 100, width: int = 100, frame_stack: int = 1, **camera_config: Any):
+        if obs_mode not in PIXEL_MODES:
+            raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
+        if not isinstance(frame_stack, int) or isinstance(frame_stack, bool) or frame_stack < 1:
+            raise ValueError(f"frame_stack must be an int >= 1, got {frame_stack!r}")
+        self.env = env
+        self.obs_mode = obs_mode
+        self.frame_stack = frame_stack
+        self.camera = Camera(env.mj_model, camera_id=camera_id, height=height, width=width,
+                             **camera_config)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "env":  # not set yet (e.g. during unpickling): avoid recursion
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    @property
+    def channels(self) -> int:
+        """Channels of one frame: 4 for RGB-D, else 3."""
+        return 4 if self.obs_mode == "pixels_depth" else 3
+
+    @property
+    def observation_shape(self) -> Any:
+        cfg = self.camera.config
+        pixels = (cfg.height, cfg.width, self.channels * self.frame_stack)
+        if self.obs_mode == "pixels+state":
+            return {"pixels": pixels, "state": tuple(self.env.observation_shape)}
+        return pixels
+
+    def render(self, data: Any) -> jax.Array:
+        """One frame ``(H, W, C)`` float32 of ``data`` (RGB, or RGB-D for ``"pixels_depth"``)."""
+        rgb, depth = self.camera.render(data)
+        if self.obs_mode == "pixels_depth":
+            return jnp.concatenate([rgb, depth[..., None]], axis=-1)
+        return rgb
+
+    def reset(self, key: jax.Array) -> State:
+        return self._first(self.env.reset(key))
+
+    def reset_to(self, *args: Any, **kwargs: Any) -> State:
+        """The wrapped env's ``reset_to`` with pixel observations."""
+        return self._first(self.env.reset_to(*args, **kwargs))
+
+    def step(self, state: State, action: jax.Array) -> State:
+        stack = self._pixels(state.obs)
+        next_state = self.env.step(state, action)
+        frame = self.render(next_state.data)
+        stack = jnp.concatenate([stack[..., self.channels:], frame], axis=-1)
+        return next_state.replace(obs=self._observation(stack, next_state.obs))
+
+    def _first(self, state: State) -> State:
+        frame = self.render(state.data)
+        stack = jnp.concatenate([frame] * self.frame_stack, axis=-1)
+        return state.replace(obs=self._observation(stack, state.obs))
+
+    def _observation(self, stack: jax.Array, state_obs: jax.Array) -> Any:
+        if self.obs_mode == "pixels+state":
+            return {"pixels": stack, "state": state_obs}
+        return stack
+
+    def _pixels(self, obs: Any) -> jax.Array:
+        return obs["pixels"] if self.obs_mode == "pixels+state" else obs
+
+
+def with_pixels(env: Any, obs_mode: str = "pixels", camera_id: int = 0, height: int = 100,
+                width: int = 100, frame_stack: int = 1, **camera_config: Any) -> PixelEnv:
+    """Wraps ``env`` (which must expose ``mj_model``) so its observations are camera images.
+
+    Args:
+      env: an env following ``iap_mjx.envs.base.Env`` with ``mj_model`` (``mujoco.MjModel``).
+      obs_mode: ``"pixels"``, ``"pixels_depth"`` or ``"pixels+state"``.
+      camera_id, height, width: the model camera and image size (default 100x100, camera 0,
+        as the IAP paper's Cheetah-Run experiment).
+      frame_stack: frames stacked along channels, oldest first.
+      camera_config: further ``iap_mjx.render.CameraConfig`` fields (shading, sky, ...).
+    """
+    return PixelEnv(env, obs_mode=obs_mode, camera_id=camera_id, height=height, width=width,
+                    frame_stack=frame_stack, **camera_config)
