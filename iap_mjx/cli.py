@@ -43,6 +43,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    if args.coordinator:
+        from iap_mjx.es import distributed
+
+        distributed.initialize(args.coordinator, args.num_processes, args.process_id)
     from iap_mjx import es
 
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(args.preset)
@@ -105,6 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--run-dir", help="where metrics and checkpoints go "
                                          "(default: runs/PRESET-TIME)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.add_argument("--coordinator", metavar="HOST:PORT",
+                       help="multi-host: the coordinator address (see iap_mjx.es.distributed)")
+    train.add_argument("--num-processes", type=int, default=1, help="multi-host: processes")
+    train.add_argument("--process-id", type=int, default=0, help="multi-host: this process")
     train.set_defaults(func=cmd_train)
 
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")

@@ -160,6 +160,8 @@ class RunConfig:
         rest of a device's share runs sequentially in a ``lax.map``.
       num_devices: devices the population is sharded over (0: all of ``jax.devices()``).
       tensorboard: also write TensorBoard event files.
+      max_minutes: stop after this much wall-clock (compile included) even if fewer than
+        ``iterations`` are done (0: no limit). The run's end then depends on the machine.
     """
 
     iterations: int = 100
@@ -170,6 +172,7 @@ class RunConfig:
     chunk_size: int = 64
     num_devices: int = 0
     tensorboard: bool = True
+    max_minutes: float = 0.0
 
     def __post_init__(self):
         _positive_int("run", "iterations", self.iterations)
@@ -182,6 +185,7 @@ class RunConfig:
         if self.checkpoint_every % self.iterations_per_call:
             _fail("run", "checkpoint_every", self.checkpoint_every,
                   f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}")
+        _positive_float("run", "max_minutes", self.max_minutes, allow_zero=True)
         if not isinstance(self.tensorboard, bool):
             _fail("run", "tensorboard", self.tensorboard, "must be true or false")
 

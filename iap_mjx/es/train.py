@@ -331,11 +331,13 @@ def _restore(parts: Components, run_dir, state: TrainState) -> TrainState:
 
 
 def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
-    """Resuming must not change the run: only ``run.iterations``/``tensorboard`` may differ."""
+    """Resuming must not change the run: only ``run.iterations``, ``run.tensorboard`` and
+    ``run.max_minutes`` may differ."""
     def comparable(c: TrainConfig) -> dict:
         flat = c.to_dict()
         flat["run"].pop("iterations")
         flat["run"].pop("tensorboard")
+        flat["run"].pop("max_minutes")
         return flat
 
     ours, theirs = comparable(config), comparable(stored)
@@ -373,8 +375,11 @@ def train(
     finished iteration (when ``run_dir`` is set) and is re-raised.
     """
     started = time.perf_counter()
-    parts = build(config, env=env, policy=policy, devices=devices)
     run = config.run
+    if run.max_minutes and jax.process_count() > 1:
+        raise ValueError("run.max_minutes must be 0 with several processes (each process's "
+                         "clock would decide on its own when to stop)")
+    parts = build(config, env=env, policy=policy, devices=devices)
     primary = jax.process_index() == 0
     state = init_state(parts)
     start = 0
@@ -434,10 +439,17 @@ def train(
                 bar.update(count)
                 bar.set_postfix(ret=f"{rows[-1]['return_mean']:.1f}",
                                 eval=f"{rows[-1].get('eval_return', float('nan')):.1f}")
+            out_of_time = bool(run.max_minutes) and (
+                time.perf_counter() - started > 60 * run.max_minutes)
             if run_dir is not None and (
-                done == run.iterations or (run.checkpoint_every and done % run.checkpoint_every == 0)
+                done == run.iterations or out_of_time
+                or (run.checkpoint_every and done % run.checkpoint_every == 0)
             ):
                 checkpoint.save(run_dir, done, state, config_dict)
+            if out_of_time:
+                logger.info("run.max_minutes = %s reached after %d iterations",
+                            run.max_minutes, done)
+                break
     except KeyboardInterrupt:
         if run_dir is not None and done > start:
             logger.warning("interrupted: saving checkpoint %d", done)

@@ -1,0 +1,84 @@
+"""The ``iap-mjx`` command line: presets, errors before compiling, train -> eval end to end."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from iap_mjx import cli, configs
+
+CACHE = Path(__file__).resolve().parent.parent / ".jax_cache"
+
+
+@pytest.fixture(autouse=True)
+def test_cache(monkeypatch):
+    monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(CACHE))
+
+
+def test_presets_lists_every_preset(capsys):
+    assert cli.main(["presets"]) == 0
+    out = capsys.readouterr().out
+    for name in configs.names():
+        assert name in out
+
+
+def test_unknown_preset_fails_listing_valid_ones(capsys):
+    assert cli.main(["train", "no-such-preset"]) == 2
+    err = capsys.readouterr().err
+    assert "no-such-preset" in err and "cheetah-run-state" in err
+
+
+def test_bad_override_fails_naming_the_field(capsys):
+    assert cli.main(["train", "cheetah-run-state", "es.sigma=-1"]) == 2
+    assert "es.sigma" in capsys.readouterr().err
+    assert cli.main(["train", "cheetah-run-state", "policy.width=3"]) == 2
+    assert "policy.options" in capsys.readouterr().err
+
+
+def test_eval_of_missing_run_fails(tmp_path, capsys):
+    assert cli.main(["eval", str(tmp_path / "nothing")]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):
+    from iap_mjx import es
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(es, "train", interrupted)
+    code = cli.main(["train", "cheetah-run-state", "iterations=3", "--run-dir", str(tmp_path)])
+    assert code == 130
+    assert f"--run-dir {tmp_path}" in capsys.readouterr().err
+
+
+def test_train_then_eval_on_cheetah_run(tmp_path):
+    run_dir = tmp_path / "run"
+    env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
+    tiny = ["env.episode_length=4", "es.population_size=4", "iterations=2",
+            "run.eval_episodes=2", "run.checkpoint_every=1", "run.chunk_size=4"]
+    train = subprocess.run(
+        [sys.executable, "-m", "iap_mjx.cli", "train", "cheetah-run-state", *tiny,
+         "--run-dir", str(run_dir), "--no-progress"],
+        env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert train.returncode == 0, train.stderr
+    summary = json.loads(train.stdout.strip().splitlines()[-1])
+    assert summary["run_dir"] == str(run_dir) and summary["iterations"] == 2
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [r["iteration"] for r in rows] == [1, 2]
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["1", "2"]
+    evaluated = subprocess.run(
+        [sys.executable, "-m", "iap_mjx.cli", "eval", str(run_dir), "--episodes", "3"],
+        env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert evaluated.returncode == 0, evaluated.stderr
+    report = json.loads(evaluated.stdout.strip().splitlines()[-1])
+    assert report["episodes"] == 3 and len(report["returns"]) == 3
+    # cheetah-run rewards are in [0, 1] per step: a 4-step return is in [0, 4]
+    assert all(0.0 <= r <= 4.0 for r in report["returns"])
