@@ -1,0 +1,180 @@
+"""Patches, scores and top-l selection against direct computations (slicing, loops, L x L)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from iap_mjx.attention import features as ft
+from iap_mjx.attention import iap
+
+
+def random_image(shape, seed=0):
+    return jax.random.uniform(jax.random.PRNGKey(seed), shape)
+
+
+@pytest.mark.parametrize("shape,patch,stride", [
+    ((12, 16, 3), 4, 4), ((12, 16, 3), 4, 2), ((9, 9, 2), 3, 1), ((6, 5, 4), 1, 1), ((10, 10, 3), 2, 4),
+])
+def test_patches_equal_direct_slicing(shape, patch, stride):
+    image = random_image(shape)
+    patches, centres = jax.jit(iap.extract_patches, static_argnums=(1, 2))(image, patch, stride)
+    rows, cols = (shape[0] - patch) // stride + 1, (shape[1] - patch) // stride + 1
+    assert patches.shape == (rows * cols, patch * patch * shape[2])
+    img = np.asarray(image)
+    for index in range(rows * cols):
+        i, j = divmod(index, cols)
+        top, left = i * stride, j * stride
+        np.testing.assert_array_equal(patches[index], img[top:top + patch, left:left + patch].reshape(-1))
+        expected_centre = [(top + patch / 2) / shape[0], (left + patch / 2) / shape[1]]
+        np.testing.assert_allclose(centres[index], expected_centre, rtol=1e-6)
+    assert float(centres.min()) >= 0 and float(centres.max()) <= 1
+
+
+def test_patches_that_do_not_tile_raise():
+    with pytest.raises(ValueError, match="do not tile the image"):
+        iap.extract_patches(jnp.zeros((10, 10, 3)), 3)
+    with pytest.raises(ValueError, match="larger than the image"):
+        iap.extract_patches(jnp.zeros((4, 4, 3)), 5)
+    with pytest.raises(ValueError, match="stride must be a positive integer"):
+        iap.extract_patches(jnp.zeros((4, 4, 3)), 2, 0)
+
+
+def test_brute_scores_equal_a_plain_loop():
+    q = np.asarray(jax.random.normal(jax.random.PRNGKey(1), (30, 4)) * 0.7)
+    k = np.asarray(jax.random.normal(jax.random.PRNGKey(2), (30, 4)) * 0.7)
+    loop = np.zeros(30)
+    loop_normalised = np.zeros(30)
+    for i in range(30):
+        row = [math.exp(float(np.dot(q[i], k[j]))) for j in range(30)]
+        for j in range(30):
+            loop[j] += row[j]
+            loop_normalised[j] += row[j] / sum(row)
+    plain = np.asarray(iap.brute_scores(jnp.asarray(q), jnp.asarray(k)))
+    # Unnormalised scores come scaled by one positive constant (overflow guard): compare ratios.
+    np.testing.assert_allclose(plain / plain.sum(), loop / loop.sum(), rtol=1e-5)
+    np.testing.assert_allclose(iap.brute_scores(jnp.asarray(q), jnp.asarray(k), row_normalize=True),
+                               loop_normalised, rtol=1e-5)
+
+
+@pytest.mark.parametrize("kind", ft.KINDS)
+def test_linear_scores_equal_explicit_column_sums(kind):
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
+    q = jax.random.normal(keys[0], (50, 4)) * 0.5
+    k = jax.random.normal(keys[1], (50, 4)) * 0.5
+    proj = ft.draw_projections(keys[2], kind, m=6, d=4, r=3)
+    qf = ft.feature_map(kind, q, proj, role="query")
+    kf = ft.feature_map(kind, k, proj, role="key")
+    explicit = np.asarray(qf @ kf.T).sum(axis=0)  # the L x L matrix, built on purpose
+    np.testing.assert_allclose(iap.linear_scores(qf, kf), explicit, rtol=1e-4, atol=1e-5)
+
+
+def test_factorised_hybrid_scores_equal_the_feature_map():
+    keys = jax.random.split(jax.random.PRNGKey(4), 3)
+    q = jax.random.normal(keys[0], (80, 4))
+    k = jax.random.normal(keys[1], (80, 4))
+    proj = ft.draw_projections(keys[2], "hybrid", m=10, d=4, r=5)
+    for stabilize in (False, True):
+        via_features = iap.linear_scores(
+            ft.feature_map("hybrid", q, proj, role="query", stabilize=stabilize),
+            ft.feature_map("hybrid", k, proj, role="key", stabilize=stabilize))
+        fast = iap.hybrid_scores(q, k, proj, stabilize=stabilize)
+        np.testing.assert_allclose(fast, via_features, rtol=2e-4, atol=1e-4 * float(jnp.abs(via_features).max()))
+
+
+def test_top_l_breaks_ties_toward_the_lower_index():
+    scores = jnp.array([1.0, 3.0, 2.0, 3.0, 3.0, 0.0])
+    np.testing.assert_array_equal(jax.jit(iap.top_l, static_argnums=1)(scores, 4), [1, 3, 4, 2])
+
+
+def layer_for(kernel, shape=(20, 20, 3), **overrides):
+    cfg = iap.AttentionConfig(kernel=kernel, patch_size=overrides.pop("patch_size", 4), top_l=5,
+                              m=6, r=3, **overrides)
+    return iap.IAPAttention(cfg, shape)
+
+
+@pytest.mark.parametrize("use_bias", [False, True])
+@pytest.mark.parametrize("scaling", ["eq4", "eq5", "none"])
+def test_layer_queries_keys_equal_patches_times_weights(scaling, use_bias):
+    layer = layer_for("hybrid", patch_size=4, stride=2, scaling=scaling, use_bias=use_bias, eq5_scale=1.3)
+    params = layer.init(jax.random.PRNGKey(0))
+    if use_bias:
+        params = params.replace(b_q=jnp.arange(4.0) * 0.1, b_k=-jnp.arange(4.0) * 0.1)
+    image = random_image((20, 20, 3), seed=5)
+    patches, _ = iap.extract_patches(image, 4, 2)
+    q_direct = patches @ params.w_q + (params.b_q if use_bias else 0)
+    k_direct = patches @ params.w_k + (params.b_k if use_bias else 0)
+    if scaling == "eq4":
+        q_direct, k_direct = q_direct * 4**-0.25, k_direct * 4**-0.25
+    elif scaling == "eq5":
+        q_direct = 1.3 * q_direct / jnp.linalg.norm(q_direct, axis=-1, keepdims=True)
+        k_direct = 1.3 * k_direct / jnp.linalg.norm(k_direct, axis=-1, keepdims=True)
+    q, k = jax.jit(layer.queries_keys)(params, image)
+    np.testing.assert_allclose(q, q_direct, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(k, k_direct, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("kernel", iap.KERNELS)
+def test_layer_under_jit_and_vmap_selects_the_best_scores(kernel):
+    layer = layer_for(kernel)
+    params = layer.init(jax.random.PRNGKey(1))
+    projections = layer.draw_projections(jax.random.PRNGKey(2))
+    images = jax.random.uniform(jax.random.PRNGKey(3), (3, 20, 20, 3))
+    batched = jax.jit(jax.vmap(lambda img: layer(params, projections, img, with_patches=True)))
+    selection = batched(images)
+    assert selection.indices.shape == (3, 5) and selection.centres.shape == (3, 5, 2)
+    assert selection.patches.shape == (3, 5, 48)
+    for b in range(3):
+        single = layer(params, projections, images[b], with_patches=True)
+        np.testing.assert_array_equal(selection.indices[b], single.indices)
+        scores = np.asarray(single.scores)
+        assert np.all(np.isfinite(scores))
+        best = np.sort(scores)[::-1][:5]
+        np.testing.assert_allclose(scores[np.asarray(single.indices)], best, rtol=1e-6)
+        patches, centres = iap.extract_patches(images[b], 4)
+        np.testing.assert_array_equal(single.patches, patches[single.indices])
+        np.testing.assert_array_equal(single.centres, centres[single.indices])
+
+
+def test_layer_scores_equal_the_explicit_kernel_matrix():
+    """End to end: the layer's hybrid scores are column sums of phi(Q) phi(K)^T."""
+    layer = layer_for("hybrid", scaling="eq4")
+    params = layer.init(jax.random.PRNGKey(7))
+    proj = layer.draw_projections(jax.random.PRNGKey(8))
+    image = random_image((20, 20, 3), seed=9)
+    patches, _ = iap.extract_patches(image, 4)
+    q = patches @ params.w_q * 4**-0.25
+    k = patches @ params.w_k * 4**-0.25
+    matrix = ft.feature_map("hybrid", q, proj, role="query") @ ft.feature_map("hybrid", k, proj, role="key").T
+    explicit = np.asarray(matrix).sum(0)
+    scores = np.asarray(layer.scores(params, proj, image))
+    ratio = scores / explicit  # the stabiliser scales every score by one positive constant
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-3)
+    assert ratio[0] > 0
+
+
+def test_layer_errors_are_clear_and_early():
+    with pytest.raises(ValueError, match="top_l = 30 exceeds the number of patches L = 25"):
+        iap.IAPAttention(iap.AttentionConfig(patch_size=4, top_l=30), (20, 20, 3))
+    with pytest.raises(ValueError, match="do not tile"):
+        iap.IAPAttention(iap.AttentionConfig(patch_size=3), (20, 20, 3))
+    with pytest.raises(ValueError, match="valid kernels: brute, relu, exp, trig, hybrid, angular"):
+        iap.AttentionConfig(kernel="softmax")
+    with pytest.raises(ValueError, match="AttentionConfig.m must be a positive integer"):
+        iap.AttentionConfig(m=0)
+    with pytest.raises(ValueError, match="valid scalings"):
+        iap.AttentionConfig(scaling="eq6")
+    with pytest.raises(ValueError, match="row_normalize applies to kernel='brute' only"):
+        iap.AttentionConfig(kernel="hybrid", row_normalize=True)
+    layer = layer_for("relu")
+    with pytest.raises(ValueError, match=r"image of shape \(10, 10, 3\)"):
+        layer(layer.init(jax.random.PRNGKey(0)), layer.draw_projections(jax.random.PRNGKey(0)),
+              jnp.zeros((10, 10, 3)))
+
+
+def test_config_is_hashable_for_static_arguments():
+    cfg = iap.AttentionConfig()
+    assert hash(cfg) == hash(iap.AttentionConfig())
+    assert hash(iap.IAPAttention(cfg, (20, 20, 3))) == hash(iap.IAPAttention(cfg, (20, 20, 3)))
