@@ -211,3 +211,10 @@ def test_bad_arguments_raise_clear_errors():
         ft.feature_map("hybrid", jnp.ones(4), proj, role="query")
     with pytest.raises(ValueError, match="closed_form_mse covers"):
         ft.closed_form_mse("angular", jnp.ones(4), jnp.ones(4), m=4)
+
+
+def test_sincos_matches_float64_sine_and_cosine():
+    x = np.linspace(-1000.0, 1000.0, 2_000_001, dtype=np.float32)
+    sin, cos = jax.jit(ft.sincos)(jnp.asarray(x))
+    np.testing.assert_allclose(np.asarray(sin), np.sin(x.astype(np.float64)), atol=2e-7, rtol=0)
+    np.testing.assert_allclose(np.asarray(cos), np.cos(x.astype(np.float64)), atol=2e-7, rtol=0)

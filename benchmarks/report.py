@@ -1,0 +1,63 @@
+"""Shared by the benchmark scripts: timing with compile time apart, and BENCHMARKS.md sections."""
+
+from __future__ import annotations
+
+import platform
+import re
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def write_section(path: Path, name: str, body: str) -> None:
+    """Replaces the text between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` in ``path``.
+
+    The section is appended when absent, so every script owns only its own part of the file.
+    """
+    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
+    block = f"{begin}\n{body.rstrip()}\n{end}"
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
+    path.write_text(text)
+
+
+def compile_and_time(fn: Callable, *args: Any, repeats: int = 5,
+                     min_seconds: float = 0.5) -> tuple[float, float, Any]:
+    """Compiles ``jax.jit(fn)`` for ``args`` and times it.
+
+    Returns ``(compile_seconds, steady_seconds_per_call, compiled)``: compile time is lowering
+    plus XLA compilation; the steady-state time is the median over ``repeats`` timed batches of
+    calls (each batch at least ``min_seconds`` long), after one warm-up call.
+    """
+    import jax
+
+    start = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_seconds = time.perf_counter() - start
+    jax.block_until_ready(compiled(*args))
+    once = time.perf_counter()
+    jax.block_until_ready(compiled(*args))
+    per_call = max(time.perf_counter() - once, 1e-6)
+    calls = max(1, int(min_seconds / per_call))
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(calls):
+            out = compiled(*args)
+        jax.block_until_ready(out)
+        samples.append((time.perf_counter() - start) / calls)
+    return compile_seconds, statistics.median(samples), compiled
+
+
+def machine_line() -> str:
+    """One line naming the machine and the JAX set-up a table was measured on."""
+    import os
+
+    import jax
+
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+            f"jax {jax.__version__}, {len(jax.devices())} XLA CPU device(s)")
