@@ -87,6 +87,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_figures(args: argparse.Namespace) -> int:
+    """Writes a figure set (``mse``: the paper's Figures 3 and 4) as PNGs."""
+    from iap_mjx.viz import mse_figures
+
+    for path in mse_figures.write_mse_figures(args.out, draws=args.draws):
+        print(path)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``iap-mjx`` parser; each subparser sets ``func`` to its command function."""
     parser = argparse.ArgumentParser(
@@ -121,6 +130,15 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=12345,
                           help="evaluation seed (distinct from the training seeds)")
     evaluate.set_defaults(func=cmd_eval)
+
+    figures = commands.add_parser(
+        "figures", help="write the paper's figures as PNGs",
+        description="mse: Figures 3 and 4 (MSE of the trig, exp and hybrid estimators, "
+                    "closed forms with Monte Carlo points).")
+    figures.add_argument("which", choices=["mse"])
+    figures.add_argument("--out", default="figures", help="output directory (default: figures)")
+    figures.add_argument("--draws", type=int, default=100_000, help="Monte Carlo draws per point")
+    figures.set_defaults(func=cmd_figures)
     return parser
 
 
