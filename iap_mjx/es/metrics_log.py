@@ -1,4 +1,13 @@
-"""Per-iteration metrics on disk: ``metrics.jsonl``, ``metrics.csv`` and TensorBoard events."""
+"""Per-iteration metrics on disk: ``metrics.jsonl``, ``metrics.csv`` and TensorBoard events.
+
+Columns: ``env_steps`` counts training steps so far (population x episodes x horizon, the
+sample budget); ``return_*`` are over the population's fitness (mean return per member);
+``eval_return``/``eval_return_std`` over the centre's evaluation episodes at the start of the
+iteration; ``nan_episodes`` counts episodes that met a bad state; ``env_steps_per_s`` counts
+every simulated step (training, evaluation, padding) per second of run time; ``run_s`` is one
+iteration's run time, ``compile_s`` the compile time so far, ``wall_s`` the time since
+``train`` started (this session).
+"""
 
 from __future__ import annotations
 

@@ -123,8 +123,9 @@ def make_evaluator(
     """``evaluate(flat_params (N, D), keys (N, 2), obs_stats) -> EpisodeResult`` with ``(N,)``.
 
     Row ``i`` is one episode of the policy with flat params ``flat_params[i]`` from
-    ``keys[i]``. ``N`` is padded internally to a multiple of the device count. Call it inside
-    ``jit``.
+    ``keys[i]``. ``N`` is padded internally (repeating row 0) so that every device gets the
+    same number of equal chunks: a ragged last chunk would make XLA compile the episode a
+    second time. Call it inside ``jit``.
     """
     num_devices = mesh.devices.size
 
@@ -133,7 +134,8 @@ def make_evaluator(
             flat, key = args
             return run_episode(env, policy, unravel(flat), key, obs_stats, track_obs)
 
-        batch = min(chunk_size, flat_params.shape[0])
+        per_device = flat_params.shape[0]
+        batch = per_device // -(-per_device // chunk_size)
         return jax.lax.map(one, (flat_params, keys), batch_size=batch)
 
     replicated = PartitionSpec()
@@ -147,7 +149,7 @@ def make_evaluator(
 
     def evaluate(flat_params, keys, obs_stats):
         n = flat_params.shape[0]
-        padded = -(-n // num_devices) * num_devices
+        padded = num_devices * padded_share(n, num_devices, chunk_size)
         if padded != n:
             pad = partial(_pad_rows, count=padded - n)
             flat_params, keys = pad(flat_params), pad(keys)
@@ -158,6 +160,13 @@ def make_evaluator(
         return jax.tree_util.tree_map(lambda x: x[:n], result)
 
     return evaluate
+
+
+def padded_share(n: int, num_devices: int, chunk_size: int) -> int:
+    """Episodes per device after padding ``n`` to equal shares of equal chunks."""
+    share = -(-n // num_devices)
+    chunks = -(-share // chunk_size)
+    return chunks * -(-share // chunks)
 
 
 def _pad_rows(x: jax.Array, count: int) -> jax.Array:

@@ -29,7 +29,7 @@ from iap_mjx.es import checkpoint
 from iap_mjx.es.config import OPEN_ES, ESConfig, TrainConfig
 from iap_mjx.es.metrics_log import MetricsWriter, read_history
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
-from iap_mjx.es.rollout import EpisodeResult, make_evaluator, make_mesh
+from iap_mjx.es.rollout import EpisodeResult, make_evaluator, make_mesh, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
 
@@ -91,9 +91,19 @@ class Components:
 
     @property
     def steps_per_iteration(self) -> int:
-        """Control steps simulated per iteration (members x episodes x horizon)."""
+        """Training env steps per iteration (members x episodes x horizon): the sample
+        budget, as brax counts it."""
         es = self.config.es
         return es.population_size * es.n_episodes * self.env.episode_length
+
+    @property
+    def simulated_steps_per_iteration(self) -> int:
+        """Env steps actually simulated per iteration: training, centre evaluation and the
+        padding that evens out the devices' shares."""
+        es, run = self.config.es, self.config.run
+        rows = es.population_size * es.n_episodes + run.eval_episodes
+        share = padded_share(rows, self.mesh.devices.size, run.chunk_size)
+        return share * self.mesh.devices.size * self.env.episode_length
 
 
 def make_sigma(es: ESConfig, iterations: int) -> float | Callable[[jax.Array], jax.Array]:
@@ -216,7 +226,8 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             jnp.repeat(population, n_episodes, axis=0),
             jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
         ])
-        keys = jnp.concatenate([jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
+        keys = jnp.concatenate(
+            [jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
         everything = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
         result = jax.tree_util.tree_map(lambda x: x[:members], everything)
         eval_returns = everything.ret[members:]
@@ -424,7 +435,7 @@ def train(
                     "iteration": iteration,
                     "env_steps": iteration * parts.steps_per_iteration,
                     **{name: float(value[i]) for name, value in metrics.items()},
-                    "env_steps_per_s": parts.steps_per_iteration * count / run_s,
+                    "env_steps_per_s": parts.simulated_steps_per_iteration * count / run_s,
                     "run_s": run_s / count,
                     "compile_s": compile_s,
                 })
