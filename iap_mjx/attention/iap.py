@@ -293,17 +293,23 @@ class IAPAttention:
     def queries_keys(self, params: AttentionParams, image: jax.Array) -> tuple[jax.Array, jax.Array]:
         """``image (H, W, C)`` -> queries, keys ``(L, d)``, input scaling applied.
 
-        Computed as one strided convolution with kernel ``[W_Q | W_K]`` reshaped to
-        ``(p, p, C, 2d)``: the same numbers as ``extract_patches(image) @ W`` without
-        materialising the ``(L, c)`` patch matrix.
+        Non-overlapping patches: a reshape and one ``(L, c) @ (c, 2d)`` product. Overlapping
+        patches: one strided convolution with kernel ``[W_Q | W_K]`` reshaped to
+        ``(p, p, C, 2d)``, the same numbers without materialising the overlapping patches
+        (on XLA CPU the reshape path was 10x faster than the convolution where both apply).
         """
         cfg = self.config
         p, channels = cfg.patch_size, self.image_shape[2]
-        kernel = jnp.concatenate([params.w_q, params.w_k], axis=1).reshape(p, p, channels, -1)
-        projected = jax.lax.conv_general_dilated(
-            image[None].astype(kernel.dtype), kernel, window_strides=(cfg.step, cfg.step),
-            padding="VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-        projected = projected.reshape(self.num_patches, 2 * cfg.d_qk)
+        weights = jnp.concatenate([params.w_q, params.w_k], axis=1)  # (c, 2d)
+        if cfg.step == p:
+            patches, _ = extract_patches(image.astype(weights.dtype), p, p)
+            projected = patches @ weights
+        else:
+            projected = jax.lax.conv_general_dilated(
+                image[None].astype(weights.dtype), weights.reshape(p, p, channels, -1),
+                window_strides=(cfg.step, cfg.step), padding="VALID",
+                dimension_numbers=("NHWC", "HWIO", "NHWC"))
+            projected = projected.reshape(self.num_patches, 2 * cfg.d_qk)
         queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk:]
         if params.b_q is not None:
             queries, keys = queries + params.b_q, keys + params.b_k
