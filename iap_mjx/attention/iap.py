@@ -111,11 +111,13 @@ def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projectio
     """The hybrid kernel's linear scores without building the ``3m(r+1)`` features.
 
     Equal to ``linear_scores(feature_map("hybrid", Q, query), feature_map("hybrid", K, key))``
-    (up to float rounding) but in ``O(L (m + r) + m r)``. With ``T`` the trigonometric, ``E``
-    the positive features and ``S`` the ``r`` signs of a token, one query-key term is
-    ``(T_q.T_k (1 + S_q.S_k / r) + E_q.E_k (1 - S_q.S_k / r)) / 2``; summing it over queries
-    only needs ``sum_i T_i``, ``sum_i E_i`` and the ``(2m, r)``/``(m, r)`` moments
-    ``sum_i T_i S_i^T`` and ``sum_i E_i S_i^T``.
+    (up to float rounding) but in ``O(L m r)`` with ``m + r`` transcendentals per token. With
+    ``F = [T, E]`` a token's ``2m`` trigonometric and ``m`` positive features and ``S`` its
+    ``r`` signs, one query-key term is ``(T_q.T_k (1 + S_q.S_k / r) + E_q.E_k (1 - S_q.S_k / r)) / 2``.
+    Summed over queries this needs only ``G = F_Q^T [1, S_Q]`` (``3m x (1 + r)``); each key's
+    score is then ``F_k . (G' [1, S_k])`` with ``G'`` the sign-and-``1/r``-weighted ``G``,
+    computed block by block (sin, cos, positive) since concatenating along the feature axis
+    stops XLA CPU from vectorising the fused loops.
 
     Args:
       queries, keys: ``(L, d)``.
@@ -125,21 +127,23 @@ def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projectio
     Returns:
       ``(L,)`` scores.
     """
-    q_comps, k_comps = ft.components(queries, projections), ft.components(keys, projections)
-    m, r = q_comps.exp_log.shape[-1], q_comps.signs.shape[-1]
+    m, r = projections.omega.shape[0], projections.xi.shape[0]
 
-    def blocks(comps: ft.Components) -> tuple[jax.Array, jax.Array, jax.Array]:
+    def blocks(x: jax.Array) -> tuple[list[jax.Array], jax.Array]:
+        """``([sin, cos, positive] each (L, m), signs (L, r))``, magnitudes applied."""
+        comps = ft.components(x, projections)
         shift = ft.stabilizing_shift(comps, "hybrid", stabilize)
-        trig = jnp.exp(comps.trig_log - shift) * comps.trig_unit
-        return trig, jnp.exp(comps.exp_log - shift), comps.signs
+        trig_scale = jnp.exp(comps.trig_log - shift)
+        return [comps.sin * trig_scale, comps.cos * trig_scale, jnp.exp(comps.exp_log - shift)], comps.signs
 
-    q_trig, q_exp, q_signs = blocks(q_comps)
-    k_trig, k_exp, k_signs = blocks(k_comps)
-    trig_moment = q_trig.T @ q_signs  # (2m, r)
-    exp_moment = q_exp.T @ q_signs  # (m, r)
-    trig_term = k_trig @ jnp.sum(q_trig, axis=0) + jnp.sum((k_trig @ trig_moment) * k_signs, -1) / r
-    exp_term = k_exp @ jnp.sum(q_exp, axis=0) - jnp.sum((k_exp @ exp_moment) * k_signs, -1) / r
-    return (trig_term + exp_term) / (2.0 * m)
+    q_blocks, q_signs = blocks(queries)
+    k_blocks, k_signs = blocks(keys)
+    scores = 0.0
+    for q_block, k_block, sign in zip(q_blocks, k_blocks, (1.0, 1.0, -1.0)):
+        moment = (sign / r) * (q_block.T @ q_signs)  # (m, r)
+        coefficients = jnp.sum(q_block, axis=0) + k_signs @ moment.T  # (L, m)
+        scores = scores + jnp.sum(k_block * coefficients, axis=-1)
+    return scores / (2.0 * m)
 
 
 def top_l(scores: jax.Array, l: int) -> jax.Array:
