@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
+from iap_mjx.policies.attention import CNNPolicy, IAPPolicy, make_cnn_policy, make_iap_policy
 from iap_mjx.policies.base import Policy, param_count
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
@@ -58,4 +59,7 @@ register(
     ),
 )
 
-__all__ = ["LinearPolicy", "MLPPolicy", "Policy", "make", "names", "param_count", "register"]
+register("iap", make_iap_policy)
+register("cnn", make_cnn_policy)
+
+__all__ = ["CNNPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "Policy", "make", "names", "param_count", "register"]

@@ -1,0 +1,199 @@
+"""Pixel policies: IAP attention + controller (and its brute-force twin), and a small CNN.
+
+IAP policy (paper section 3): the attention layer scores every patch of the image, keeps the
+top ``l``, and the controller sees their centres (``2l`` numbers, optionally the patches'
+pixels too), concatenated with any state sensors; actions are ``tanh`` of the controller's
+output. Deterministic, as in the paper. With ``kernel="brute"`` and ``row_normalize=True``
+the same policy is Tang et al.'s AttentionAgent (the "Brute" baseline).
+
+Random projections are not trained: ``initial_state`` draws them from the episode key when
+``redraw_projections`` is set, otherwise from the fixed ``projection_seed`` (the same draw in
+every episode and every member of the population).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from iap_mjx.attention import AttentionConfig, IAPAttention
+from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive
+from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
+
+CONTROLLERS = ("linear", "mlp")
+
+
+def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
+    """``(pixels (H, W, C), state (n,) or None)`` from an array or a ``{"pixels", "state"}`` dict."""
+    if isinstance(obs, dict):
+        return obs["pixels"], jnp.ravel(obs["state"])
+    return obs, None
+
+
+def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
+    """``((H, W, C), state_size)`` of an env's observation shape (array or pixels+state dict)."""
+    if isinstance(observation_shape, dict):
+        pixels = tuple(observation_shape["pixels"])
+        state_size = int(math.prod(observation_shape["state"]))
+    else:
+        pixels, state_size = tuple(observation_shape), 0
+    if len(pixels) != 3:
+        raise ValueError(f"a pixel policy needs (H, W, C) observations, got {observation_shape!r}; "
+                         "make the env with obs_mode='pixels', 'pixels_depth' or 'pixels+state'")
+    return pixels, state_size
+
+
+@dataclasses.dataclass(frozen=True)
+class IAPPolicy:
+    """Attention over patches -> ``l`` patch centres (+ patches, + state) -> controller -> tanh.
+
+    Attributes:
+      image_shape: ``(H, W, C)`` of the pixel observation.
+      action_size: actions in ``[-1, 1]``.
+      attention: the attention layer's settings (kernel, patch size, ``l``, ``m``, ``r``, ...).
+      state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
+      controller: ``"linear"`` or ``"mlp"``.
+      hidden_sizes: the MLP controller's hidden layers.
+      activation: the MLP controller's hidden activation.
+      with_patches: also feed the selected patches' pixels to the controller.
+      projection_seed: seed of the fixed random projections (unless redrawn per episode).
+    """
+
+    image_shape: tuple[int, int, int]
+    action_size: int
+    attention: AttentionConfig = AttentionConfig()
+    state_size: int = 0
+    controller: str = "linear"
+    hidden_sizes: tuple[int, ...] = (16,)
+    activation: str = "tanh"
+    with_patches: bool = False
+    projection_seed: int = 0
+
+    def __post_init__(self):
+        check_positive("IAPPolicy", "action_size", self.action_size)
+        check_choice("IAPPolicy", "controller", self.controller, CONTROLLERS)
+        check_choice("IAPPolicy", "activation", self.activation, ACTIVATIONS)
+        if not isinstance(self.state_size, int) or self.state_size < 0:
+            raise ValueError(f"IAPPolicy.state_size = {self.state_size!r} must be a non-negative int")
+        IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
+
+    @property
+    def layer(self) -> IAPAttention:
+        """The attention layer for this image shape."""
+        return IAPAttention(self.attention, tuple(self.image_shape))
+
+    @property
+    def feature_size(self) -> int:
+        """The controller's input size: ``2l`` (+ ``l p^2 C``) (+ ``state_size``)."""
+        top_l = self.attention.top_l
+        patches = top_l * self.layer.patch_dim if self.with_patches else 0
+        return 2 * top_l + patches + self.state_size
+
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"attention": AttentionParams, "controller": [dense layers]}``."""
+        attention_key, controller_key = jax.random.split(key)
+        sizes = (self.feature_size, *(self.hidden_sizes if self.controller == "mlp" else ()),
+                 self.action_size)
+        return {"attention": self.layer.init(attention_key),
+                "controller": init_dense_layers(controller_key, sizes)}
+
+    def initial_state(self, key: jax.Array):
+        """The episode's random projections (fixed seed unless ``redraw_projections``)."""
+        if not self.attention.redraw_projections:
+            key = jax.random.PRNGKey(self.projection_seed)
+        return self.layer.draw_projections(key)
+
+    def features(self, params: dict[str, Any], obs: Any, projections) -> tuple[jax.Array, Any]:
+        """The controller's input ``(feature_size,)`` and the layer's ``Selection``."""
+        pixels, state = split_observation(obs)
+        selection = self.layer(params["attention"], projections, pixels, with_patches=self.with_patches)
+        parts = [selection.centres.reshape(-1)]
+        if self.with_patches:
+            parts.append(selection.patches.reshape(-1))
+        if self.state_size:
+            parts.append(state)
+        return jnp.concatenate(parts), selection
+
+    def apply(self, params: dict[str, Any], obs: Any, projections):
+        """One control step: ``obs`` -> ``(action (action_size,), projections)``."""
+        features, _ = self.features(params, obs, projections)
+        out = apply_dense_layers(params["controller"], features, ACTIVATIONS[self.activation])
+        return jnp.tanh(out), projections
+
+    def select(self, params: dict[str, Any], obs: Any, projections):
+        """The attention layer's ``Selection`` for ``obs`` (for videos and figures)."""
+        return self.features(params, obs, projections)[1]
+
+
+@dataclasses.dataclass(frozen=True)
+class CNNPolicy:
+    """A small CNN baseline: strided 3x3 convolutions -> average pool -> dense -> tanh.
+
+    Attributes:
+      image_shape: ``(H, W, C)``; action_size: actions in ``[-1, 1]``.
+      channels: output channels of the convolutions (each stride 2, ``tanh``).
+      hidden_size: the dense layer after pooling.
+      state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
+    """
+
+    image_shape: tuple[int, int, int]
+    action_size: int
+    channels: tuple[int, ...] = (8, 16)
+    hidden_size: int = 32
+    state_size: int = 0
+
+    def __post_init__(self):
+        check_positive("CNNPolicy", "action_size", self.action_size)
+        check_positive("CNNPolicy", "hidden_size", self.hidden_size)
+        for size in self.channels:
+            check_positive("CNNPolicy", "channels[...]", size)
+
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""
+        keys = jax.random.split(key, len(self.channels) + 1)
+        ins = (self.image_shape[2], *self.channels[:-1])
+        conv = [{"w": jax.random.normal(k, (3, 3, c_in, c_out)) / math.sqrt(9 * c_in),
+                 "b": jnp.zeros((c_out,))} for k, c_in, c_out in zip(keys, ins, self.channels)]
+        sizes = (self.channels[-1] + self.state_size, self.hidden_size, self.action_size)
+        return {"conv": conv, "dense": init_dense_layers(keys[-1], sizes)}
+
+    def initial_state(self, key: jax.Array) -> tuple:
+        """Stateless: the empty tuple."""
+        del key
+        return ()
+
+    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
+        """``obs`` -> ``(action (action_size,), policy_state)``."""
+        pixels, state = split_observation(obs)
+        x = pixels[None]
+        for layer in params["conv"]:
+            x = jax.lax.conv_general_dilated(x, layer["w"], (2, 2), "SAME",
+                                             dimension_numbers=("NHWC", "HWIO", "NHWC"))
+            x = jnp.tanh(x + layer["b"])
+        features = jnp.mean(x, axis=(0, 1, 2))
+        if self.state_size:
+            features = jnp.concatenate([features, state])
+        return jnp.tanh(apply_dense_layers(params["dense"], features, jnp.tanh)), policy_state
+
+
+def make_iap_policy(observation_shape: Any, action_size: int, **options: Any) -> IAPPolicy:
+    """Factory for ``policies.make("iap", ...)``: attention fields go to ``AttentionConfig``."""
+    image_shape, state_size = pixel_shape(observation_shape)
+    attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
+    attention = AttentionConfig(**{k: v for k, v in options.items() if k in attention_fields})
+    rest = {k: v for k, v in options.items() if k not in attention_fields}
+    if isinstance(rest.get("hidden_sizes"), list):
+        rest["hidden_sizes"] = tuple(rest["hidden_sizes"])
+    return IAPPolicy(image_shape, action_size, attention, state_size=state_size, **rest)
+
+
+def make_cnn_policy(observation_shape: Any, action_size: int, **options: Any) -> CNNPolicy:
+    """Factory for ``policies.make("cnn", ...)``."""
+    image_shape, state_size = pixel_shape(observation_shape)
+    if isinstance(options.get("channels"), list):
+        options["channels"] = tuple(options["channels"])
+    return CNNPolicy(image_shape, action_size, state_size=state_size, **options)

@@ -1,0 +1,90 @@
+"""IAP, brute-force (AttentionAgent) and CNN pixel policies: shapes, selection, projections, errors."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from iap_mjx import policies
+from iap_mjx.attention import extract_patches
+from iap_mjx.policies.base import param_count
+
+SHAPE = (20, 20, 3)
+
+
+def images(batch, seed=0):
+    return jax.random.uniform(jax.random.PRNGKey(seed), (batch, *SHAPE))
+
+
+@pytest.mark.parametrize("options", [
+    {"kernel": "hybrid", "m": 10, "r": 5},
+    {"kernel": "relu"},
+    {"kernel": "brute", "row_normalize": True},
+    {"kernel": "hybrid", "controller": "mlp", "hidden_sizes": [8], "with_patches": True},
+])
+def test_iap_policy_acts_under_jit_and_vmap(options):
+    policy = policies.make("iap", SHAPE, 6, patch_size=4, top_l=5, **options)
+    params = policy.init(jax.random.PRNGKey(1))
+    state = policy.initial_state(jax.random.PRNGKey(2))
+    actions, _ = jax.jit(jax.vmap(policy.apply, in_axes=(None, 0, None)))(params, images(4), state)
+    assert actions.shape == (4, 6)
+    assert bool(jnp.all(jnp.abs(actions) <= 1))
+    features_per_patch = 2 + (48 if options.get("with_patches") else 0)
+    hidden = options.get("hidden_sizes", [])
+    expected = sum(a * b + b for a, b in zip([5 * features_per_patch, *hidden], [*hidden, 6]))
+    assert param_count(params) == 2 * 48 * 4 + expected
+
+
+def test_iap_policy_feeds_the_selected_patch_centres():
+    policy = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, with_patches=True)
+    params = policy.init(jax.random.PRNGKey(0))
+    projections = policy.initial_state(jax.random.PRNGKey(0))
+    image = images(1)[0]
+    features, selection = policy.features(params, image, projections)
+    patches, centres = extract_patches(image, 4)
+    np.testing.assert_array_equal(features[:6], centres[selection.indices].reshape(-1))
+    np.testing.assert_array_equal(features[6:], patches[selection.indices].reshape(-1))
+    # The controller is affine in these features: the action is tanh(features @ w + b).
+    action, _ = policy.apply(params, image, projections)
+    layer = params["controller"][0]
+    np.testing.assert_allclose(action, jnp.tanh(features @ layer["w"] + layer["b"]), rtol=1e-5)
+
+
+def test_projections_are_fixed_unless_redrawn():
+    fixed = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3)
+    a, b = fixed.initial_state(jax.random.PRNGKey(1)), fixed.initial_state(jax.random.PRNGKey(2))
+    np.testing.assert_array_equal(a.omega, b.omega)
+    redrawn = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, redraw_projections=True)
+    a, b = redrawn.initial_state(jax.random.PRNGKey(1)), redrawn.initial_state(jax.random.PRNGKey(2))
+    assert not np.allclose(a.omega, b.omega)
+
+
+def test_pixels_plus_state_observations():
+    shape = {"pixels": SHAPE, "state": (7,)}
+    for kind, options in (("iap", {"patch_size": 4, "top_l": 3}), ("cnn", {})):
+        policy = policies.make(kind, shape, 2, **options)
+        params = policy.init(jax.random.PRNGKey(0))
+        obs = {"pixels": images(1)[0], "state": jnp.arange(7.0)}
+        action, _ = jax.jit(policy.apply)(params, obs, policy.initial_state(jax.random.PRNGKey(0)))
+        assert action.shape == (2,)
+        moved, _ = policy.apply(params, {**obs, "state": obs["state"] + 1}, policy.initial_state(jax.random.PRNGKey(0)))
+        assert not np.allclose(action, moved)  # the state sensors reach the action
+
+
+def test_cnn_policy_shapes():
+    policy = policies.make("cnn", SHAPE, 3, channels=[4, 8])
+    params = policy.init(jax.random.PRNGKey(0))
+    actions, _ = jax.vmap(policy.apply, in_axes=(None, 0, None))(params, images(2), ())
+    assert actions.shape == (2, 3)
+    assert param_count(params) == (27 * 4 + 4) + (36 * 8 + 8) + (8 * 32 + 32) + (32 * 3 + 3)
+
+
+def test_bad_pixel_policy_settings_fail_early():
+    with pytest.raises(ValueError, match="top_l = 30 exceeds the number of patches L = 25"):
+        policies.make("iap", SHAPE, 2, patch_size=4, top_l=30)
+    with pytest.raises(ValueError, match="do not tile"):
+        policies.make("iap", SHAPE, 2, patch_size=3)
+    with pytest.raises(ValueError, match="needs \\(H, W, C\\) observations"):
+        policies.make("iap", (17,), 2)
+    with pytest.raises(ValueError, match="IAPPolicy.controller"):
+        policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm")
