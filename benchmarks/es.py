@@ -229,7 +229,41 @@ def main() -> int:
               f"Reached 400: {'after %.1f min' % o['minutes_to_400'] if o['minutes_to_400'] else 'no'}."
               f" Curve: `benchmarks/{png.name}`.", ""]
     write_section(ROOT / "BENCHMARKS.md", "es", "\n".join(lines))
+    write_section(ROOT / "RESULTS.md", "es", results_section(ours, brax, summary, command, png))
     return 0
+
+
+def results_section(ours, brax, summary, command: str, png: Path) -> str:
+    """The learning curve as a table: the last row of every wall-clock minute."""
+    by_minute = {}
+    for row in ours:
+        by_minute[int(row["wall_s"] // 60)] = row
+    lines = [
+        "## ES sanity bar: state-based cheetah-run within 15 minutes", "",
+        f"Command: `{command}`. Bar: mean evaluation return >= 400 within 15 min of "
+        "wall-clock on this 2-core machine (compile included, cold cache).", "",
+        f"![curve](benchmarks/{png.name})", "",
+        "| minute | iteration | env steps | eval return (mean +- std over episodes) | "
+        "population mean return |",
+        "|---|---|---|---|---|",
+    ]
+    for minute, row in sorted(by_minute.items()):
+        lines.append(
+            f"| {row['wall_s'] / 60:.1f} | {row['iteration']} | {row['env_steps']:,} | "
+            f"{row['eval_return']:.1f} +- {row['eval_return_std']:.1f} | "
+            f"{row['return_mean']:.1f} |")
+    o = summary["ours"]
+    verdict = (f"reached after {o['minutes_to_400']:.1f} min" if o["minutes_to_400"]
+               else "not reached")
+    lines += ["", f"Bar: {verdict}; final eval return {o['final_eval_return']:.1f}, best "
+              f"{o['best_eval_return']:.1f}."]
+    if brax:
+        b = summary["brax"]
+        lines.append(
+            f"brax ES with the same env, env steps and hyperparameters: final eval return "
+            f"{b['final_eval_return']:.1f} (best {b['best_eval_return']:.1f}) after "
+            f"{b['wall_s'] / 60:.1f} min. Details in BENCHMARKS.md.")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
