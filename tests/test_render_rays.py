@@ -149,3 +149,24 @@ def test_every_primitive_matches_mj_ray():
             _, ref_ids = _mj_ray_image(model, data, cam)
             seen |= {int(model.geom_type[g]) for g in np.unique(ref_ids) if g >= 0}
     assert seen == {0, 2, 3, 4, 5, 6}, "every primitive type should be on screen at least once"
+
+
+@pytest.mark.parametrize("max_geoms_per_tile", [1, 2, 4])
+def test_tile_culling_and_its_fallback_equal_dense_tracing(max_geoms_per_tile):
+    """Culled tracing (and the dense fallback a chunk takes when a tile overflows its slots)
+    gives the dense result (same geoms; depth to float rounding, as the culled formulas take
+    sizes as arrays), one image at a time and under vmap with chunking."""
+    states = _suite_states("walker", "walk", n_states=3, seed=11)
+    model = states[0][0]
+    batch = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])
+    dense = Camera(model, height=48, width=40, max_geoms_per_tile=0)
+    culled = Camera(model, height=48, width=40, max_geoms_per_tile=max_geoms_per_tile,
+                    batch_chunk=2, tile=8)
+    assert culled._culled_groups, "walker's capsules should be culled"
+    want = jax.jit(jax.vmap(dense.trace))(batch)
+    got = jax.jit(jax.vmap(culled.trace))(batch)
+    single = jax.jit(culled.trace)(jax.tree.map(lambda x: x[0], batch))
+    np.testing.assert_array_equal(np.asarray(want[1]), np.asarray(got[1]))
+    np.testing.assert_array_equal(np.asarray(want[1])[0], np.asarray(single[1]))
+    np.testing.assert_allclose(np.asarray(want[0]), np.asarray(got[0]), rtol=DEPTH_RTOL)
+    np.testing.assert_allclose(np.asarray(want[0])[0], np.asarray(single[0]), rtol=DEPTH_RTOL)

@@ -2,11 +2,15 @@
 
 Each function takes the ray origin ``o`` and direction ``d`` in the geom's local frame as
 3-tuples of arrays (any broadcastable shapes; the origin is usually one point per image and the
-direction one vector per pixel), the geom's MuJoCo size as Python floats (static), and returns
-``(t, n)``: ``t`` the smallest positive ray parameter of an entry hit (``inf`` for a miss; the
-hit point is ``o + t d``) and ``n`` the outward surface normal there, local frame, not
-normalised. Rays starting inside a solid are not handled (a camera inside a geom sees nothing
-of it), like front-face-only rendering.
+direction one vector per pixel) and the geom's MuJoCo ``size`` (Python floats, or arrays that
+broadcast), and returns ``t``: the smallest positive ray parameter of an entry hit, ``inf`` for
+a miss (the hit point is ``o + t d``). Rays starting inside a solid do not see it (front faces
+only, as a rasteriser with back-face culling).
+
+Written for XLA's CPU fusion: every divide and square root feeds exactly one ``where``, and
+every hit condition is a divide- and root-free test on cheap terms, so a whole geom (and the
+running nearest-hit minimum over geoms) fuses into one loop with nothing materialised. The
+price is a few duplicated roots (computed as distinct expressions so they are not merged).
 """
 
 from __future__ import annotations
@@ -17,119 +21,103 @@ from iap_mjx.render import scene as scene_lib
 
 Vec = tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]
 
-_TINY = 1e-12
+_TINY = 1e-30
+_INF = jnp.inf
 
 
-def _nearest_root(b: jnp.ndarray, a: jnp.ndarray, c: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """Smaller root of ``a t^2 + 2 b t + c = 0`` and whether it is real and positive."""
+def _entry_root(b, a, c):
+    """The smaller root of ``a t^2 + 2 b t + c = 0`` (``a > 0``), ``inf`` unless it is real
+    and positive. Positive smaller root <=> ``b < 0`` and ``c > 0`` (origin outside, moving
+    toward the surface), so the test needs no root."""
     disc = b * b - a * c
-    t = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, _TINY)
-    return t, (disc >= 0.0) & (t > 0.0)
+    ok = (disc >= 0.0) & (b < 0.0) & (c > 0.0)
+    return jnp.where(ok, (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, _TINY), _INF)
 
 
-def plane(o: Vec, d: Vec, size: tuple[float, float, float]) -> tuple[jnp.ndarray, Vec]:
+def plane(o: Vec, d: Vec, size) -> jnp.ndarray:
     """The local z = 0 plane seen from its front (+z) side, within ``|x| <= size[0]`` and
-    ``|y| <= size[1]`` (a size of 0 means unbounded), as ``mj_ray`` does."""
-    t = -o[2] / jnp.minimum(d[2], -_TINY)
+    ``|y| <= size[1]`` (a static size of 0 means unbounded), as ``mj_ray`` does."""
     ok = (d[2] < 0.0) & (o[2] > 0.0)
-    if size[0] > 0:
-        ok &= jnp.abs(o[0] + t * d[0]) <= size[0]
-    if size[1] > 0:
-        ok &= jnp.abs(o[1] + t * d[1]) <= size[1]
-    zero = jnp.zeros_like(t)
-    return jnp.where(ok, t, jnp.inf), (zero, zero, zero + 1.0)
+    # hit point times -d_z (> 0): o_xy * -d_z + o_z * d_xy
+    for i in range(2):
+        if not (isinstance(size[i], (int, float)) and size[i] <= 0):
+            ok &= jnp.abs(o[2] * d[i] - o[i] * d[2]) <= -size[i] * d[2]
+    return jnp.where(ok, o[2] / -jnp.minimum(d[2], -_TINY), _INF)
 
 
-def sphere(o: Vec, d: Vec, size: tuple[float, float, float]) -> tuple[jnp.ndarray, Vec]:
+def sphere(o: Vec, d: Vec, size) -> jnp.ndarray:
     """A sphere of radius ``size[0]`` at the origin."""
     r = size[0]
     a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     b = d[0] * o[0] + d[1] * o[1] + d[2] * o[2]
     c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r
-    t, ok = _nearest_root(b, a, c)
-    t = jnp.where(ok, t, jnp.inf)
-    return t, tuple(o[i] + t * d[i] for i in range(3))
+    return _entry_root(b, a, c)
 
 
-def ellipsoid(o: Vec, d: Vec, size: tuple[float, float, float]) -> tuple[jnp.ndarray, Vec]:
+def ellipsoid(o: Vec, d: Vec, size) -> jnp.ndarray:
     """An axis-aligned ellipsoid with semi-axes ``size`` at the origin."""
     inv = tuple(1.0 / s for s in size)
-    os_ = tuple(o[i] * inv[i] for i in range(3))
-    ds = tuple(d[i] * inv[i] for i in range(3))
-    t, _ = sphere(os_, ds, (1.0, 0.0, 0.0))
-    p = tuple(os_[i] + t * ds[i] for i in range(3))
-    return t, tuple(p[i] * inv[i] for i in range(3))
+    return sphere(tuple(o[i] * inv[i] for i in range(3)), tuple(d[i] * inv[i] for i in range(3)),
+                  (1.0, 0.0, 0.0))
 
 
-def capsule(o: Vec, d: Vec, size: tuple[float, float, float]) -> tuple[jnp.ndarray, Vec]:
-    """A capsule of radius ``size[0]`` around the local z axis, half-length ``size[1]``.
+def _side_wall(o: Vec, d: Vec, r, h) -> jnp.ndarray:
+    """Entry through the wall of the cylinder of radius ``r`` around z within ``|z| <= h``."""
+    a = d[0] * d[0] + d[1] * d[1]
+    b = d[0] * o[0] + d[1] * o[1]
+    c = o[0] * o[0] + o[1] * o[1] - r * r
+    disc = b * b - a * c
+    # z at the entry, times a: o_z a + (-b - sqrt(disc)) d_z; its own (unmerged) root.
+    z_times_a = o[2] * a - (b + jnp.sqrt(jnp.maximum(disc, _TINY))) * d[2]
+    ok = (disc >= 0.0) & (b < 0.0) & (c > 0.0) & (jnp.abs(z_times_a) <= h * a)
+    return jnp.where(ok, (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, _TINY), _INF)
 
-    The entry point lies on the side wall if the ray enters the infinite cylinder within
-    ``|z| <= h``; otherwise it can only lie on the end sphere on that side.
-    """
+
+def capsule(o: Vec, d: Vec, size) -> jnp.ndarray:
+    """A capsule of radius ``size[0]`` around the local z axis, half-length ``size[1]``: the
+    union of the wall and two end spheres, so its entry is the nearest of their entries."""
     r, h = size[0], size[1]
-    a_xy = d[0] * d[0] + d[1] * d[1]
+    t = _side_wall(o, d, r, h)
+    a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     b_xy = d[0] * o[0] + d[1] * o[1]
     c_xy = o[0] * o[0] + o[1] * o[1] - r * r
-    t_side, ok_side = _nearest_root(b_xy, a_xy, c_xy)
-    disc_ok = b_xy * b_xy - a_xy * c_xy >= 0.0
-    z_side = jnp.where(a_xy > _TINY, o[2] + t_side * d[2], -d[2])
-    on_side = ok_side & (jnp.abs(z_side) <= h)
-    cap_z = jnp.where(z_side > 0.0, h, -h)
-    oz = o[2] - cap_z
-    a = a_xy + d[2] * d[2]
-    b = b_xy + d[2] * oz
-    c = o[0] * o[0] + o[1] * o[1] + oz * oz - r * r
-    t_cap, ok_cap = _nearest_root(b, a, c)
-    t = jnp.where(on_side, t_side, jnp.where(ok_cap & disc_ok, t_cap, jnp.inf))
-    p = tuple(o[i] + t * d[i] for i in range(3))
-    return t, (p[0], p[1], p[2] - jnp.clip(p[2], -h, h))
+    for end in (h, -h):
+        oz = o[2] - end
+        t = jnp.minimum(t, _entry_root(b_xy + d[2] * oz, a, c_xy + oz * oz))
+    return t
 
 
-def cylinder(o: Vec, d: Vec, size: tuple[float, float, float]) -> tuple[jnp.ndarray, Vec]:
+def cylinder(o: Vec, d: Vec, size) -> jnp.ndarray:
     """A solid cylinder of radius ``size[0]`` around the local z axis, half-length ``size[1]``:
-    the side wall within ``|z| <= h`` or the flat end on the origin's side."""
+    the wall, or the flat end facing the ray origin."""
     r, h = size[0], size[1]
-    a_xy = d[0] * d[0] + d[1] * d[1]
-    b_xy = d[0] * o[0] + d[1] * o[1]
-    c_xy = o[0] * o[0] + o[1] * o[1] - r * r
-    t_side, ok_side = _nearest_root(b_xy, a_xy, c_xy)
-    on_side = ok_side & (jnp.abs(o[2] + t_side * d[2]) <= h)
-    cap_z = jnp.where(o[2] > 0.0, h, -h)
+    t = _side_wall(o, d, r, h)
+    cap = jnp.where(o[2] > 0.0, h, -h)
+    rise = cap - o[2]  # t * d_z at the cap plane
+    # hit point times d_z: o_xy d_z + rise d_xy, inside the disc of radius r |d_z|
+    hx = o[0] * d[2] + rise * d[0]
+    hy = o[1] * d[2] + rise * d[1]
+    ok = (jnp.abs(o[2]) > h) & (rise * d[2] > 0.0) & (hx * hx + hy * hy <= r * r * d[2] * d[2])
     safe_dz = jnp.where(jnp.abs(d[2]) > _TINY, d[2], _TINY)
-    t_cap = (cap_z - o[2]) / safe_dz
-    x, y = o[0] + t_cap * d[0], o[1] + t_cap * d[1]
-    on_cap = (t_cap > 0.0) & (x * x + y * y <= r * r) & (jnp.abs(o[2]) > h)
-    t_side = jnp.where(on_side, t_side, jnp.inf)
-    t_cap = jnp.where(on_cap, t_cap, jnp.inf)
-    use_cap = t_cap < t_side
-    t = jnp.minimum(t_side, t_cap)
-    px, py = o[0] + t * d[0], o[1] + t * d[1]
-    zero = jnp.zeros_like(t)
-    n = (
-        jnp.where(use_cap, zero, px),
-        jnp.where(use_cap, zero, py),
-        jnp.where(use_cap, jnp.sign(cap_z) + zero, zero),
-    )
-    return t, n
+    return jnp.minimum(t, jnp.where(ok, rise / safe_dz, _INF))
 
 
-def box(o: Vec, d: Vec, size: tuple[float, float, float]) -> tuple[jnp.ndarray, Vec]:
-    """An axis-aligned box with half-sizes ``size`` (slab method)."""
-    t_near, t_far, near_axis = [], [], []
+def box(o: Vec, d: Vec, size) -> jnp.ndarray:
+    """An axis-aligned box with half-sizes ``size``: the nearest hit among the (at most
+    three) faces that face the ray origin."""
+    t = None
     for i in range(3):
-        inv = 1.0 / jnp.where(jnp.abs(d[i]) > _TINY, d[i], _TINY)
-        t1 = (-size[i] - o[i]) * inv
-        t2 = (size[i] - o[i]) * inv
-        t_near.append(jnp.minimum(t1, t2))
-        t_far.append(jnp.maximum(t1, t2))
-    enter = jnp.maximum(jnp.maximum(t_near[0], t_near[1]), t_near[2])
-    leave = jnp.minimum(jnp.minimum(t_far[0], t_far[1]), t_far[2])
-    ok = (enter <= leave) & (enter > 0.0)
-    t = jnp.where(ok, enter, jnp.inf)
-    zero = jnp.zeros_like(t)
-    n = tuple(jnp.where(t_near[i] == enter, -jnp.sign(d[i]), zero) for i in range(3))
-    return t, n
+        j, k = (i + 1) % 3, (i + 2) % 3
+        face = jnp.where(o[i] > 0.0, size[i], -size[i])
+        rise = face - o[i]  # t * d_i at the face plane
+        abs_di = jnp.abs(d[i])
+        ok = (jnp.abs(o[i]) > size[i]) & (rise * d[i] > 0.0)
+        ok &= jnp.abs(o[j] * d[i] + rise * d[j]) <= size[j] * abs_di
+        ok &= jnp.abs(o[k] * d[i] + rise * d[k]) <= size[k] * abs_di
+        safe_di = jnp.where(abs_di > _TINY, d[i], _TINY)
+        t_face = jnp.where(ok, rise / safe_di, _INF)
+        t = t_face if t is None else jnp.minimum(t, t_face)
+    return t
 
 
 BY_TYPE = {
