@@ -471,8 +471,8 @@ class Camera:
             for k in np.flatnonzero(sc.checker):
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
                 v = origin[k, 1] + depth * (x * r_cam[k, 0, 1] + y * r_cam[k, 1, 1] - r_cam[k, 2, 1])
-                cell = (jnp.floor(u * (2.0 * sc.checker_scale[k, 0]))
-                        + jnp.floor(v * (2.0 * sc.checker_scale[k, 1])))
+                cell = (jnp.floor(u * sc.checker_scale[k, 0])
+                        + jnp.floor(v * sc.checker_scale[k, 1]))
                 odd = (cell - 2.0 * jnp.floor(0.5 * cell)) > 0.5
                 mine = best == k
                 colour = [jnp.where(mine, jnp.where(odd, sc.checker_rgb[k, 1, c], sc.checker_rgb[k, 0, c]),
