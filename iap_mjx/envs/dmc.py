@@ -56,7 +56,7 @@ class EnvConfig:
 
     action_repeat: int = 1
     episode_length: int | None = None
-    solver_iterations: int = 4
+    solver_iterations: int = 8
     ls_iterations: int = 8
     max_abs_state: float = 1e6
     obs_mode: str = "state"

@@ -8,9 +8,13 @@ from iap_mjx.envs.dmc import DmControlEnv, EnvConfig
 
 
 def _task_classes() -> dict[str, type[DmControlEnv]]:
+    from iap_mjx.envs.ball_in_cup import BallInCupCatch
+    from iap_mjx.envs.cartpole import CartpoleSwingup
     from iap_mjx.envs.cheetah import CheetahRun
+    from iap_mjx.envs.reacher import ReacherEasy
+    from iap_mjx.envs.walker import WalkerWalk
 
-    classes = [CheetahRun]
+    classes = [BallInCupCatch, CartpoleSwingup, CheetahRun, ReacherEasy, WalkerWalk]
     return {cls.name: cls for cls in classes}
 
 

@@ -1,0 +1,69 @@
+"""ball_in_cup-catch: dm_control's ``suite.ball_in_cup.catch`` on MJX."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from dm_control.suite import ball_in_cup
+from mujoco import mjx
+
+from iap_mjx.envs.dmc import DmControlEnv
+
+
+class BallInCupCatch(DmControlEnv):
+    """Swing the ball (on a string) into the cup; reward 1 while it is inside.
+
+    Observation (8,): ``position`` = qpos (4), ``velocity`` = qvel (4).
+    Control step 0.02 s = 10 physics steps of 0.002 s.
+    """
+
+    name = "ball_in_cup-catch"
+    domain = ball_in_cup
+    n_sub_steps = 10
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        model = self.mj_model
+        self._ball_x = int(model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, "ball_x")])
+        self._ball_z = int(model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, "ball_z")])
+        self._ball_body = self._id(mujoco.mjtObj.mjOBJ_BODY, "ball")
+        self._target_site = self._id(mujoco.mjtObj.mjOBJ_SITE, "target")
+        ball_radius = model.geom_size[self._id(mujoco.mjtObj.mjOBJ_GEOM, "ball"), 0]
+        self._inside = jnp.asarray(model.site_size[self._target_site, [0, 2]] - ball_radius)
+
+    def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
+        """dm_control's rejection sampling: redraw the ball position while it touches anything."""
+        blank = mjx.make_data(self.mj_model)
+
+        def place(key):
+            key_x, key_z = jax.random.split(key)
+            qpos = blank.qpos.at[self._ball_x].set(jax.random.uniform(key_x, (), minval=-0.2, maxval=0.2))
+            qpos = qpos.at[self._ball_z].set(jax.random.uniform(key_z, (), minval=0.2, maxval=0.5))
+            return self.forward(blank.replace(qpos=qpos))
+
+        def penetrating(data):
+            # mj_collision keeps a contact iff dist < margin (0 here); MJX keeps every
+            # candidate pair with its distance.
+            contact = data._impl.contact
+            return jnp.any(contact.dist < contact.includemargin)
+
+        def redraw(carry):
+            key, _ = carry
+            key, sub = jax.random.split(key)
+            return key, place(sub)
+
+        key, sub = jax.random.split(key)
+        _, data = jax.lax.while_loop(lambda c: penetrating(c[1]), redraw, (key, place(sub)))
+        return data, {}
+
+    def ball_to_target(self, data: mjx.Data) -> jax.Array:
+        target = data.site_xpos[self._target_site, jnp.array([0, 2])]
+        ball = data.xpos[self._ball_body, jnp.array([0, 2])]
+        return target - ball
+
+    def state_observation(self, data: mjx.Data) -> jax.Array:
+        return jnp.concatenate([data.qpos, data.qvel])
+
+    def reward(self, data: mjx.Data) -> jax.Array:
+        return jnp.all(jnp.abs(self.ball_to_target(data)) < self._inside).astype(jnp.float32)
