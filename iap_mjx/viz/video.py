@@ -1,0 +1,112 @@
+"""Videos of what the agent sees: camera frames with the selected patches outlined in red.
+
+One episode runs compiled (``lax.scan``); the host then upscales each frame, outlines the
+top-l patches the attention layer picked (as the paper's Figures 9-10) and writes the return
+so far, and saves an MP4 (imageio's bundled ffmpeg) or a GIF.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+RED = (230, 30, 30)
+
+
+def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
+    """The newest RGB frame ``(H, W, 3)`` of a (frame-stacked) pixel observation."""
+    pixels = obs["pixels"] if isinstance(obs, dict) else obs
+    return pixels[..., pixels.shape[-1] - channels_per_frame:][..., :3]
+
+
+def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
+                policy_fn: Any = None) -> dict[str, np.ndarray]:
+    """Rolls one episode of ``steps`` control steps and records what a video needs.
+
+    Args:
+      env: a pixel env (``obs_mode`` with pixels) following the Env protocol.
+      policy: the policy; if it has ``select`` (IAP), the selected patches are recorded.
+      params: the policy's params.
+      key: PRNG key for the env reset and the policy's per-episode state.
+      steps: control steps to record.
+      policy_fn: ``(params, obs, policy_state) -> (action, policy_state)`` to act with
+        (default ``policy.apply``; pass a run's ``policy_fn`` to apply its normalisation).
+
+    Returns:
+      ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "rewards": (T,)}``.
+    """
+    act = policy_fn if policy_fn is not None else policy.apply
+    channels = 4 if getattr(env, "obs_mode", "pixels") == "pixels_depth" else 3
+    reset_key, policy_key = jax.random.split(key)
+    selects = hasattr(policy, "select")
+
+    def step(carry, _):
+        state, policy_state = carry
+        record = {"frames": newest_rgb(state.obs, channels)}
+        if selects:
+            record["indices"] = policy.select(params, state.obs, policy_state).indices
+        action, policy_state = act(params, state.obs, policy_state)
+        state = env.step(state, action)
+        record["rewards"] = state.reward
+        return (state, policy_state), record
+
+    @jax.jit
+    def rollout(reset_key, policy_key):
+        carry = (env.reset(reset_key), policy.initial_state(policy_key))
+        return jax.lax.scan(step, carry, None, length=steps)[1]
+
+    return jax.tree_util.tree_map(np.asarray, rollout(reset_key, policy_key))
+
+
+def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_return: float,
+             *, scale: int = 3) -> np.ndarray:
+    """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text."""
+    from PIL import Image, ImageDraw
+
+    image = Image.fromarray((np.clip(frame, 0, 1) * 255).astype(np.uint8))
+    image = image.resize((frame.shape[1] * scale, frame.shape[0] * scale), Image.NEAREST)
+    canvas = Image.new("RGB", (image.width, image.height + 16), (0, 0, 0))
+    canvas.paste(image, (0, 16))
+    draw = ImageDraw.Draw(canvas)
+    if indices is not None and layer is not None:
+        patch, step = layer.config.patch_size, layer.config.step
+        _, cols = layer.grid
+        for index in indices:
+            top, left = (int(index) // cols) * step * scale, (int(index) % cols) * step * scale
+            draw.rectangle([left, 16 + top, left + patch * scale - 1, 16 + top + patch * scale - 1],
+                           outline=RED)
+    draw.text((2, 2), f"return {episode_return:8.2f}", fill=(255, 255, 255))
+    return np.asarray(canvas)
+
+
+def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) -> Path:
+    """Writes ``frames`` as MP4 (``.mp4``) or GIF (any other suffix) and returns the path."""
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix == ".mp4":
+        imageio.mimsave(path, frames, fps=fps, macro_block_size=1)
+    else:
+        imageio.mimsave(path, frames, duration=1000 / fps, loop=0)
+    logger.info("wrote %s (%d frames)", path, len(frames))
+    return path
+
+
+def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array,
+                  steps: int, policy_fn: Any = None, fps: int = 30) -> tuple[Path, float]:
+    """Runs one episode and writes its annotated video. Returns ``(path, episode return)``."""
+    record = run_episode(env, policy, params, key, steps=steps, policy_fn=policy_fn)
+    returns = np.cumsum(record["rewards"])
+    layer = getattr(policy, "layer", None)
+    indices = record.get("indices")
+    frames = [annotate(frame, None if indices is None else indices[t], layer, float(returns[t]))
+              for t, frame in enumerate(record["frames"])]
+    return write_video(path, frames, fps=fps), float(returns[-1])

@@ -1,0 +1,35 @@
+"""Videos: an IAP policy's episode on a pixel env, with the selected patches outlined in red."""
+
+import imageio.v2 as imageio
+import jax
+import numpy as np
+
+from iap_mjx import envs, policies
+from iap_mjx.viz import video
+
+
+def test_episode_video_outlines_the_selected_patches(tmp_path):
+    env = envs.make("cheetah-run", obs_mode="pixels", height=24, width=24, episode_length=6)
+    policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=4, top_l=3)
+    params = policy.init(jax.random.PRNGKey(0))
+    record = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=4)
+    assert record["frames"].shape == (4, 24, 24, 3)
+    assert record["indices"].shape == (4, 3)
+    assert np.all(np.isfinite(record["rewards"]))
+    # The recorded selection is the policy's own on the recorded frame.
+    projections = policy.initial_state(jax.random.split(jax.random.PRNGKey(1))[1])
+    again = policy.select(params, record["frames"][2], projections).indices
+    np.testing.assert_array_equal(again, record["indices"][2])
+
+    frame = video.annotate(record["frames"][0], record["indices"][0], policy.layer, 1.5, scale=3)
+    assert frame.shape == (24 * 3 + 16, 24 * 3, 3)
+    cols = policy.layer.grid[1]
+    for index in record["indices"][0]:
+        top, left = 16 + (index // cols) * 12, (index % cols) * 12
+        assert tuple(frame[top, left]) == video.RED  # the outline's corner
+
+    path, episode_return = video.episode_video(env, policy, params, tmp_path / "episode.gif",
+                                               key=jax.random.PRNGKey(1), steps=4)
+    frames = imageio.mimread(path)
+    assert len(frames) == 4 and frames[0].shape[:2] == (88, 72)
+    np.testing.assert_allclose(episode_return, record["rewards"].sum(), rtol=1e-5)
