@@ -5,6 +5,7 @@ lower layer never imports a higher one); they are re-exported here.
 """
 
 from iap_mjx.configs.overrides import apply_overrides, parse_value
+from iap_mjx.configs import pixel_presets  # noqa: F401  (registers the pixel presets)
 from iap_mjx.configs.presets import describe, get, names, register
 from iap_mjx.es.config import EnvConfig, ESConfig, PolicyConfig, RunConfig, TrainConfig
 
