@@ -60,8 +60,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"\ninterrupted; checkpoint saved. Resume with: iap-mjx train {args.preset} "
               f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(), file=sys.stderr)
         return 130
+    from iap_mjx.viz import artifacts
+
+    written = artifacts.write_run_artifacts(result, run_dir)
     last = next((row for row in reversed(result.history) if "eval_return" in row), None)
-    summary = {"run_dir": str(run_dir), "iterations": config.run.iterations}
+    summary = {"run_dir": str(run_dir), "iterations": config.run.iterations,
+               "artifacts": [str(path) for path in written]}
     if last is not None:
         summary["eval_return"] = last["eval_return"]
     print(json.dumps(summary))
@@ -84,6 +88,21 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "return_std": float(returns.std()),
         "returns": [float(r) for r in returns],
     }))
+    return 0
+
+
+def cmd_video(args: argparse.Namespace) -> int:
+    """Renders an episode of a run's latest checkpoint with the selected patches outlined."""
+    from iap_mjx.viz import artifacts
+
+    try:
+        result = artifacts.load_result(args.run_dir)
+        out = Path(args.out) if args.out else Path(args.run_dir) / "episode.mp4"
+        path, episode_return = artifacts.write_video(result, out, seed=args.seed, steps=args.steps)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps({"video": str(path), "return": episode_return}))
     return 0
 
 
@@ -130,6 +149,13 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=12345,
                           help="evaluation seed (distinct from the training seeds)")
     evaluate.set_defaults(func=cmd_eval)
+
+    video = commands.add_parser("video", help="render an episode with the selected patches outlined")
+    video.add_argument("run_dir")
+    video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
+    video.add_argument("--seed", type=int, default=0, help="episode seed")
+    video.add_argument("--steps", type=int, default=None, help="control steps (default: the episode)")
+    video.set_defaults(func=cmd_video)
 
     figures = commands.add_parser(
         "figures", help="write the paper's figures as PNGs",

@@ -1,0 +1,63 @@
+"""What a finished run leaves for a person: the reward curve PNG and an annotated episode video."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from iap_mjx import envs, policies
+from iap_mjx.viz import curves, video
+
+logger = logging.getLogger(__name__)
+
+
+def load_result(run_dir: str | Path) -> Any:
+    """A run's latest checkpoint as an ``es.TrainResult`` (params, policy_fn, config)."""
+    from iap_mjx.es import checkpoint
+    from iap_mjx.es.config import TrainConfig
+    from iap_mjx.es.train import _restore, build, init_state, result_from_state
+
+    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    parts = build(config)
+    state = _restore(parts, run_dir, init_state(parts))
+    return result_from_state(parts, state, curves.read_history(run_dir), run_dir)
+
+
+def env_and_policy(config: Any) -> tuple[Any, Any]:
+    """The env and policy a ``TrainConfig`` names (built again, as values)."""
+    env = envs.make(config.env.name, **dict(config.env.overrides))
+    policy = policies.make(config.policy.kind, env.observation_shape, env.action_size,
+                           **dict(config.policy.options))
+    return env, policy
+
+
+def has_pixels(env: Any) -> bool:
+    """Whether ``env`` observes pixels (so a video of what the agent sees exists)."""
+    return getattr(env, "obs_mode", "state") != "state"
+
+
+def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None) -> tuple[Path, float]:
+    """An episode of ``result``'s centre params on its (pixel) env, patches outlined."""
+    env, policy = env_and_policy(result.config)
+    if not has_pixels(env):
+        raise ValueError(f"run's env {result.config.env.name!r} observes the state, not pixels: "
+                         "there is no camera view to show")
+    steps = env.episode_length if steps is None else steps
+    return video.episode_video(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
+                               steps=steps, policy_fn=result.policy_fn)
+
+
+def write_run_artifacts(result: Any, run_dir: str | Path) -> list[Path]:
+    """Writes ``reward_curve.png`` and, for pixel envs, ``episode.mp4`` into ``run_dir``."""
+    run_dir = Path(run_dir)
+    paths = [curves.plot_reward_curve(curves.read_history(run_dir), run_dir / "reward_curve.png",
+                                      title=f"{result.config.env.name}: {result.config.policy.kind} policy")]
+    env, _ = env_and_policy(result.config)
+    if has_pixels(env):
+        path, episode_return = write_video(result, run_dir / "episode.mp4")
+        logger.info("episode video: return %.1f", episode_return)
+        paths.append(path)
+    return paths
