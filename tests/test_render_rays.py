@@ -151,18 +151,21 @@ def test_every_primitive_matches_mj_ray():
     assert seen == {0, 2, 3, 4, 5, 6}, "every primitive type should be on screen at least once"
 
 
-@pytest.mark.parametrize("max_geoms_per_tile", [1, 2, 4])
-def test_tile_culling_and_its_fallback_equal_dense_tracing(max_geoms_per_tile):
+@pytest.mark.parametrize("cull_pairs_per_tile,overflows", [(0.02, True), (4.0, False)])
+def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, overflows):
     """Culled tracing (and the dense fallback a chunk takes when a tile overflows its slots)
     gives the dense result (same geoms; depth to float rounding, as the culled formulas take
     sizes as arrays), one image at a time and under vmap with chunking."""
     states = _suite_states("walker", "walk", n_states=3, seed=11)
     model = states[0][0]
     batch = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])
-    dense = Camera(model, height=48, width=40, max_geoms_per_tile=0)
-    culled = Camera(model, height=48, width=40, max_geoms_per_tile=max_geoms_per_tile,
+    dense = Camera(model, height=48, width=40, cull_pairs_per_tile=0)
+    culled = Camera(model, height=48, width=40, cull_pairs_per_tile=cull_pairs_per_tile,
                     batch_chunk=2, tile=8)
     assert culled._culled_groups, "walker's capsules should be culled"
+    frames = jax.vmap(culled._frames)(jax.vmap(culled._poses)(batch))
+    _, _, overflow = jax.jit(jax.vmap(culled._trace_culled))(frames)
+    assert bool(np.all(overflow)) == overflows, "the test should reach the intended path"
     want = jax.jit(jax.vmap(dense.trace))(batch)
     got = jax.jit(jax.vmap(culled.trace))(batch)
     single = jax.jit(culled.trace)(jax.tree.map(lambda x: x[0], batch))

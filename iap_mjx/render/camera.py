@@ -1,17 +1,28 @@
 """The ray-cast RGB-D camera: one ``mjx.Data`` -> an RGB image and a depth map.
 
-Every pixel's ray is tested against every rendered geom in closed form, with all geometry
-moved into the camera frame first: a pixel's ray is ``t * (x, y, -1)`` in camera coordinates,
-so the ray parameter ``t`` *is* the depth along the optical axis, and each geom's local ray
-direction is an affine function of the pixel's ``(x, y)``. The per-geom loop is unrolled in
-Python (geom types and sizes are static), so XLA fuses the whole image into one elementwise
-loop with a running nearest-hit selection and no ``(pixels x geoms)`` intermediate.
+How it works (and why, on a CPU):
+
+- Geometry moves into the camera frame once per image: pixel ``(x, y)``'s ray is
+  ``t * (x, y, -1)``, so the ray parameter ``t`` *is* the depth along the optical axis, and
+  each geom's local ray direction is an affine function of ``(x, y)``. Intersections are
+  closed forms per primitive (``intersect.py``), unrolled over the geoms (types and sizes are
+  static).
+- The nearest hit is one ``min`` over int32 keys that pack the depth and the geom index
+  (``Camera._nearest``): no argmin, no per-geom payloads.
+- Types with many geoms (cheetah's capsules) are culled per screen tile: only the (tile, geom)
+  pairs where the geom's projected bounds reach the tile are traced, from a fixed-size list
+  (``cull_pairs_per_tile``); a batch chunk with more pairs than that is traced densely
+  instead, so the result never depends on the culling.
+- Shading needs no per-geom work per pixel: colour by geom index, Lambert normals from the
+  hit points of neighbouring pixels on the same geom, the floor checker from the plane's hit
+  coordinates, the sky from the ray's elevation.
+- Under ``vmap`` the batch is rendered in chunks (``batch_chunk`` images per step of a loop)
+  so intermediates stay in cache; see ``Camera._batchable``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Optional
 
 import jax
@@ -45,10 +56,10 @@ class CameraConfig:
       batch_chunk: under ``vmap``, images rendered together per step of the loop over the batch
         (small enough for the intermediates to stay in cache).
       tile: side in pixels of the square screen tiles used for culling.
-      max_geoms_per_tile: slots per tile for each culled type group (types with more geoms than
-        this, planes excepted, are culled per tile by projected bounds). A batch chunk in which
-        some tile has more candidates is traced densely instead, so results never depend on it;
-        0 turns culling off.
+      cull_pairs_per_tile: budget of (tile, geom) pairs per culled type group, per tile on
+        average (types with at least 3 geoms, planes excepted, are traced only on the tiles
+        their projected bounds reach). A batch chunk whose pairs exceed the budget is traced
+        densely instead, so results never depend on it; 0 turns culling off.
     """
 
     camera_id: int = 0
@@ -61,7 +72,7 @@ class CameraConfig:
     checker_floor: bool = True
     batch_chunk: int = 4
     tile: int = 10
-    max_geoms_per_tile: int = 4
+    cull_pairs_per_tile: float = 1.0
 
     def __post_init__(self):
         if not isinstance(self.camera_id, int) or self.camera_id < 0:
@@ -72,10 +83,10 @@ class CameraConfig:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
         if not all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups):
             raise ValueError(f"geom_groups must be ints in 0..5, got {self.geom_groups!r}")
-        for name in ("tile", "max_geoms_per_tile"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < (1 if name == "tile" else 0):
-                raise ValueError(f"{name} must be an int >= {1 if name == 'tile' else 0}, got {value!r}")
+        if not isinstance(self.tile, int) or self.tile < 1:
+            raise ValueError(f"tile must be a positive int, got {self.tile!r}")
+        if not isinstance(self.cull_pairs_per_tile, (int, float)) or self.cull_pairs_per_tile < 0:
+            raise ValueError(f"cull_pairs_per_tile must be a number >= 0, got {self.cull_pairs_per_tile!r}")
         if not isinstance(self.batch_chunk, int) or self.batch_chunk < 1:
             raise ValueError(f"batch_chunk must be a positive int, got {self.batch_chunk!r}")
         if self.shading not in SHADINGS:
@@ -124,16 +135,17 @@ class Camera:
         self._x = (cols * half_w).astype(np.float32)[None, :]
         self._pixel_pitch = (float(2.0 * half_w / width), float(2.0 * half_h / height))
         self._y = (rows * half_h).astype(np.float32)[:, None]
-        self._key = (self.config, self.scene.digest(), self.fovy)
+        self._identity = (self.config, self.scene.digest(), self.fovy)
         self._kernels = {}
         self._setup_tiles(half_w, half_h)
-        k_max = self.config.max_geoms_per_tile
+        n_tiles = self._tile_x.shape[0]
+        self._pair_budget = int(np.ceil(self.config.cull_pairs_per_tile * n_tiles))
         groups = {}
         for k, gtype in enumerate(self.scene.geom_type):
             groups.setdefault(int(gtype), []).append(k)
         self._culled_groups = tuple(
             (gtype, tuple(members)) for gtype, members in sorted(groups.items())
-            if gtype != scene_lib.PLANE and k_max > 0 and len(members) > k_max)
+            if gtype != scene_lib.PLANE and self._pair_budget > 0 and len(members) >= 3)
         culled = {k for _, members in self._culled_groups for k in members}
         self._dense_geoms = tuple(k for k in range(len(self.scene.geom_ids)) if k not in culled)
 
@@ -153,10 +165,10 @@ class Camera:
                                       self._tile_y.min(1), self._tile_y.max(1)], axis=1)
 
     def __hash__(self) -> int:
-        return hash(self._key)
+        return hash(self._identity)
 
     def __eq__(self, other) -> bool:
-        return isinstance(other, Camera) and self._key == other._key
+        return isinstance(other, Camera) and self._identity == other._identity
 
     def __repr__(self) -> str:
         c = self.config
@@ -264,8 +276,8 @@ class Camera:
 
     def _program(self, poses, background, geom_rgb, colour: bool, batched: bool):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
-        depth (H, W), geom id (H, W))``. Culled tracing first; if any tile (of any image in
-        the batch) has more candidate geoms than ``max_geoms_per_tile``, dense tracing.
+        depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
+        more (tile, geom) pairs than the budget, dense tracing.
 
         The trace ends in a ``lax.cond`` (on the camera pose being finite; a non-finite pose
         sees nothing): its results are materialised once, where XLA would otherwise fuse the
@@ -290,8 +302,25 @@ class Camera:
                 lambda: (depth, best))
         else:
             depth, best = jax.lax.cond(finite, lambda: lift(self._trace_dense)(frames), nothing)
-        return lift(functools.partial(self._finish, colour=colour))(
-            poses, frames, depth, best, background, geom_rgb)
+        ids = jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best]
+        if not colour:
+            return None, depth, ids
+        # Shading in planes, each stage materialised behind a cond: XLA would otherwise fuse
+        # everything into the interleaved (H, W, 3) output and redo it per channel.
+        # Neighbour lookups read slices of materialised padded copies (no concatenates, which
+        # XLA's CPU loops do not vectorise).
+        padded = self._barrier(lift(_pad_one)((depth, best)), finite)
+        surface, light = self._barrier(
+            lift(self._surface_terms)(poses, frames, padded, geom_rgb), finite)
+        planes = self._barrier(
+            lift(self._compose)(poses, surface, light, best, background), finite)
+        return jnp.stack(planes, axis=-1), depth, ids
+
+    @staticmethod
+    def _barrier(tree, pred):
+        """``tree``, materialised: returned through a ``lax.cond`` (``pred`` should hold; the
+        other branch negates, so the two cannot be merged)."""
+        return jax.lax.cond(pred, lambda: tree, lambda: jax.tree.map(jnp.negative, tree))
 
     def _frames(self, poses) -> dict[str, jax.Array]:
         """Per-geom constants of one image in camera and local frames."""
@@ -317,36 +346,40 @@ class Camera:
         return self._nearest(candidates, (self.config.height, self.config.width))
 
     def _trace_culled(self, frames):
-        """Planes and small groups densely; each culled type group per tile through at most
-        ``max_geoms_per_tile`` slots, picked by projected bounds: depth and geom index
-        ``(H, W)``. Also returns ``overflow``,
-        true if some tile had more overlapping geoms than slots (the result is then wrong and
-        the caller falls back to ``_trace_dense``)."""
+        """Planes and small type groups against every pixel; each culled type group only
+        against the tiles its geoms' projected bounds reach: the (tile, geom) pairs are listed
+        (at most ``self._pair_budget`` per group), each pair traces its tile's pixels, and a
+        scatter-min merges them. Returns depth and geom index ``(H, W)`` and ``overflow``,
+        true if a group had more pairs than the budget (the result is then incomplete and the
+        caller falls back to ``_trace_dense``)."""
         sc = self.scene
-        k_max = self.config.max_geoms_per_tile
         tx, ty = jnp.asarray(self._tile_x), jnp.asarray(self._tile_y)
         r_cam, origin = frames["r_cam"], frames["origin"]
-        candidates = [(self._intersect_static(k, r_cam, origin, tx, ty), k)
-                      for k in self._dense_geoms]
+        keys = jnp.min(jnp.stack(
+            [self._far_key(tx.shape)]
+            + [self._key(self._intersect_static(k, r_cam, origin, tx, ty), k) for k in self._dense_geoms]),
+            axis=0)
         overflow = jnp.zeros((), bool)
+        budget = self._pair_budget
         for gtype, members in self._culled_groups:
-            members_arr = jnp.asarray(members)
-            overlap = self._tile_overlap(frames, members)
-            overflow |= jnp.any(jnp.sum(overlap, axis=1) > k_max)
-            priority = jnp.where(overlap, len(members) - jnp.arange(len(members)), 0)
-            score, slot = jax.lax.top_k(priority, k_max)
+            members_arr = jnp.asarray(members, jnp.int32)
+            overlap = self._tile_overlap(frames, members).reshape(-1)  # tile-major pairs
+            n_pairs = overlap.shape[0]
+            overflow |= jnp.sum(overlap) > budget
+            score, pair = jax.lax.top_k(jnp.where(overlap, n_pairs - jnp.arange(n_pairs), 0), budget)
+            tile, local = pair // len(members), pair % len(members)
             params = jnp.concatenate([
                 r_cam[members_arr, 0, :], r_cam[members_arr, 1, :], -r_cam[members_arr, 2, :],
                 origin[members_arr], jnp.asarray(sc.geom_size[list(members)]),
-            ], axis=1)
-            picked = params[slot]
-            for s in range(k_max):
-                col = [picked[:, s, i: i + 1] for i in range(15)]
-                d = tuple(tx * col[i] + ty * col[3 + i] + col[6 + i] for i in range(3))
-                t = intersect.BY_TYPE[gtype](tuple(col[9:12]), d, tuple(col[12:15]))
-                t = jnp.where(score[:, s: s + 1] > 0, t, jnp.inf)
-                candidates.append((t, members_arr[slot[:, s: s + 1]]))
-        depth, best = self._nearest(candidates, tx.shape)
+            ], axis=1)[local]
+            col = [params[:, i: i + 1] for i in range(15)]
+            px, py = tx[tile], ty[tile]
+            d = tuple(px * col[i] + py * col[3 + i] + col[6 + i] for i in range(3))
+            t = intersect.BY_TYPE[gtype](tuple(col[9:12]), d, tuple(col[12:15]))
+            pair_keys = jnp.where((score > 0)[:, None], self._key(t, members_arr[local][:, None]),
+                                  jnp.iinfo(jnp.int32).max)
+            keys = keys.at[tile].min(pair_keys, mode="promise_in_bounds")
+        depth, best = self._decode(keys)
         return self._to_image(depth), self._to_image(best), overflow
 
     def _tile_overlap(self, frames, members):
@@ -402,28 +435,37 @@ class Camera:
         d = tuple(x * r_cam[k, 0, i] + (y * r_cam[k, 1, i] - r_cam[k, 2, i]) for i in range(3))
         return intersect.BY_TYPE[int(sc.geom_type[k])](o, d, size)
 
-    def _nearest(self, candidates, shape):
-        """The nearest of ``(t, geom index)`` candidates and the far plane: depth (far plane if
-        none) and geom index (``G`` if none).
+    @property
+    def _index_mask(self) -> int:
+        return (1 << max(1, len(self.scene.geom_ids).bit_length())) - 1
 
-        One running ``min`` over int32 keys: a positive float's bits order like its value, so
-        the depth's low mantissa bits are replaced by the geom index and the smallest key is
-        the nearest hit *and* says which geom it is (the depth loses those bits: a relative
-        error below ``2**(bits - 23)``, under 1e-5 for up to 63 geoms).
+    def _key(self, t, k):
+        """int32 key of a hit at ray parameter ``t`` on geom index ``k``.
+
+        A positive float's bits order like its value, so replacing the depth's low mantissa
+        bits by the geom index gives keys whose minimum is the nearest hit *and* names its
+        geom (the depth loses those bits: a relative error below ``2**(bits - 23)``, under
+        1e-5 for up to 63 geoms). One ``min`` then replaces an argmin with payloads.
         """
-        n_geom = len(self.scene.geom_ids)
-        mask = (1 << max(1, n_geom.bit_length())) - 1
+        bits = jax.lax.bitcast_convert_type(jnp.maximum(t, 0.0), jnp.int32)
+        return (bits & ~self._index_mask) | k
+
+    def _far_key(self, shape):
+        """Keys of 'nothing before the far plane' (index ``G``)."""
         zfar_bits = int(np.float32(self.scene.zfar).view(np.int32))
-        keys = [jnp.full(shape, (zfar_bits & ~mask) | n_geom, jnp.int32)]
-        for t, k in candidates:
-            bits = jax.lax.bitcast_convert_type(jnp.maximum(t, 0.0), jnp.int32)
-            keys.append(jnp.broadcast_to((bits & ~mask) | k, shape))
-        # A reduction (not a chain of minimums): XLA materialises its result once instead of
-        # fusing the whole trace into each of its consumers.
-        best = jnp.min(jnp.stack(keys), axis=0)
-        index = best & mask
-        depth = jax.lax.bitcast_convert_type(best & ~mask, jnp.float32)
+        return jnp.full(shape, (zfar_bits & ~self._index_mask) | len(self.scene.geom_ids), jnp.int32)
+
+    def _decode(self, keys):
+        """Keys -> depth (far plane where nothing is hit) and geom index (``G`` if none)."""
+        n_geom = len(self.scene.geom_ids)
+        index = keys & self._index_mask
+        depth = jax.lax.bitcast_convert_type(keys & ~self._index_mask, jnp.float32)
         return jnp.where(index == n_geom, jnp.float32(self.scene.zfar), depth), index
+
+    def _nearest(self, candidates, shape):
+        """The nearest of ``(t, geom index)`` candidates and the far plane: depth and index."""
+        keys = [self._far_key(shape)] + [jnp.broadcast_to(self._key(t, k), shape) for t, k in candidates]
+        return self._decode(jnp.min(jnp.stack(keys), axis=0))
 
     def _to_image(self, tiled):
         """``(tiles, tile pixels, ...)`` -> ``(H, W, ...)``."""
@@ -434,32 +476,32 @@ class Camera:
         image = jnp.moveaxis(image, 2, 1).reshape((ny * th, nx * tw) + rest)
         return image[: cfg.height, : cfg.width]
 
-    def _finish(self, poses, frames, depth, best, background, geom_rgb, colour: bool):
-        """Depth and geom index ``(H, W)`` -> ``(rgb or None, depth, ids)`` images."""
-        sc, cfg = self.scene, self.config
-        ids = jnp.asarray(np.append(sc.geom_ids, -1).astype(np.int32))[best]
-        if not colour:
-            return None, depth, ids
-        rgb_table = sc.geom_rgb if geom_rgb.size == 0 else geom_rgb.astype(jnp.float32)
-        surface = self._shade(poses, frames, rgb_table, depth, best,
-                              checker=geom_rgb.size == 0 and cfg.checker_floor)
+    def _compose(self, poses, surface, light, best, background):
+        """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background."""
         if background.size == 0:
             background = self._sky(poses["cam_mat"])
         else:
             background = [background[..., c].astype(jnp.float32) for c in range(3)]
-        hit = best < len(sc.geom_ids)
-        rgb = jnp.stack([jnp.where(hit, surface[c], background[c]) for c in range(3)], axis=-1)
-        return rgb, depth, ids
+        hit = best < len(self.scene.geom_ids)
+        light = [light[min(c, len(light) - 1)] for c in range(3)]
+        return tuple(jnp.where(hit, jnp.clip(surface[c] * light[c], 0.0, 1.0), background[c])
+                     for c in range(3))
 
-    def _shade(self, poses, frames, rgb_table, depth, best, checker: bool):
-        """``[3 x (H, W)]`` surface colour of each pixel's nearest geom.
+    def _surface_terms(self, poses, frames, padded, geom_rgb):
+        """Surface colour ``3 x (H, W)`` of each pixel's nearest geom and the light falling on
+        it, ``1 x (H, W)`` when all lights are grey (dm_control's are) else ``3 x (H, W)``;
+        ``padded`` is depth and geom index with a one-pixel border (``_pad_one``).
 
         The colour is the geom's (or the checker floor's at the hit point); the normal for
         Lambert shading comes from the hit points of neighbouring pixels on the same geom
         (the one-sided difference with the smaller depth step, so edges do not bend it),
         which needs no per-geom work per pixel.
         """
+        rgb_table = self.scene.geom_rgb if geom_rgb.size == 0 else geom_rgb.astype(jnp.float32)
+        checker = geom_rgb.size == 0 and self.config.checker_floor
         sc, cfg = self.scene, self.config
+        depth_p, best_p = padded
+        depth, best = depth_p[1:-1, 1:-1], best_p[1:-1, 1:-1]
         n_geom = len(sc.geom_ids)
         x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         colour = [jnp.zeros_like(depth) for _ in range(3)]
@@ -471,16 +513,15 @@ class Camera:
             for k in np.flatnonzero(sc.checker):
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
                 v = origin[k, 1] + depth * (x * r_cam[k, 0, 1] + y * r_cam[k, 1, 1] - r_cam[k, 2, 1])
-                cell = (jnp.floor(u * sc.checker_scale[k, 0])
-                        + jnp.floor(v * sc.checker_scale[k, 1]))
-                odd = (cell - 2.0 * jnp.floor(0.5 * cell)) > 0.5
+                odd = ((_floor_int(u * sc.checker_scale[k, 0])
+                        + _floor_int(v * sc.checker_scale[k, 1])) & 1) == 1
                 mine = best == k
                 colour = [jnp.where(mine, jnp.where(odd, sc.checker_rgb[k, 1, c], sc.checker_rgb[k, 0, c]),
                                     colour[c]) for c in range(3)]
         if cfg.shading == "flat":
-            return [jnp.clip(c, 0.0, 1.0) for c in colour]
-        tangent_x = _surface_step(depth, best, x, y, self._pixel_pitch[0], axis=1)
-        tangent_y = _surface_step(depth, best, x, y, -self._pixel_pitch[1], axis=0)
+            return tuple(colour), (jnp.ones_like(depth),)
+        tangent_x = _surface_step(depth_p, best_p, x, y, self._pixel_pitch[0], axis=1)
+        tangent_y = _surface_step(depth_p, best_p, x, y, -self._pixel_pitch[1], axis=0)
         normal = _cross(tangent_x, tangent_y)
         # < 0 when facing the camera (the hit point is depth * (x, y, -1))
         facing = normal[0] * x + normal[1] * y - normal[2]
@@ -494,9 +535,7 @@ class Camera:
         channels = (0,) if grey else (0, 1, 2)
         light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines)))
                  for c in channels]
-        if grey:  # one intensity for the three channels (dm_control's lights are white)
-            light = light * 3
-        return [jnp.clip(colour[c] * light[c], 0.0, 1.0) for c in range(3)]
+        return tuple(colour), tuple(light)
 
     def _light_vectors(self, poses) -> jax.Array:
         """``(1 + L, 3)`` unit vectors toward the headlight (which shines along the view
@@ -523,25 +562,36 @@ class Camera:
         return [jnp.clip(sc.sky_mid[c] + sc.sky_slope[c] * z, 0.0, 1.0) for c in range(3)]
 
 
-def _shift(a, axis: int, step: int, fill):
-    """``out[i] = a[i + step]`` along ``axis`` (``step`` = +-1), ``fill`` past the edge."""
-    n = a.shape[axis]
-    pad = jnp.full_like(jax.lax.slice_in_dim(a, 0, 1, axis=axis), fill)
-    if step > 0:
-        return jnp.concatenate([jax.lax.slice_in_dim(a, 1, n, axis=axis), pad], axis=axis)
-    return jnp.concatenate([pad, jax.lax.slice_in_dim(a, 0, n - 1, axis=axis)], axis=axis)
+def _floor_int(a):
+    """``floor(a)`` as int32 (a truncating conversion and a fix-up: vectorises on CPU, where
+    ``jnp.floor`` may not)."""
+    truncated = a.astype(jnp.int32)
+    return truncated - (a < truncated.astype(a.dtype)).astype(jnp.int32)
 
 
-def _surface_step(depth, best, x, y, pixel: float, axis: int):
+def _pad_one(depth_and_best):
+    """Depth and geom index ``(H, W)`` with a one-pixel border (depth 0, geom -1: no
+    neighbour), ``(H + 2, W + 2)``."""
+    depth, best = depth_and_best
+    return jnp.pad(depth, 1), jnp.pad(best, 1, constant_values=-1)
+
+
+def _surface_step(depth_p, best_p, x, y, pixel: float, axis: int):
     """Tangent ``[3 x (H, W)]`` along ``axis`` (columns: 1, rows: 0) between the hit points
     ``depth * (x, y, -1)`` of neighbouring pixels on the same geom: the forward or backward
     difference with the smaller depth step; where neither neighbour is on the same geom, a
-    step of one pixel along the image axis at the pixel's depth. ``pixel`` is the pixel
-    pitch in image coordinates (positive along columns, negative along rows)."""
-    depth_ahead = _shift(depth, axis, 1, 0.0)
-    depth_behind = _shift(depth, axis, -1, 0.0)
-    same_ahead = _shift(best, axis, 1, -1) == best
-    same_behind = _shift(best, axis, -1, -1) == best
+    step of one pixel along the image axis at the pixel's depth. ``depth_p``, ``best_p`` are
+    padded by one pixel; ``pixel`` is the pixel pitch in image coordinates (positive along
+    columns, negative along rows)."""
+    def window(a, offset):
+        rows = slice(1 + offset, a.shape[0] - 1 + offset) if axis == 0 else slice(1, -1)
+        cols = slice(1 + offset, a.shape[1] - 1 + offset) if axis == 1 else slice(1, -1)
+        return a[rows, cols]
+
+    depth, best = window(depth_p, 0), window(best_p, 0)
+    depth_ahead, depth_behind = window(depth_p, 1), window(depth_p, -1)
+    same_ahead = window(best_p, 1) == best
+    same_behind = window(best_p, -1) == best
     step_ahead = depth_ahead - depth
     step_behind = depth - depth_behind
     use_ahead = same_ahead & (~same_behind | (jnp.abs(step_ahead) <= jnp.abs(step_behind)))
@@ -556,29 +606,3 @@ def _surface_step(depth, best, x, y, pixel: float, axis: int):
 
 def _cross(u, v):
     return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-
-
-def _local_normal(gtype: int, p, inv_s, inv_s2):
-    """Outward normal (not normalised) of a geom of type ``gtype`` at local hit point ``p``;
-    sizes come per pixel as ``inv_s = 1 / size`` (so one formula serves all geoms of a type)."""
-    zero = jnp.zeros_like(p[0])
-    if gtype == scene_lib.PLANE:
-        return zero, zero, zero + 1.0
-    if gtype == scene_lib.SPHERE:
-        return tuple(p)
-    if gtype == scene_lib.ELLIPSOID:
-        return tuple(p[i] * inv_s2[i] for i in range(3))
-    if gtype == scene_lib.CAPSULE:
-        half = 1.0 / inv_s[1]
-        return p[0], p[1], p[2] - jnp.clip(p[2], -half, half)
-    if gtype == scene_lib.CYLINDER:
-        radial = jnp.sqrt(p[0] * p[0] + p[1] * p[1]) * inv_s[0]
-        cap = jnp.abs(p[2]) * inv_s[1] > radial
-        return (jnp.where(cap, zero, p[0]), jnp.where(cap, zero, p[1]),
-                jnp.where(cap, jnp.sign(p[2]), zero))
-    if gtype == scene_lib.BOX:
-        q = [jnp.abs(p[i]) * inv_s[i] for i in range(3)]
-        return tuple(
-            jnp.where((q[i] >= q[(i + 1) % 3]) & (q[i] >= q[(i + 2) % 3]), jnp.sign(p[i]), zero)
-            for i in range(3))
-    raise ValueError(f"unsupported geom type {gtype}")

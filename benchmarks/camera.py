@@ -1,0 +1,197 @@
+"""Camera throughput: our ray-cast RGB-D camera next to vmapped ``mjx.ray`` and MuJoCo's own
+OpenGL renderer, measured in the same run.
+
+Writes the ``camera`` section of ``BENCHMARKS.md``: RGB-D frames/s (steady state; compile
+time apart) of ``Camera.render`` at 64x64, 100x100 and 240x320 for B in {1, 64, 256} random
+states of the task, on one XLA CPU device and on two (``shard_map`` over the batch); the
+same rays cast by ``jax.vmap(mjx.ray)`` (depth and geom only, no shading) on one device; and
+``mujoco.Renderer`` (software OSMesa, one process, one frame at a time) for RGB and for depth.
+
+Run (heavy; serialise with the other benchmarks; needs ``libosmesa6`` for the MuJoCo column):
+
+    flock /work/bench.lock python benchmarks/camera.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from iap_mjx import runtime
+
+DEVICE_COUNT = runtime.set_host_device_count(2)
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
+from mujoco import mjx  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import report  # noqa: E402
+
+from iap_mjx.render import Camera  # noqa: E402
+from iap_mjx.viz import render_compare  # noqa: E402
+
+SECTION = "camera"
+RESOLUTIONS = ((64, 64), (100, 100), (240, 320))
+BATCHES = (1, 64, 256)
+
+
+def _states(domain: str, task: str, n: int, seed: int):
+    """``n`` dm_control states of the task as one batched ``mjx.Data`` and the model."""
+    states = render_compare.suite_states(domain, task, n, seed)
+    model = states[0][0]
+    datas = [mjx.put_data(model, data) for _, data in states]
+    return model, jax.tree.map(lambda *x: jnp.stack(x), *datas), states
+
+
+def _rgbd(cam: Camera):
+    def one(data):
+        rgb, depth = cam.render(data)
+        return jnp.concatenate([rgb, depth[..., None]], axis=-1)
+    return jax.vmap(one)
+
+
+def _sharded(fn, mesh):
+    spec = PartitionSpec("batch")
+    return jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec)
+
+
+def _mjx_ray(model, cam: Camera):
+    """``vmap`` over states of ``vmap`` over pixels of ``mjx.ray`` through the pixel centres."""
+    mx = mjx.put_model(model)
+    dirs = jnp.asarray(cam.ray_directions().reshape(-1, 3))
+    cam_id = cam.config.camera_id
+    shape = (cam.config.height, cam.config.width)
+
+    def one(data):
+        vecs = dirs @ data.cam_xmat[cam_id].T
+        dist, geom = jax.vmap(lambda v: mjx.ray(mx, data, data.cam_xpos[cam_id], v,
+                                                 geomgroup=(1, 1, 1, 0, 0, 0)))(vecs)
+        return dist.reshape(shape), geom.reshape(shape)
+    return jax.vmap(one)
+
+
+def _mujoco_renderer(domain: str, states, seconds: float) -> dict:
+    """MuJoCo's renderer frames/s (RGB, depth) per resolution, in an OSMesa child process."""
+    request = {"domain": domain, "qpos": [np.asarray(d.qpos).tolist() for _, d in states[:16]],
+               "geom_pos": np.asarray(states[0][0].geom_pos).tolist(),
+               "geom_size": np.asarray(states[0][0].geom_size).tolist(),
+               "resolutions": RESOLUTIONS, "seconds": seconds}
+    env = dict(os.environ, MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
+    proc = subprocess.run([sys.executable, __file__, "--mujoco-child"], input=json.dumps(request),
+                          env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        return {"error": proc.stderr[-500:]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _mujoco_child() -> None:
+    import mujoco
+
+    request = json.loads(sys.stdin.read())
+    model = render_compare._suite_model(request["domain"])
+    model.geom_pos[:] = np.asarray(request["geom_pos"])
+    model.geom_size[:] = np.asarray(request["geom_size"])
+    data = mujoco.MjData(model)
+    result = {}
+    for height, width in request["resolutions"]:
+        renderer = mujoco.Renderer(model, height, width)
+        rates = {}
+        for mode in ("rgb", "depth"):
+            if mode == "depth":
+                renderer.enable_depth_rendering()
+            frames, start = 0, time.perf_counter()
+            while time.perf_counter() - start < request["seconds"]:
+                data.qpos[:] = request["qpos"][frames % len(request["qpos"])]
+                mujoco.mj_forward(model, data)
+                renderer.update_scene(data, camera=0)
+                renderer.render()
+                frames += 1
+            rates[mode] = frames / (time.perf_counter() - start)
+            renderer.disable_depth_rendering()
+        renderer.close()
+        result[f"{height}x{width}"] = rates
+    print(json.dumps(result))
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="cheetah-run")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--mjx-ray-batches", type=int, nargs="*", default=[1, 64])
+    parser.add_argument("--out", type=Path, default=report.ROOT / "BENCHMARKS.md")
+    parser.add_argument("--mujoco-child", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.mujoco_child:
+        _mujoco_child()
+        return
+    domain, task = args.task.split("-")
+    model, batch, states = _states(domain, task, max(BATCHES), args.seed)
+    mesh = Mesh(np.asarray(jax.devices()[:2]), ("batch",))
+    sharding = NamedSharding(mesh, PartitionSpec("batch"))
+    rows = []
+    for height, width in RESOLUTIONS:
+        cam = Camera(model, camera_id=0, height=height, width=width)
+        for b in BATCHES:
+            sub = jax.tree.map(lambda x: x[:b], batch)
+            compile_1, step_1, _ = report.compile_and_time(_rgbd(cam), sub)
+            row = {"res": f"{height}x{width}", "B": b, "compile": compile_1, "one": b / step_1}
+            if b % len(mesh.devices) == 0 and len(jax.devices()) >= 2:
+                sharded = jax.device_put(sub, sharding)
+                compile_2, step_2, _ = report.compile_and_time(_sharded(_rgbd(cam), mesh), sharded)
+                row["two"] = b / step_2
+            if b in args.mjx_ray_batches:
+                _, step_ray, _ = report.compile_and_time(_mjx_ray(model, cam), sub)
+                row["mjx_ray"] = b / step_ray
+            rows.append(row)
+            print(row, flush=True)
+    native = _mujoco_renderer(domain, states, seconds=3.0)
+    print(native, flush=True)
+    _write(args, rows, native)
+
+
+def _fmt(value, digits=0):
+    return "—" if value is None else f"{value:,.{digits}f}"
+
+
+def _write(args, rows, native) -> None:
+    lines = [
+        f"Camera: `iap_mjx.render.Camera.render` on {args.task} (camera 0), RGB-D frames/s, "
+        "steady state; states from dm_control's initial distribution plus random actions.",
+        f"Machine: {report.machine_line()}.",
+        "",
+        "| resolution | B | ours, 1 device | ours, 2 devices | compile (s) | vmapped `mjx.ray` (depth+geom only), 1 device | ours / `mjx.ray` | MuJoCo RGB | MuJoCo depth | ours (2 dev) / MuJoCo RGB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        ref = native.get(row["res"], {}) if "error" not in native else {}
+        best = row.get("two", row["one"])
+        ratio_ray = row["one"] / row["mjx_ray"] if row.get("mjx_ray") else None
+        ratio_native = best / ref["rgb"] if ref.get("rgb") else None
+        lines.append(
+            f"| {row['res']} | {row['B']} | {_fmt(row['one'])} | {_fmt(row.get('two'))} | "
+            f"{row['compile']:.1f} | {_fmt(row.get('mjx_ray'))} | {_fmt(ratio_ray, 1)} | "
+            f"{_fmt(ref.get('rgb'))} | {_fmt(ref.get('depth'))} | {_fmt(ratio_native, 1)} |")
+    if "error" in native:
+        lines += ["", f"MuJoCo renderer unavailable: `{native['error'].strip().splitlines()[-1]}`"]
+    lines += [
+        "",
+        "MuJoCo's renderer: `mujoco.Renderer` with `MUJOCO_GL=osmesa` (software GL), one process,",
+        "one frame per call including `mj_forward` and `update_scene`; its frames/s do not depend",
+        "on B. `mjx.ray` casts one ray per call (no cylinders), vmapped over pixels and states.",
+        "",
+        "Reproduce: `flock /work/bench.lock python benchmarks/camera.py` "
+        f"(`--task {args.task}`).",
+    ]
+    report.write_section(args.out, SECTION, "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
