@@ -114,3 +114,31 @@ def test_time_limit_sets_done_and_freezes(reacher_batch):
     np.testing.assert_array_equal(states.reward, np.zeros(4))
     np.testing.assert_array_equal(states.data.qpos, before.data.qpos)
     np.testing.assert_array_equal(states.metrics["nan_terminations"], np.zeros(4))
+
+
+def test_action_repeat_holds_the_action_and_sums_rewards():
+    single = envs.make("reacher-easy")
+    repeated = envs.make("reacher-easy", action_repeat=2)
+    assert repeated.episode_length == 500
+    qpos, qvel = jnp.array([0.3, -1.2]), jnp.array([0.5, 0.1])
+    # Target on the finger, so the rewards of both control steps are 1, not 0.
+    origin_minus_finger = single.reset_to(qpos, qvel, target=jnp.zeros(2)).obs[2:4]
+    start = single.reset_to(qpos, qvel, target=-origin_minus_finger)
+    action = jnp.array([1.0, -0.4])
+    step = jax.jit(single.step)
+    once = step(start, action)
+    twice = step(once, action)
+    held = jax.jit(repeated.step)(start, action)
+    np.testing.assert_allclose(held.data.qpos, twice.data.qpos, rtol=1e-6, atol=1e-6)
+    assert float(once.reward) == float(twice.reward) == 1.0
+    np.testing.assert_allclose(held.reward, once.reward + twice.reward, atol=1e-6)
+    np.testing.assert_array_equal(held.info["steps"], 1)
+
+
+def test_pixel_modes_go_through_the_camera_wrapper():
+    from iap_mjx.envs.pixels import PixelEnv
+
+    env = envs.make("cartpole-swingup", obs_mode="pixels", height=16, width=24, frame_stack=2)
+    assert isinstance(env, PixelEnv)
+    assert env.config.obs_mode == "pixels" and env.frame_stack == 2
+    assert env.env.state_observation is not None

@@ -23,6 +23,7 @@ one bad env never touches another's numbers.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, ClassVar
 
@@ -156,7 +157,7 @@ class DmControlEnv:
     def observation_shape(self) -> tuple[int, ...]:
         return (self.observation_size,)
 
-    @property
+    @functools.cached_property
     def observation_size(self) -> int:
         data = mjx.make_data(self.mj_model)
         return int(jax.eval_shape(self.state_observation, data).shape[0])
