@@ -1,0 +1,19 @@
+"""The quickstart notebook runs top to bottom and shows a curve and a video."""
+
+from pathlib import Path
+
+import nbformat
+from nbclient import NotebookClient
+
+NOTEBOOK = Path(__file__).resolve().parent.parent / "notebooks" / "quickstart.ipynb"
+
+
+def test_quickstart_notebook_executes(tmp_path):
+    notebook = nbformat.read(NOTEBOOK, as_version=4)
+    NotebookClient(notebook, timeout=1200, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    images = [output for cell in notebook.cells if cell.cell_type == "code"
+              for output in cell.get("outputs", []) if "image/png" in output.get("data", {})
+              or "image/gif" in output.get("data", {})]
+    assert len(images) == 2  # the reward curve and the episode
+    assert (tmp_path / "runs" / "notebook" / "episode.gif").stat().st_size > 1000
