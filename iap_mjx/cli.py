@@ -106,6 +106,20 @@ def cmd_video(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Reproduces the paper's Figure 1 or 6: inference time per pass next to return."""
+    from iap_mjx import reproduce
+
+    try:
+        markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
+                                       overrides=tuple(args.overrides), passes=args.passes)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(markdown)
+    return 0
+
+
 def cmd_figures(args: argparse.Namespace) -> int:
     """Writes a figure set (``mse``: the paper's Figures 3 and 4) as PNGs."""
     from iap_mjx.viz import mse_figures
@@ -156,6 +170,18 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--seed", type=int, default=0, help="episode seed")
     video.add_argument("--steps", type=int, default=None, help="control steps (default: the episode)")
     video.set_defaults(func=cmd_video)
+
+    repro = commands.add_parser(
+        "reproduce", help="the paper's Figure 1 or 6 (inference time vs return)",
+        description="Times one forward pass of every attention variant and trains each "
+                    "preset on --seeds seeds; key=value overrides apply to every preset "
+                    "(e.g. run.iterations=100).")
+    repro.add_argument("figure", choices=["fig1", "fig6"])
+    repro.add_argument("overrides", nargs="*", metavar="key=value")
+    repro.add_argument("--out", default="results", help="output directory (default: results)")
+    repro.add_argument("--seeds", type=int, default=3)
+    repro.add_argument("--passes", type=int, default=100, help="timed forward passes")
+    repro.set_defaults(func=cmd_reproduce)
 
     figures = commands.add_parser(
         "figures", help="write the paper's figures as PNGs",

@@ -1,0 +1,120 @@
+"""Reproducing the paper's Figures 1 and 6: inference time per forward pass next to return.
+
+For each attention variant of Cheetah-Run from 100x100 RGB (``cheetah-run-pixels`` and its
+kernel variants), it times one policy forward pass (one observation, as the paper's bars:
+the mean of 100 passes after compilation) and trains the preset for the same number of ES
+iterations on several seeds, reporting the mean and std of the final evaluation return.
+
+- ``fig6``: ReLU, hybrid (3,2), (6,3), (10,5), (16,8) and Brute.
+- ``fig1``: Brute (Tang et al.'s AttentionAgent) and IAP (hybrid (10,5)).
+
+Writes ``<out>/<figure>.png``, ``<out>/<figure>.json`` and returns a markdown table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from iap_mjx import configs
+
+logger = logging.getLogger(__name__)
+
+VARIANTS = {
+    "fig6": [("ReLU", "cheetah-run-pixels-relu"), ("(3,2)", "cheetah-run-pixels-hybrid-3-2"),
+             ("(6,3)", "cheetah-run-pixels-hybrid-6-3"), ("(10,5)", "cheetah-run-pixels"),
+             ("(16,8)", "cheetah-run-pixels-hybrid-16-8"), ("Brute", "cheetah-run-pixels-brute")],
+    "fig1": [("Brute Force", "cheetah-run-pixels-brute"), ("IAP", "cheetah-run-pixels")],
+}
+
+
+def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> float:
+    """Mean wall time of one compiled policy forward pass on one rendered observation."""
+    from iap_mjx.viz.artifacts import env_and_policy
+
+    env, policy = env_and_policy(config)
+    key = jax.random.PRNGKey(0)
+    obs = jax.jit(env.reset)(key).obs
+    params = policy.init(key)
+    policy_state = policy.initial_state(key)
+    forward = jax.jit(policy.apply)
+    jax.block_until_ready(forward(params, obs, policy_state))
+    start = time.perf_counter()
+    for _ in range(passes):
+        out = forward(params, obs, policy_state)
+    jax.block_until_ready(out)
+    return (time.perf_counter() - start) / passes
+
+
+def final_return(config: configs.TrainConfig, seed: int, run_dir: Path) -> float:
+    """Trains ``config`` with ``seed`` and returns the last evaluation return of the centre."""
+    from iap_mjx.es import train
+
+    config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
+    result = train(config, run_dir=run_dir, progress=False)
+    return float(next(row["eval_return"] for row in reversed(result.history) if "eval_return" in row))
+
+
+def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
+              passes: int = 100) -> str:
+    """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table."""
+    if figure not in VARIANTS:
+        raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    variants = [(label, configs.apply_overrides(configs.get(preset), overrides), preset)
+                for label, preset in VARIANTS[figure]]  # every config validated before any compile
+    rows: list[dict[str, Any]] = []
+    for label, config, preset in variants:
+        seconds = inference_seconds(config, passes=passes)
+        start = time.perf_counter()
+        returns = [final_return(config, seed, out_dir / f"{preset}-seed{seed}") for seed in range(seeds)]
+        rows.append({"variant": label, "preset": preset, "inference_s": seconds,
+                     "returns": returns, "train_wall_s": time.perf_counter() - start,
+                     "iterations": config.run.iterations})
+        logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, returns)
+    (out_dir / f"{figure}.json").write_text(json.dumps(rows, indent=2))
+    plot(rows, out_dir / f"{figure}.png", title=f"{figure}: Cheetah-Run from 100x100 RGB")
+    return table(rows)
+
+
+def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
+    """Bars: inference time per forward pass; crosses with std bars: mean final return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [row["variant"] for row in rows]
+    x = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(1.3 * len(rows) + 3, 4))
+    ax.bar(x, [row["inference_s"] for row in rows], color="tab:blue", alpha=0.7)
+    ax.set_ylabel("inference time (s)")
+    ax.set_xticks(x, labels)
+    twin = ax.twinx()
+    twin.errorbar(x, [np.mean(row["returns"]) for row in rows], yerr=[np.std(row["returns"]) for row in rows],
+                  fmt="x", color="tab:orange", markersize=10, capsize=4)
+    twin.set_ylabel("reward (mean over seeds)")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """A markdown table of the rows."""
+    lines = ["| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training wall s |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for row in rows:
+        lines.append(f"| {row['variant']} | `{row['preset']}` | {1e3 * row['inference_s']:.3f} | "
+                     f"{np.mean(row['returns']):.1f} ± {np.std(row['returns']):.1f} | {len(row['returns'])} | "
+                     f"{row['iterations']} | {row['train_wall_s']:.0f} |")
+    return "\n".join(lines)

@@ -1,0 +1,19 @@
+"""The reproduce command: bad input fails before anything compiles; the table reads its rows."""
+
+import pytest
+
+from iap_mjx import cli, reproduce
+
+
+def test_unknown_figure_and_bad_override_fail_fast(capsys):
+    with pytest.raises(ValueError, match="valid: fig6, fig1"):
+        reproduce.reproduce("fig9", "/tmp/unused")
+    assert cli.main(["reproduce", "fig6", "es.population_size=7"]) == 2
+    assert "es.population_size" in capsys.readouterr().err
+
+
+def test_table_reports_mean_and_std_over_seeds():
+    rows = [{"variant": "IAP", "preset": "cheetah-run-pixels", "inference_s": 0.0021,
+             "returns": [10.0, 20.0, 30.0], "train_wall_s": 12.0, "iterations": 5}]
+    line = reproduce.table(rows).splitlines()[-1]
+    assert "| 2.100 |" in line and "20.0 ± 8.2" in line and "| 3 | 5 |" in line
