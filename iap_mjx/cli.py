@@ -199,10 +199,12 @@ def main(argv: list[str] | None = None) -> int:
     runtime.set_host_device_count()
     runtime.enable_compilation_cache()
     args = build_parser().parse_args(argv)
+    # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
+        level=logging.DEBUG if args.verbose else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    logging.getLogger("iap_mjx").setLevel(logging.DEBUG if args.verbose else logging.INFO)
     return args.func(args)
 
 
