@@ -6,6 +6,7 @@
 
 from iap_mjx.envs.base import Env, State
 from iap_mjx.envs.dmc import EnvConfig
+from iap_mjx.envs import batch
 from iap_mjx.envs.registry import make, names
 
-__all__ = ["Env", "EnvConfig", "State", "make", "names"]
+__all__ = ["Env", "EnvConfig", "State", "batch", "make", "names"]

@@ -143,6 +143,7 @@ class DmControlEnv:
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
         mj_model.opt.ls_iterations = self.config.ls_iterations
+        self._edit_model(mj_model)
         self.mj_model = mj_model
         self.mjx_model = mjx.put_model(mj_model)
         self._action_size = int(mj_model.nu)
@@ -238,6 +239,9 @@ class DmControlEnv:
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict[str, jax.Array]]:
         """Randomised first physics state (stage computed) and task variables."""
         raise NotImplementedError
+
+    def _edit_model(self, mj_model: mujoco.MjModel) -> None:
+        """Task edits of the compiled model before ``mjx.put_model`` (default: none)."""
 
     def _sync_task(self, data: mjx.Data, task_info: dict[str, Any]) -> mjx.Data:
         """Writes task variables that live outside the physics into ``data`` (default: none)."""

@@ -36,10 +36,10 @@ class ReacherEasy(DmControlEnv):
         super().__init__(*args, **kwargs)
         self._target = self._id(mujoco.mjtObj.mjOBJ_GEOM, "target")
         self._finger = self._id(mujoco.mjtObj.mjOBJ_GEOM, "finger")
-        self.mj_model.geom_size[self._target, 0] = _BIG_TARGET
-        self.mjx_model = self.mjx_model.replace(
-            geom_size=jnp.asarray(self.mj_model.geom_size, jnp.float32)
-        )
+
+    def _edit_model(self, mj_model: mujoco.MjModel) -> None:
+        target = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_GEOM, "target")
+        mj_model.geom_size[target, 0] = _BIG_TARGET  # dm_control's initialize_episode
 
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
         key_joints, key_angle, key_radius = jax.random.split(key, 3)

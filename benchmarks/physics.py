@@ -1,0 +1,276 @@
+"""Physics throughput of the MJX task ports next to native MuJoCo, and the solver sweep.
+
+Writes the ``physics`` section of ``BENCHMARKS.md``:
+
+1. Solver settings: for each task in ``--sweep-tasks`` and ``solver_iterations`` in ``--sweep-iterations``
+   (``ls_iterations`` 8), the largest qpos error against dm_control (float64, Newton,
+   100 iterations) after ``--sweep-steps`` control steps from dm_control's own start
+   (half uniform, half saturated actions; median over 3 seeds), next to native
+   MuJoCo's own sensitivity (dm_control restarted from the float32-rounded state, 1 ulp
+   off in qvel), and the env-steps/s at B=256 on all devices.
+2. Throughput: env-steps/s (control steps x envs / s, steady state) per task at each B
+   in ``--batch``, on one XLA device and on all (``shard_map``), next to
+   ``mujoco.rollout`` with 1 and 2 threads on dm_control's model running the same
+   number of physics steps from the same states, measured in the same run; compile
+   time separately.
+
+Run (heavy; serialise with the other benchmarks):
+
+    flock /work/bench.lock python benchmarks/physics.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import re
+import statistics
+import time
+from pathlib import Path
+
+from iap_mjx import runtime
+
+DEVICE_COUNT = runtime.set_host_device_count(2)
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+from dm_control import suite  # noqa: E402
+from jax.sharding import Mesh  # noqa: E402
+from mujoco import rollout as native_rollout  # noqa: E402
+
+from iap_mjx import envs  # noqa: E402
+from iap_mjx.envs import batch  # noqa: E402
+
+SECTION = "physics"
+ROOT = Path(__file__).resolve().parent.parent
+TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy")
+
+
+def _timed(fn, *args, repeats: int):
+    """Median wall time of ``repeats`` calls of an already-compiled ``fn``."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def _steps_program(env, steps: int, chunk_size: int, mesh: Mesh | None):
+    """jitted ``(states, actions (B, steps, nu)) -> states`` stepping every env ``steps`` times."""
+
+    def one_env(state, actions):
+        return jax.lax.scan(lambda s, a: (env.step(s, a), None), state, actions)[0]
+
+    run = batch.chunked_vmap(one_env, chunk_size)
+    if mesh is not None:
+        run = batch.shard(run, mesh)
+    return jax.jit(run)
+
+
+def measure_mjx(env, states, actions, chunk_size: int, mesh: Mesh | None, repeats: int):
+    """(compile seconds, env-steps per second) for one batch configuration."""
+    program = _steps_program(env, actions.shape[1], chunk_size, mesh)
+    start = time.perf_counter()
+    compiled = program.lower(states, actions).compile()
+    compile_s = time.perf_counter() - start
+    jax.block_until_ready(compiled(states, actions))  # warm-up
+    seconds = _timed(compiled, states, actions, repeats=repeats)
+    return compile_s, actions.shape[0] * actions.shape[1] / seconds
+
+
+def measure_native(name: str, qpos, qvel, actions, n_sub_steps: int, nthread: int, repeats: int):
+    """env-steps per second of ``mujoco.rollout`` on dm_control's model from the same states."""
+    domain, task = name.split("-")
+    model = suite.load(domain, task).physics.model.ptr
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    data = mujoco.MjData(model)
+    initial = np.empty((qpos.shape[0], mujoco.mj_stateSize(model, spec)))
+    for i in range(qpos.shape[0]):
+        mujoco.mj_resetData(model, data)
+        data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
+        mujoco.mj_getState(model, data, initial[i], spec)
+    control = np.repeat(np.asarray(actions, np.float64), n_sub_steps, axis=1)
+    datas = [mujoco.MjData(model) for _ in range(nthread)]
+    # nthread=1 runs on the calling thread (a pool of 0); otherwise a persistent pool.
+    with native_rollout.Rollout(nthread=0 if nthread == 1 else nthread) as pool:
+        pool.rollout(model, datas, initial, control)  # warm-up
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            pool.rollout(model, datas, initial, control)
+            times.append(time.perf_counter() - start)
+    return actions.shape[0] * actions.shape[1] / statistics.median(times)
+
+
+def throughput(name: str, batches, steps: int, chunk_size: int, repeats: int) -> list[dict]:
+    env = envs.make(name)
+    rows = []
+    devices = jax.devices()
+    mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
+    for size in batches:
+        keys = jax.random.split(jax.random.key(size), size)
+        states = jax.jit(batch.chunked_vmap(env.reset, min(size, chunk_size)))(keys)
+        actions = jax.random.uniform(
+            jax.random.key(1), (size, steps, env.action_size), minval=-1.0, maxval=1.0
+        )
+        chunk = min(size, chunk_size)
+        one = measure_mjx(env, states, actions, chunk, None, repeats)
+        share = min(size // len(devices), chunk_size)
+        many = measure_mjx(env, states, actions, share, mesh, repeats) if mesh else (np.nan, np.nan)
+        qpos, qvel = np.asarray(states.data.qpos), np.asarray(states.data.qvel)
+        native = [
+            measure_native(name, qpos, qvel, np.asarray(actions), env.n_sub_steps, t, repeats)
+            for t in (1, 2)
+        ]
+        rows.append(
+            dict(task=name, batch=size, compile_1=one[0], mjx_1=one[1], compile_n=many[0],
+                 mjx_n=many[1], native_1=native[0], native_2=native[1])
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def _dm_reference(name: str, seed: int, steps: int):
+    domain, task = name.split("-")
+    env = suite.load(domain, task, task_kwargs={"random": seed})
+    env.reset()
+    physics = env.physics
+    info = {"target": physics.named.model.geom_pos["target", :2].copy()} if domain == "reacher" else {}
+    qpos0, qvel0 = physics.data.qpos.copy(), physics.data.qvel.copy()
+    rng = np.random.default_rng(seed)
+    n_act = env.action_spec().shape[0]
+    actions = np.concatenate(
+        [rng.uniform(-1, 1, (steps // 2, n_act)), np.sign(rng.uniform(-1, 1, (steps - steps // 2, n_act)))]
+    )
+    for action in actions:
+        env.step(action)
+    final = physics.data.qpos.copy()
+    # Native's own sensitivity: the same run from the float32-rounded start, qvel 1 ulp off.
+    env.reset()
+    with physics.reset_context():
+        physics.data.qpos[:] = qpos0.astype(np.float32)
+        physics.data.qvel[:] = np.nextafter(qvel0.astype(np.float32), np.float32(np.inf))
+        if info:
+            physics.named.model.geom_pos["target", :2] = info["target"]
+    for action in actions:
+        env.step(action)
+    return qpos0, qvel0, info, actions, final, physics.data.qpos.copy()
+
+
+def solver_sweep(name: str, iterations, steps: int, repeats: int) -> list[dict]:
+    references = [_dm_reference(name, seed, steps) for seed in range(3)]
+    native_err = statistics.median(float(np.abs(r[4] - r[5]).max()) for r in references)
+    rows = []
+    devices = jax.devices()
+    mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
+    for count in iterations:
+        env = envs.make(name, solver_iterations=count, ls_iterations=8)
+        final_qpos = jax.jit(
+            lambda s, a: jax.lax.scan(lambda s, a: (env.step(s, a), None), s, a)[0].data.qpos
+        )
+        errors = []
+        for qpos0, qvel0, info, actions, final, _ in references:
+            ours = final_qpos(env.reset_to(qpos0, qvel0, **info), jnp.asarray(actions, jnp.float32))
+            errors.append(float(np.abs(np.asarray(ours) - final).max()))
+        size = 256
+        states = jax.jit(batch.chunked_vmap(env.reset, 128))(jax.random.split(jax.random.key(0), size))
+        actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
+        _, rate = measure_mjx(env, states, actions, size // len(devices), mesh, repeats)
+        rows.append(dict(task=name, iterations=count, error=statistics.median(errors),
+                         native_error=native_err, rate=rate))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def _markdown(sweep_rows, rows, args) -> str:
+    lines = [
+        "## Physics: MJX task ports vs native MuJoCo",
+        "",
+        f"Command: `flock /work/bench.lock python benchmarks/physics.py {args.argv}`".rstrip() + "  ",
+        f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU "
+        f"devices, jax {jax.__version__}, mujoco {mujoco.__version__}. One run; the machine is "
+        "shared, so compare numbers within a row (measured back to back), not across runs.",
+        "",
+        "### Solver settings (default: `solver_iterations=8`, `ls_iterations=8`)",
+        "",
+        f"qpos error = max |qpos - dm_control qpos| after {args.sweep_steps} control steps from "
+        "dm_control's start (half uniform, half saturated actions; median of 3 seeds). "
+        "native = dm_control itself restarted from the float32-rounded state with qvel 1 ulp off. "
+        "Rate: env-steps/s at B=256 on all devices.",
+        "",
+        "| task | iterations | qpos error | native's own | env-steps/s |",
+        "|---|---|---|---|---|",
+    ]
+    for r in sweep_rows:
+        lines.append(
+            f"| {r['task']} | {r['iterations']} | {r['error']:.1e} | {r['native_error']:.1e} | {r['rate']:,.0f} |"
+        )
+    lines += [
+        "",
+        f"### Throughput ({args.steps} control steps per call, env-steps/s = envs x control steps / s)",
+        "",
+        "MJX: 1 device = one XLA CPU device, chunks of <= "
+        f"{args.chunk_size} envs (`lax.map`); {jax.device_count()} dev = `shard_map` over "
+        f"{jax.device_count()} devices. Native: `mujoco.rollout` on dm_control's model "
+        "(float64, its own solver settings), same states and actions, 1 and 2 threads. "
+        "ratio = MJX on all devices / native with 2 threads. Compile = XLA compile time (s).",
+        "",
+        "| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['task']} | {r['batch']} | {r['mjx_1']:,.0f} | {r['mjx_n']:,.0f} | "
+            f"{r['native_1']:,.0f} | {r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | "
+            f"{r['compile_1']:.0f} / {r['compile_n']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_section(text: str, path: Path = ROOT / "BENCHMARKS.md") -> None:
+    """Replaces only this script's section of ``path`` (appends it if missing)."""
+    begin, end = f"<!-- BEGIN {SECTION} -->", f"<!-- END {SECTION} -->"
+    block = f"{begin}\n{text}{end}"
+    old = path.read_text() if path.exists() else "# Benchmarks\n"
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    if pattern.search(old):
+        new = pattern.sub(lambda _: block, old)
+    else:
+        new = old.rstrip("\n") + "\n\n" + block + "\n"
+    path.write_text(new)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    parser.add_argument("--batch", nargs="+", type=int, default=[64, 256, 1024])
+    parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
+    parser.add_argument("--chunk-size", type=int, default=256)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--sweep-tasks", nargs="*", default=["cheetah-run", "walker-walk"], choices=TASKS)
+    parser.add_argument("--sweep-iterations", nargs="*", type=int, default=[4, 8, 16])
+    parser.add_argument("--sweep-steps", type=int, default=100)
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    args = parser.parse_args(argv)
+    args.argv = " ".join(argv) if argv else ""
+    sweep_rows = [
+        row
+        for name in args.sweep_tasks
+        for row in solver_sweep(name, args.sweep_iterations, args.sweep_steps, args.repeats)
+    ]
+    rows = [
+        row for name in args.tasks for row in throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)
+    ]
+    text = _markdown(sweep_rows, rows, args)
+    print(text)
+    if not args.no_write:
+        write_section(text)
+
+
+if __name__ == "__main__":
+    import sys
+
+    main(sys.argv[1:])
