@@ -313,7 +313,7 @@ class Camera:
         surface, light = self._barrier(
             lift(self._surface_terms)(poses, frames, padded, geom_rgb), finite)
         planes = self._barrier(
-            lift(self._compose)(poses, surface, light, best, background), finite)
+            lift(self._compose)(poses, surface, light, padded[1], background), finite)
         return jnp.stack(planes, axis=-1), depth, ids
 
     @staticmethod
@@ -476,8 +476,10 @@ class Camera:
         image = jnp.moveaxis(image, 2, 1).reshape((ny * th, nx * tw) + rest)
         return image[: cfg.height, : cfg.width]
 
-    def _compose(self, poses, surface, light, best, background):
-        """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background."""
+    def _compose(self, poses, surface, light, best_p, background):
+        """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background
+        (``best_p``: the padded float geom index of ``_pad_one``)."""
+        best = best_p[1:-1, 1:-1]
         if background.size == 0:
             background = self._sky(poses["cam_mat"])
         else:
@@ -571,9 +573,10 @@ def _floor_int(a):
 
 def _pad_one(depth_and_best):
     """Depth and geom index ``(H, W)`` with a one-pixel border (depth 0, geom -1: no
-    neighbour), ``(H + 2, W + 2)``."""
+    neighbour), ``(H + 2, W + 2)``, both float32 (CPU loops that mix int32 tests into float
+    math do not vectorise; geom indices are exact in float32)."""
     depth, best = depth_and_best
-    return jnp.pad(depth, 1), jnp.pad(best, 1, constant_values=-1)
+    return jnp.pad(depth, 1), jnp.pad(best.astype(jnp.float32), 1, constant_values=-1.0)
 
 
 def _surface_step(depth_p, best_p, x, y, pixel: float, axis: int):
