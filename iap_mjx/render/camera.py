@@ -207,11 +207,13 @@ class Camera:
         if background is None:
             background = jnp.zeros((0,), jnp.float32)
         elif tuple(background.shape) != (cfg.height, cfg.width, 3):
-            raise ValueError(f"background must have shape {(cfg.height, cfg.width, 3)}, got {background.shape}")
+            raise ValueError(
+                f"background must have shape {(cfg.height, cfg.width, 3)}, got {background.shape}")
         if geom_rgb is None:
             geom_rgb = jnp.zeros((0,), jnp.float32)
         elif tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
-            raise ValueError(f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
+            raise ValueError(
+                f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
         rgb, depth, _ = self._batchable(True)(self._poses(data), background, geom_rgb)
         return rgb, depth
 

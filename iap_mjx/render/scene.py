@@ -101,7 +101,8 @@ def _geom_alpha_visible(m: mujoco.MjModel, geom: int) -> bool:
 
 def _texture_rgb(m: mujoco.MjModel, tex: int) -> np.ndarray:
     """``(height, width, 3)`` float32 texture in [0, 1]."""
-    adr, h, w, c = int(m.tex_adr[tex]), int(m.tex_height[tex]), int(m.tex_width[tex]), int(m.tex_nchannel[tex])
+    adr, h, w = int(m.tex_adr[tex]), int(m.tex_height[tex]), int(m.tex_width[tex])
+    c = int(m.tex_nchannel[tex])
     data = np.asarray(m.tex_data[adr: adr + h * w * c], np.float32).reshape(h, w, c) / 255.0
     return data[..., :3] if c >= 3 else np.repeat(data[..., :1], 3, axis=-1)
 
