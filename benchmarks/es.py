@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import re
 import sys
 import tempfile
@@ -168,11 +169,13 @@ def main() -> int:
     config = dataclasses.replace(config, run=dataclasses.replace(
         config.run, iterations=10**6, max_minutes=args.minutes, checkpoint_every=0,
         tensorboard=False))
+    load_before = os.getloadavg()[0]
     ours, ours_wall = run_ours(config)
     steps = ours[-1]["env_steps"]
     steady = [r["env_steps_per_s"] for r in ours[1:]] or [ours[0]["env_steps_per_s"]]
     summary = {
         "preset": args.preset, "overrides": args.overrides, "devices": len(jax.devices()),
+        "load_average_1min_before_after": [load_before, os.getloadavg()[0]],
         "ours": {
             "iterations": ours[-1]["iteration"], "env_steps": steps, "wall_s": ours_wall,
             "compile_s": ours[-1]["compile_s"],
@@ -184,6 +187,10 @@ def main() -> int:
     reached = first_reaching(ours, 400)
     summary["ours"]["minutes_to_400"] = reached["wall_s"] / 60 if reached else None
     brax = []
+    history_path = ROOT / "benchmarks" / f"es_{args.preset}_history.json"
+    history_path.write_text(json.dumps({"summary": summary, "ours": ours}, indent=0))
+    if not args.no_write:  # record ours now, in case the comparison is cut short
+        write_outputs(args, config, summary, ours, brax)
     if not args.skip_brax:
         env = envs.make(config.env.name, **dict(config.env.overrides))
         brax, brax_wall = run_brax(env, config, steps)
@@ -194,8 +201,15 @@ def main() -> int:
             "best_eval_return": max(r["eval_return"] for r in brax),
         }
     print(json.dumps(summary, indent=1))
-    if args.no_write:
-        return 0
+    history_path.write_text(json.dumps({"summary": summary, "ours": ours, "brax": brax},
+                                       indent=0))
+    if not args.no_write:
+        write_outputs(args, config, summary, ours, brax)
+    return 0
+
+
+def write_outputs(args, config, summary, ours, brax) -> None:
+    """The curve PNG and the ``es`` sections of BENCHMARKS.md and RESULTS.md."""
 
     png = ROOT / "benchmarks" / f"es_{args.preset}.png"
     plot(ours, brax, png, f"{args.preset} {' '.join(args.overrides)} ({args.minutes:g} min)")
@@ -205,7 +219,10 @@ def main() -> int:
     lines = [
         "## ES: state-based cheetah-run, iap_mjx.es vs brax ES", "",
         f"Command: `{command}` ({summary['devices']} XLA CPU devices, cold compilation cache, "
-        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}).", "",
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; 1-min load average before/"
+        f"after our run: {summary['load_average_1min_before_after'][0]:.1f}/"
+        f"{summary['load_average_1min_before_after'][1]:.1f} on 2 cores: the machine is "
+        "shared, so steps/s are lower bounds).", "",
         "| trainer | env steps | wall-clock s | compile s | steady env-steps/s | "
         "final eval return | best eval return |",
         "|---|---|---|---|---|---|---|",
@@ -230,7 +247,6 @@ def main() -> int:
               f" Curve: `benchmarks/{png.name}`.", ""]
     write_section(ROOT / "BENCHMARKS.md", "es", "\n".join(lines))
     write_section(ROOT / "RESULTS.md", "es", results_section(ours, brax, summary, command, png))
-    return 0
 
 
 def results_section(ours, brax, summary, command: str, png: Path) -> str:
