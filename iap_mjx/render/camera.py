@@ -46,7 +46,8 @@ class CameraConfig:
       camera_id: index into the model's cameras (``-1`` is not supported: use a model camera).
       height, width: image size in pixels.
       geom_groups: geom groups drawn (MuJoCo's renderer shows 0, 1, 2 by default).
-      shading: ``"lambert"`` (ambient + headlight + the model's lights as directional lights)
+      shading: ``"lambert"`` (ambient + headlight + the model's directional, spot and point
+        lights, without shadows, specular or attenuation)
         or ``"flat"`` (the geom colour as is).
       sky: where no geom is hit: ``"skybox"`` (a vertical gradient fitted to the model's skybox
         texture) or ``"color"`` (``background_color``). A per-call ``background`` image given
@@ -194,7 +195,7 @@ class Camera:
 
         Args:
           data: an ``mjx.Data`` after kinematics (``geom_xpos``, ``geom_xmat``, ``cam_xpos``,
-            ``cam_xmat``; ``xmat`` for lights fixed to bodies).
+            ``cam_xmat``; ``xpos``, ``xmat``, ``subtree_com`` of the lights' bodies).
           background: optional ``(H, W, 3)`` image in [0, 1] shown where nothing is hit
             (e.g. a Distracting Control Suite frame); replaces the sky.
           geom_rgb: optional ``(G, 3)`` colours replacing the model's (colour perturbations),
@@ -236,7 +237,9 @@ class Camera:
             "cam_mat": data.cam_xmat[cam],
             "geom_pos": data.geom_xpos[gids],
             "geom_mat": data.geom_xmat[gids],
+            "light_body_pos": data.xpos[jnp.asarray(sc.light_bodyid)],
             "light_body_mat": data.xmat[jnp.asarray(sc.light_bodyid)],
+            "light_body_com": data.subtree_com[jnp.asarray(sc.light_bodyid)],
         }
 
     def _batchable(self, colour: bool):
@@ -531,26 +534,50 @@ class Camera:
         facing = normal[0] * x + normal[1] * y - normal[2]
         normal = [jnp.where(facing > 0, -n, n) for n in normal]
         inv_len = jax.lax.rsqrt(jnp.maximum(sum(n * n for n in normal), 1e-30))
-        toward = self._light_vectors(poses)
+        position, direction = self._lights(poses)
+        # headlight: directional, along the view direction
+        cosines = [jnp.maximum(normal[2], 0.0) * inv_len]
+        point = (depth * x, depth * y, -depth)
+        for j in range(len(sc.light_mode)):
+            if sc.light_directional[j]:
+                toward = [-direction[j, i] for i in range(3)]
+                cosines.append(jnp.maximum(sum(normal[i] * toward[i] for i in range(3)), 0.0) * inv_len)
+                continue
+            toward = [position[j, i] - point[i] for i in range(3)]
+            inv_dist = jax.lax.rsqrt(jnp.maximum(sum(t * t for t in toward), 1e-30))
+            toward = [t * inv_dist for t in toward]
+            lit = jnp.maximum(sum(normal[i] * toward[i] for i in range(3)), 0.0) * inv_len
+            spot = -sum(toward[i] * direction[j, i] for i in range(3))
+            exponent = float(sc.light_exponent[j])
+            falloff = (jax.lax.integer_pow(jnp.maximum(spot, 0.0), int(exponent))
+                       if exponent.is_integer() else jnp.maximum(spot, 0.0) ** exponent)
+            cone = jnp.where(spot >= sc.light_cos_cutoff[j], falloff, 0.0)
+            cosines.append(lit * cone)
         diffuse = np.concatenate([sc.headlight_diffuse[None], sc.light_diffuse], axis=0)
-        cosines = [jnp.maximum(sum(normal[i] * toward[j, i] for i in range(3)), 0.0) * inv_len
-                   for j in range(toward.shape[0])]
         grey = np.allclose(diffuse, diffuse[:, :1]) and np.allclose(sc.ambient, sc.ambient[0])
         channels = (0,) if grey else (0, 1, 2)
         light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines)))
                  for c in channels]
         return tuple(colour), tuple(light)
 
-    def _light_vectors(self, poses) -> jax.Array:
-        """``(1 + L, 3)`` unit vectors toward the headlight (which shines along the view
-        direction) and each model light (treated as directional), in camera coordinates."""
+    def _lights(self, poses) -> tuple[jax.Array, jax.Array]:
+        """Model lights in camera coordinates: positions ``(L, 3)`` and unit directions they
+        shine along ``(L, 3)``, as MuJoCo's ``mj_camlight`` places them."""
         sc = self.scene
-        head = jnp.asarray([[0.0, 0.0, 1.0]], jnp.float32)
-        if sc.light_dirs.shape[0] == 0:
-            return head
-        world_dirs = jnp.einsum("lij,lj->li", poses["light_body_mat"], jnp.asarray(sc.light_dirs))
-        world_dirs = world_dirs / jnp.linalg.norm(world_dirs, axis=-1, keepdims=True)
-        return jnp.concatenate([head, -world_dirs @ poses["cam_mat"]], axis=0)
+        if sc.light_mode.shape[0] == 0:
+            return jnp.zeros((0, 3)), jnp.zeros((0, 3))
+        mats = poses["light_body_mat"]
+        offset = jnp.asarray(sc.light_offset)
+        fixed = jnp.asarray(sc.light_mode == 0)[:, None]
+        world_pos = jnp.where(
+            fixed, poses["light_body_pos"] + jnp.einsum("lij,lj->li", mats, offset),
+            jnp.where(jnp.asarray(sc.light_mode == 2)[:, None], poses["light_body_com"],
+                      poses["light_body_pos"]) + offset)
+        world_dir = jnp.where(fixed, jnp.einsum("lij,lj->li", mats, jnp.asarray(sc.light_dirs)),
+                              jnp.asarray(sc.light_dirs))
+        world_dir = world_dir / jnp.linalg.norm(world_dir, axis=-1, keepdims=True)
+        cam_mat = poses["cam_mat"]
+        return (world_pos - poses["cam_pos"]) @ cam_mat, world_dir @ cam_mat
 
     def _sky(self, cam_mat) -> list[jax.Array]:
         """``[3 x (H, W)]`` background: the skybox gradient over world elevation, or a flat

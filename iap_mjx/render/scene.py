@@ -44,10 +44,17 @@ class Scene:
       checker_rgb: ``(G, 2, 3)`` float32, the two checker colours (texture quadrant centres,
         times the material colour).
       checker_scale: ``(G, 2)`` float32, texture repeats per unit length along local x, y.
-      light_dirs: ``(L, 3)`` float32, world directions the model's lights shine along
-        (lights are treated as directional; light_bodyid says which body they turn with).
-      light_bodyid: ``(L,)`` int, body whose orientation turns the light (0 = fixed in the world,
-        also for tracking lights, whose orientation MuJoCo keeps in the world frame).
+      light_mode: ``(L,)`` int, mjtCamLight: 0 fixed to ``light_bodyid`` (position and
+        direction in the body frame), 1 tracking the body's position, 2 tracking its subtree's
+        centre of mass (both keep ``light_offset`` and ``light_dirs`` in the world frame);
+        target modes are drawn as tracking modes.
+      light_bodyid: ``(L,)`` int.
+      light_offset: ``(L, 3)`` float32, position in the body frame (mode 0) or offset in the
+        world frame from the body (mode 1) or subtree centre of mass (mode 2).
+      light_dirs: ``(L, 3)`` float32, direction the light shines (body frame for mode 0).
+      light_directional: ``(L,)`` bool; other lights are spot lights with
+        ``light_cos_cutoff`` ``(L,)`` and ``light_exponent`` ``(L,)`` (a point light has a
+        cutoff of 180 degrees). Attenuation is ignored.
       light_diffuse: ``(L, 3)`` float32.
       ambient: ``(3,)`` float32, headlight plus model-light ambient.
       headlight_diffuse: ``(3,)`` float32 (zero if the headlight is off).
@@ -63,8 +70,13 @@ class Scene:
     checker: np.ndarray
     checker_rgb: np.ndarray
     checker_scale: np.ndarray
-    light_dirs: np.ndarray
+    light_mode: np.ndarray
     light_bodyid: np.ndarray
+    light_offset: np.ndarray
+    light_dirs: np.ndarray
+    light_directional: np.ndarray
+    light_cos_cutoff: np.ndarray
+    light_exponent: np.ndarray
     light_diffuse: np.ndarray
     ambient: np.ndarray
     headlight_diffuse: np.ndarray
@@ -176,6 +188,10 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     headlight = m.vis.headlight
     ambient = np.asarray(headlight.ambient, np.float32) * float(bool(headlight.active))
     ambient = ambient + np.asarray(m.light_ambient[lights], np.float32).sum(0) if lights.size else ambient
+    light_type = np.asarray(m.light_type[lights], np.int32)
+    # target modes (3, 4) drawn as the corresponding tracking modes
+    light_mode = np.asarray(m.light_mode[lights], np.int32)
+    light_mode = np.where(light_mode >= 3, light_mode - 2, light_mode).astype(np.int32)
     sky_mid, sky_slope = _sky(m)
     extent = float(m.stat.extent)
     return Scene(
@@ -186,11 +202,21 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         checker=np.asarray(checker, bool),
         checker_rgb=np.asarray(checker_rgb, np.float32).reshape(-1, 2, 3),
         checker_scale=np.asarray(checker_scale, np.float32).reshape(-1, 2),
-        light_dirs=np.asarray(m.light_dir[lights], np.float32).reshape(-1, 3),
-        light_bodyid=np.where(
-            np.asarray(m.light_mode[lights]) == int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED),
-            np.asarray(m.light_bodyid[lights]), 0,
-        ).astype(np.int32),
+        light_mode=light_mode,
+        light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
+        light_offset=np.where(
+            (light_mode == 0)[:, None], m.light_pos[lights],
+            np.where((light_mode == 2)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
+        ).astype(np.float32).reshape(-1, 3),
+        light_dirs=np.where((light_mode == 0)[:, None], m.light_dir[lights],
+                            m.light_dir0[lights]).astype(np.float32).reshape(-1, 3),
+        light_directional=light_type == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL),
+        light_cos_cutoff=np.where(
+            light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT),
+            np.cos(np.deg2rad(np.asarray(m.light_cutoff[lights], np.float64))), -1.0,
+        ).astype(np.float32),
+        light_exponent=np.where(light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT),
+                                np.asarray(m.light_exponent[lights]), 0.0).astype(np.float32),
         light_diffuse=np.asarray(m.light_diffuse[lights], np.float32).reshape(-1, 3),
         ambient=ambient.astype(np.float32),
         headlight_diffuse=np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),
