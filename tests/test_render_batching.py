@@ -1,0 +1,55 @@
+"""``Camera.render`` gives the same images one at a time, under ``vmap`` (chunked by the
+camera's batching rule, with a batch that is not a multiple of the chunk) and under nested
+``vmap`` (as a population x episodes rollout calls it); and it validates its inputs."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from iap_mjx.render import Camera
+from iap_mjx.viz import render_compare
+
+
+def test_single_vmap_and_nested_vmap_agree():
+    states = render_compare.suite_states("walker", "walk", n_states=6, seed=0)
+    model = states[0][0]
+    batch = jax.tree.map(lambda *x: jnp.stack(x), *[mjx.put_data(m, d) for m, d in states])
+    cam = Camera(model, height=40, width=48, batch_chunk=4)
+    flat_rgb, flat_depth = jax.jit(jax.vmap(cam.render))(batch)
+    grid = jax.tree.map(lambda x: x.reshape((2, 3) + x.shape[1:]), batch)
+    nested_rgb, nested_depth = jax.jit(jax.vmap(jax.vmap(cam.render)))(grid)
+    assert flat_rgb.shape == (6, 40, 48, 3) and flat_depth.shape == (6, 40, 48)
+    assert flat_rgb.dtype == jnp.float32 and flat_depth.dtype == jnp.float32
+    np.testing.assert_allclose(nested_rgb.reshape(flat_rgb.shape), flat_rgb, atol=1e-5)
+    np.testing.assert_allclose(nested_depth.reshape(flat_depth.shape), flat_depth, rtol=1e-6)
+    render = jax.jit(cam.render)
+    for i in (0, 5):
+        rgb, depth = render(jax.tree.map(lambda x: x[i], batch))
+        np.testing.assert_allclose(rgb, flat_rgb[i], atol=1e-5)
+        np.testing.assert_allclose(depth, flat_depth[i], rtol=1e-6)
+    assert 0.0 <= float(flat_rgb.min()) and float(flat_rgb.max()) <= 1.0
+
+
+def test_background_image_replaces_the_sky_and_config_is_validated():
+    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    cam = Camera(model, height=24, width=32)
+    mx_data = mjx.put_data(model, data)
+    _, ids = cam.trace(mx_data)
+    background = jnp.full((24, 32, 3), 0.25, jnp.float32).at[:, :, 1].set(0.75)
+    rgb, depth = cam.render(mx_data, background=background)
+    sky = np.asarray(ids) < 0
+    assert sky.any(), "part of the image should be sky"
+    np.testing.assert_allclose(np.asarray(rgb)[sky], np.asarray(background)[sky])
+    np.testing.assert_allclose(np.asarray(depth)[sky], cam.zfar)
+    with pytest.raises(ValueError, match="background"):
+        cam.render(mx_data, background=jnp.zeros((3, 3, 3)))
+    with pytest.raises(ValueError, match="shading"):
+        Camera(model, shading="phong")
+    with pytest.raises(ValueError, match="camera_id"):
+        Camera(model, camera_id=model.ncam)
+    assert hash(Camera(model, height=24, width=32)) == hash(cam)
+    assert Camera(model, height=24, width=32) == cam
