@@ -47,6 +47,7 @@ BATCHES = (1, 256)
 D_QK, TOP_L = 4, 10
 MEMORY_BUDGET = 4 * 2**30  # bytes the benchmark lets one compiled program use
 CHUNK = 4  # images vectorised together: small enough for the working set to stay in cache
+BATCH_SECONDS_CAP = 60.0  # brute force at batch 256 is not run where batch 1 predicts longer
 
 
 @dataclasses.dataclass
@@ -84,7 +85,7 @@ def batched_forward(layer: IAPAttention, batch: int, chunk: int):
                          out_specs=spec)
 
 
-def measure(size_label, shape, patch, kernel_label, options, batch) -> Row:
+def measure(size_label, shape, patch, kernel_label, options, batch, done: list[Row]) -> Row:
     layer = IAPAttention(AttentionConfig(patch_size=patch, d_qk=D_QK, top_l=TOP_L, **options), shape)
     row = Row(size_label, layer.num_patches, kernel_label, batch)
     per_device = batch // len(jax.devices()) if batch > 1 else 1
@@ -94,6 +95,12 @@ def measure(size_label, shape, patch, kernel_label, options, batch) -> Row:
         if fits < 1:
             row.note = (f"does not fit: {brute_bytes_per_image(layer.num_patches) / 2**30:.1f} GiB "
                         f"per image > {MEMORY_BUDGET / 2**30:.0f} GiB budget")
+            return row
+        single = next((r.per_image_ms for r in done if r.size == size_label and r.kernel == "brute"
+                       and r.batch == 1 and r.per_image_ms), None)
+        if batch > 1 and single is not None and single * batch / 1e3 > BATCH_SECONDS_CAP:
+            row.note = (f"not run: batch 1 predicts {single * batch / 1e3:.0f} s per batch "
+                        f"(> {BATCH_SECONDS_CAP:.0f} s); see batch 1")
             return row
         if fits < chunk:
             chunk = int(fits)
@@ -138,7 +145,7 @@ def main() -> int:
     for size_label, shape, patch in sizes:
         for batch in BATCHES:
             for kernel_label, options in kernels:
-                row = measure(size_label, shape, patch, kernel_label, options, batch)
+                row = measure(size_label, shape, patch, kernel_label, options, batch, rows)
                 rows.append(row)
                 print(f"{row.size:>14} L={row.patches:<6} {row.kernel:<14} B={row.batch:<4} "
                       f"{fmt(row.per_image_ms, '.4f')} ms/image  compile {fmt(row.compile_s, '.1f')} s  {row.note}",
