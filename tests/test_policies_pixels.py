@@ -50,6 +50,20 @@ def test_iap_policy_feeds_the_selected_patch_centres():
     np.testing.assert_allclose(action, jnp.tanh(features @ layer["w"] + layer["b"]), rtol=1e-5)
 
 
+def test_lstm_controller_carries_memory_across_steps():
+    policy = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm", hidden_sizes=[5])
+    params = policy.init(jax.random.PRNGKey(0))
+    start = policy.initial_state(jax.random.PRNGKey(1))
+    image = images(1)[0]
+    first, state = jax.jit(policy.apply)(params, image, start)
+    second, _ = jax.jit(policy.apply)(params, image, state)
+    assert first.shape == (2,) and not np.allclose(first, second)  # same input, different memory
+    np.testing.assert_array_equal(np.asarray(start[1][0]), np.zeros(5))
+    assert param_count(params["controller"]) == (6 + 5) * 20 + 20 + 5 * 2 + 2
+    np.testing.assert_array_equal(policy.select(params, image, state).indices,
+                                  policy.select(params, image, start).indices)
+
+
 def test_projections_are_fixed_unless_redrawn():
     fixed = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3)
     a, b = fixed.initial_state(jax.random.PRNGKey(1)), fixed.initial_state(jax.random.PRNGKey(2))
@@ -87,4 +101,4 @@ def test_bad_pixel_policy_settings_fail_early():
     with pytest.raises(ValueError, match="needs \\(H, W, C\\) observations"):
         policies.make("iap", (17,), 2)
     with pytest.raises(ValueError, match="IAPPolicy.controller"):
-        policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm")
+        policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="gru")

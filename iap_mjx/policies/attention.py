@@ -24,7 +24,7 @@ from iap_mjx.attention import AttentionConfig, IAPAttention
 from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 
-CONTROLLERS = ("linear", "mlp")
+CONTROLLERS = ("linear", "mlp", "lstm")
 
 
 def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
@@ -56,8 +56,9 @@ class IAPPolicy:
       action_size: actions in ``[-1, 1]``.
       attention: the attention layer's settings (kernel, patch size, ``l``, ``m``, ``r``, ...).
       state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
-      controller: ``"linear"`` or ``"mlp"``.
-      hidden_sizes: the MLP controller's hidden layers.
+      controller: ``"linear"``, ``"mlp"`` or ``"lstm"`` (Tang et al.'s choice; its carry is
+        per-episode policy state, zero at the start of every episode).
+      hidden_sizes: the MLP controller's hidden layers; the LSTM's size is the first one.
       activation: the MLP controller's hidden activation.
       with_patches: also feed the selected patches' pixels to the controller.
       projection_seed: seed of the fixed random projections (unless redrawn per episode).
@@ -94,18 +95,34 @@ class IAPPolicy:
         return 2 * top_l + patches + self.state_size
 
     def init(self, key: jax.Array) -> dict[str, Any]:
-        """``{"attention": AttentionParams, "controller": [dense layers]}``."""
+        """``{"attention": AttentionParams, "controller": ...}``.
+
+        Linear/MLP: a list of dense layers. LSTM: ``{"cell": {"w": (n_in + h, 4h), "b": (4h,)},
+        "out": [dense layer h -> action]}``.
+        """
         attention_key, controller_key = jax.random.split(key)
-        sizes = (self.feature_size, *(self.hidden_sizes if self.controller == "mlp" else ()),
-                 self.action_size)
-        return {"attention": self.layer.init(attention_key),
-                "controller": init_dense_layers(controller_key, sizes)}
+        params = {"attention": self.layer.init(attention_key)}
+        if self.controller == "lstm":
+            cell_key, out_key = jax.random.split(controller_key)
+            hidden = self.hidden_sizes[0]
+            (cell,) = init_dense_layers(cell_key, (self.feature_size + hidden, 4 * hidden))
+            params["controller"] = {"cell": cell, "out": init_dense_layers(out_key, (hidden, self.action_size))}
+        else:
+            sizes = (self.feature_size, *(self.hidden_sizes if self.controller == "mlp" else ()),
+                     self.action_size)
+            params["controller"] = init_dense_layers(controller_key, sizes)
+        return params
 
     def initial_state(self, key: jax.Array):
-        """The episode's random projections (fixed seed unless ``redraw_projections``)."""
+        """The episode's random projections (fixed seed unless ``redraw_projections``); with an
+        LSTM controller, ``(projections, (h, c))`` with a zero carry."""
         if not self.attention.redraw_projections:
             key = jax.random.PRNGKey(self.projection_seed)
-        return self.layer.draw_projections(key)
+        projections = self.layer.draw_projections(key)
+        if self.controller == "lstm":
+            zeros = jnp.zeros((self.hidden_sizes[0],), jnp.float32)
+            return projections, (zeros, zeros)
+        return projections
 
     def features(self, params: dict[str, Any], obs: Any, projections) -> tuple[jax.Array, Any]:
         """The controller's input ``(feature_size,)`` and the layer's ``Selection``."""
@@ -118,14 +135,25 @@ class IAPPolicy:
             parts.append(state)
         return jnp.concatenate(parts), selection
 
-    def apply(self, params: dict[str, Any], obs: Any, projections):
-        """One control step: ``obs`` -> ``(action (action_size,), projections)``."""
+    def apply(self, params: dict[str, Any], obs: Any, policy_state):
+        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``."""
+        if self.controller != "lstm":
+            features, _ = self.features(params, obs, policy_state)
+            out = apply_dense_layers(params["controller"], features, ACTIVATIONS[self.activation])
+            return jnp.tanh(out), policy_state
+        projections, (hidden, cell) = policy_state
         features, _ = self.features(params, obs, projections)
-        out = apply_dense_layers(params["controller"], features, ACTIVATIONS[self.activation])
-        return jnp.tanh(out), projections
+        layer = params["controller"]["cell"]
+        gates = jnp.concatenate([features, hidden]) @ layer["w"] + layer["b"]
+        in_gate, forget_gate, candidate, out_gate = jnp.split(gates, 4)
+        cell = jax.nn.sigmoid(forget_gate) * cell + jax.nn.sigmoid(in_gate) * jnp.tanh(candidate)
+        hidden = jax.nn.sigmoid(out_gate) * jnp.tanh(cell)
+        out = apply_dense_layers(params["controller"]["out"], hidden, jnp.tanh)
+        return jnp.tanh(out), (projections, (hidden, cell))
 
-    def select(self, params: dict[str, Any], obs: Any, projections):
+    def select(self, params: dict[str, Any], obs: Any, policy_state):
         """The attention layer's ``Selection`` for ``obs`` (for videos and figures)."""
+        projections = policy_state[0] if self.controller == "lstm" else policy_state
         return self.features(params, obs, projections)[1]
 
 
