@@ -45,7 +45,7 @@ register(
     lambda: TrainConfig(
         env=EnvConfig("cheetah-run"),
         policy=PolicyConfig("linear"),
-        es=ESConfig(population_size=64, sigma=0.03, learning_rate=0.04, weight_decay=0.005,
+        es=ESConfig(population_size=64, sigma=0.03, learning_rate=0.02, weight_decay=0.005,
                     n_episodes=1, normalize_observations=True),
         run=RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10),
     ),
