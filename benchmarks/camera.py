@@ -125,7 +125,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="cheetah-run")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--mjx-ray-batches", type=int, nargs="*", default=[1, 64])
+    parser.add_argument("--mjx-ray-batches", type=int, nargs="*", default=list(BATCHES))
     parser.add_argument("--out", type=Path, default=report.ROOT / "BENCHMARKS.md")
     parser.add_argument("--mujoco-child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--from-log", type=Path, help=argparse.SUPPRESS)
