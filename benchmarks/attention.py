@@ -22,8 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from iap_mjx import runtime  # noqa: E402
 
-runtime.set_host_device_count()
-runtime.enable_compilation_cache()
+runtime.set_host_device_count()  # no persistent compilation cache: compile times are cold
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
