@@ -25,7 +25,6 @@ from iap_mjx import runtime  # noqa: E402
 runtime.set_host_device_count()  # no persistent compilation cache: compile times are cold
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 from jax.sharding import Mesh, PartitionSpec  # noqa: E402
 
 import report  # noqa: E402

@@ -15,13 +15,15 @@ import argparse
 import dataclasses
 import json
 import os
-import re
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import report  # noqa: E402
 
 
 def brax_adapter(env):
@@ -134,18 +136,6 @@ def plot(ours, brax, path: Path, title: str):
     fig.savefig(path)
 
 
-def write_section(path: Path, name: str, body: str) -> None:
-    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
-    text = path.read_text() if path.exists() else ""
-    block = f"{begin}\n{body.rstrip()}\n{end}"
-    if begin in text and end in text:
-        text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _: block, text,
-                      flags=re.S)
-    else:
-        text = text.rstrip() + ("\n\n" if text else "") + block + "\n"
-    path.write_text(text)
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="cheetah-run-state")
@@ -245,8 +235,8 @@ def write_outputs(args, config, summary, ours, brax) -> None:
               "every iteration.", "",
               f"Reached 400: {'after %.1f min' % o['minutes_to_400'] if o['minutes_to_400'] else 'no'}."
               f" Curve: `benchmarks/{png.name}`.", ""]
-    write_section(ROOT / "BENCHMARKS.md", "es", "\n".join(lines))
-    write_section(ROOT / "RESULTS.md", "es", results_section(ours, brax, summary, command, png))
+    report.write_section(ROOT / "BENCHMARKS.md", "es", "\n".join(lines))
+    report.write_section(ROOT / "RESULTS.md", "es", results_section(ours, brax, summary, command, png))
 
 
 def results_section(ours, brax, summary, command: str, png: Path) -> str:

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import argparse
 import platform
-import re
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -45,6 +45,9 @@ from iap_mjx.envs import batch  # noqa: E402
 
 SECTION = "physics"
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import report  # noqa: E402
 TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy")
 
 
@@ -230,19 +233,6 @@ def _markdown(sweep_rows, rows, args) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(text: str, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    """Replaces only this script's section of ``path`` (appends it if missing)."""
-    begin, end = f"<!-- BEGIN {SECTION} -->", f"<!-- END {SECTION} -->"
-    block = f"{begin}\n{text}{end}"
-    old = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
-    if pattern.search(old):
-        new = pattern.sub(lambda _: block, old)
-    else:
-        new = old.rstrip("\n") + "\n\n" + block + "\n"
-    path.write_text(new)
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
@@ -267,7 +257,7 @@ def main(argv: list[str] | None = None) -> None:
     text = _markdown(sweep_rows, rows, args)
     print(text)
     if not args.no_write:
-        write_section(text)
+        report.write_section(ROOT / "BENCHMARKS.md", SECTION, text)
 
 
 if __name__ == "__main__":
