@@ -8,16 +8,15 @@ the pixels (the issue's bar).
 
 from __future__ import annotations
 
-import copy
 
 import jax
 import mujoco
 import numpy as np
 import pytest
-from dm_control import suite
 from mujoco import mjx
 
 from iap_mjx.render import Camera
+from iap_mjx.viz.render_compare import suite_states
 
 TASKS = [
     ("cheetah", "run"),
@@ -55,25 +54,6 @@ PRIMITIVES_XML = """
 """
 
 
-def _suite_states(domain: str, task: str, n_states: int, seed: int):
-    """``n_states`` (model, data) pairs from dm_control's own initial-state distribution,
-    each followed by a few random actions."""
-    env = suite.load(domain, task, task_kwargs={"random": seed})
-    rng = np.random.default_rng(seed)
-    spec = env.action_spec()
-    states = []
-    for _ in range(n_states):
-        env.reset()
-        for _ in range(int(rng.integers(0, 30))):
-            env.step(rng.uniform(spec.minimum, spec.maximum))
-        model = copy.copy(env.physics.model.ptr)  # tasks move/resize geoms in the model at reset
-        data = mujoco.MjData(model)
-        data.qpos[:] = env.physics.data.qpos
-        data.qvel[:] = env.physics.data.qvel
-        data.mocap_pos[:] = env.physics.data.mocap_pos
-        mujoco.mj_forward(model, data)
-        states.append((model, data))
-    return states
 
 
 # One compiled program per distinct camera (cameras hash by config and scene content).
@@ -113,7 +93,7 @@ def _agreement(model, data, cam: Camera, mx_data=None) -> tuple[float, int]:
 
 @pytest.mark.parametrize("domain,task", TASKS)
 def test_depth_and_geom_match_mj_ray_on_suite_tasks(domain, task):
-    states = _suite_states(domain, task, n_states=3, seed=7)
+    states = suite_states(domain, task, n_states=3, seed=7)
     for camera_id in range(states[0][0].ncam):
         for model, data in states:
             cam = Camera(model, camera_id=camera_id, height=60, width=80)
@@ -124,7 +104,7 @@ def test_depth_and_geom_match_mj_ray_on_suite_tasks(domain, task):
 
 def test_default_resolution_tracking_camera_after_mjx_forward():
     """The camera posed by MJX's own kinematics (cheetah's camera 0 tracks the body)."""
-    (model, data), = _suite_states("cheetah", "run", n_states=1, seed=3)
+    (model, data), = suite_states("cheetah", "run", n_states=1, seed=3)
     cam = Camera(model)
     blank = mjx.put_data(model, mujoco.MjData(model))
     mx_data = jax.jit(mjx.forward)(mjx.put_model(model), blank.replace(qpos=jax.numpy.asarray(data.qpos)))
@@ -156,7 +136,7 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
     """Culled tracing (and the dense fallback a chunk takes when a tile overflows its slots)
     gives the dense result (same geoms; depth to float rounding, as the culled formulas take
     sizes as arrays), one image at a time and under vmap with chunking."""
-    states = _suite_states("walker", "walk", n_states=3, seed=11)
+    states = suite_states("walker", "walk", n_states=3, seed=11)
     model = states[0][0]
     batch = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])
     dense = Camera(model, height=48, width=40, cull_pairs_per_tile=0)

@@ -127,6 +127,7 @@ def suite_states(domain: str, task: str, n_states: int, seed: int):
         data = mujoco.MjData(model)
         data.qpos[:] = env.physics.data.qpos
         data.qvel[:] = env.physics.data.qvel
+        data.mocap_pos[:] = env.physics.data.mocap_pos
         mujoco.mj_forward(model, data)
         states.append((model, data))
     return states
