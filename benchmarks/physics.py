@@ -2,17 +2,20 @@
 
 Writes the ``physics`` section of ``BENCHMARKS.md``:
 
-1. Solver settings: for each task in ``--sweep-tasks`` and ``solver_iterations`` in ``--sweep-iterations``
-   (``ls_iterations`` 8), the largest qpos error against dm_control (float64, Newton,
-   100 iterations) after ``--sweep-steps`` control steps from dm_control's own start
-   (half uniform, half saturated actions; median over 3 seeds), next to native
-   MuJoCo's own sensitivity (dm_control restarted from the float32-rounded state, 1 ulp
-   off in qvel), and the env-steps/s at B=256 on all devices.
+1. Solver settings: for each task in ``--sweep-tasks`` and each ``--sweep`` setting
+   ``ITERATIONS/LS_ITERATIONS/CONTACTS`` (contact slots: ``EnvConfig.max_contacts``), the
+   largest qpos error against dm_control (float64, Newton, 100 iterations) after
+   ``--sweep-steps`` control steps from dm_control's own start (half uniform, half saturated
+   actions; median over 3 seeds), next to native MuJoCo's own sensitivity (dm_control
+   restarted from the float32-rounded state, 1 ulp off in qvel), and the env-steps/s at
+   B=256 on all devices.
 2. Throughput: env-steps/s (control steps x envs / s, steady state) per task at each B
    in ``--batch``, on one XLA device and on all (``shard_map``), next to
    ``mujoco.rollout`` with 1 and 2 threads on dm_control's model running the same
    number of physics steps from the same states, measured in the same run; compile
    time separately.
+3. A full population: ``--long-batch`` envs x 1000 control steps in one chunked, sharded
+   call per task in ``--long-tasks``, with its wall-clock and how many envs ended.
 
 Run (heavy; serialise with the other benchmarks):
 
@@ -163,14 +166,22 @@ def _dm_reference(name: str, seed: int, steps: int):
     return qpos0, qvel0, info, actions, final, physics.data.qpos.copy()
 
 
-def solver_sweep(name: str, iterations, steps: int, repeats: int) -> list[dict]:
+def parse_setting(text: str) -> dict:
+    """``"8/4/12"`` -> solver_iterations 8, ls_iterations 4, max_contacts 12 (or ``all``/``task``)."""
+    iterations, ls_iterations, contacts = text.split("/")
+    contacts = contacts if contacts in ("all", "task") else int(contacts)
+    return dict(solver_iterations=int(iterations), ls_iterations=int(ls_iterations),
+                max_contacts=contacts)
+
+
+def solver_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]:
     references = [_dm_reference(name, seed, steps) for seed in range(3)]
     native_err = statistics.median(float(np.abs(r[4] - r[5]).max()) for r in references)
     rows = []
     devices = jax.devices()
     mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
-    for count in iterations:
-        env = envs.make(name, solver_iterations=count, ls_iterations=8)
+    for setting in settings:
+        env = envs.make(name, **parse_setting(setting))
         final_qpos = jax.jit(
             lambda s, a: jax.lax.scan(lambda s, a: (env.step(s, a), None), s, a)[0].data.qpos
         )
@@ -182,13 +193,41 @@ def solver_sweep(name: str, iterations, steps: int, repeats: int) -> list[dict]:
         states = jax.jit(batch.chunked_vmap(env.reset, 128))(jax.random.split(jax.random.key(0), size))
         actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
         _, rate = measure_mjx(env, states, actions, size // len(devices), mesh, repeats)
-        rows.append(dict(task=name, iterations=count, error=statistics.median(errors),
-                         native_error=native_err, rate=rate))
+        config = env.config
+        rows.append(dict(task=name, iterations=config.solver_iterations,
+                         ls_iterations=config.ls_iterations,
+                         contacts="all" if env.max_contacts is None else env.max_contacts,
+                         error=statistics.median(errors), native_error=native_err, rate=rate))
         print(rows[-1], flush=True)
     return rows
 
 
-def _markdown(sweep_rows, rows, args) -> str:
+def long_run(name: str, size: int, steps: int, chunk_size: int) -> dict:
+    """One ``size`` envs x ``steps`` control steps rollout, chunked and sharded, timed."""
+    env = envs.make(name, episode_length=steps)
+    devices = jax.devices()
+    mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
+    states = jax.jit(batch.chunked_vmap(env.reset, min(size, chunk_size)))(
+        jax.random.split(jax.random.key(0), size)
+    )
+    actions = jax.random.uniform(jax.random.key(2), (size, steps, env.action_size), minval=-1.0, maxval=1.0)
+    program = _steps_program(env, steps, min(size // len(devices), chunk_size), mesh)
+    start = time.perf_counter()
+    compiled = program.lower(states, actions).compile()
+    compile_s = time.perf_counter() - start
+    start = time.perf_counter()
+    final = jax.block_until_ready(compiled(states, actions))
+    seconds = time.perf_counter() - start
+    row = dict(task=name, batch=size, steps=steps, compile=compile_s, seconds=seconds,
+               rate=size * steps / seconds, done=int(np.sum(np.asarray(final.done) > 0)),
+               nan=int(np.sum(np.asarray(final.metrics["nan_terminations"]))),
+               saturated=int(np.sum(np.asarray(final.metrics["contact_saturated"]))),
+               finite=bool(np.all(np.isfinite(np.asarray(final.data.qpos)))))
+    print(row, flush=True)
+    return row
+
+
+def _markdown(sweep_rows, rows, long_rows, args) -> str:
     lines = [
         "## Physics: MJX task ports vs native MuJoCo",
         "",
@@ -197,19 +236,23 @@ def _markdown(sweep_rows, rows, args) -> str:
         f"devices, jax {jax.__version__}, mujoco {mujoco.__version__}. One run; the machine is "
         "shared, so compare numbers within a row (measured back to back), not across runs.",
         "",
-        "### Solver settings (default: `solver_iterations=8`, `ls_iterations=8`)",
+        "### Solver settings (iterations / line-search iterations / contact slots)",
         "",
         f"qpos error = max |qpos - dm_control qpos| after {args.sweep_steps} control steps from "
         "dm_control's start (half uniform, half saturated actions; median of 3 seeds). "
         "native = dm_control itself restarted from the float32-rounded state with qvel 1 ulp off. "
         "Rate: env-steps/s at B=256 on all devices.",
         "",
-        "| task | iterations | qpos error | native's own | env-steps/s |",
+        "Contact slots: MJX's `max_contact_points` (`EnvConfig.max_contacts`); `all` keeps a "
+        "row block for every candidate geom pair. Defaults: "
+        + ", ".join(f"{n} {_default_setting(n)}" for n in args.sweep_tasks) + ".",
+        "",
+        "| task | iterations / ls / contacts | qpos error | native's own | env-steps/s |",
         "|---|---|---|---|---|",
     ]
     for r in sweep_rows:
         lines.append(
-            f"| {r['task']} | {r['iterations']} | {r['error']:.1e} | {r['native_error']:.1e} | {r['rate']:,.0f} |"
+            f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} | {r['error']:.1e} | {r['native_error']:.1e} | {r['rate']:,.0f} |"
         )
     lines += [
         "",
@@ -230,7 +273,30 @@ def _markdown(sweep_rows, rows, args) -> str:
             f"{r['native_1']:,.0f} | {r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | "
             f"{r['compile_1']:.0f} / {r['compile_n']:.0f} |"
         )
+    if long_rows:
+        lines += [
+            "",
+            "### A full population: B envs x 1000 control steps in one call",
+            "",
+            "Chunked (`lax.map`) and sharded (`shard_map`) over all devices, random actions, "
+            "steady state (compiled first). done = envs ended, nan = ended by a bad state, "
+            "saturated = envs that ever filled every contact slot.",
+            "",
+            "| task | B | control steps | compile s | wall s | env-steps/s | done | nan | saturated | qpos finite |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for r in long_rows:
+            lines.append(
+                f"| {r['task']} | {r['batch']} | {r['steps']} | {r['compile']:.0f} | {r['seconds']:.1f} | "
+                f"{r['rate']:,.0f} | {r['done']} | {r['nan']} | {r['saturated']} | {r['finite']} |"
+            )
     return "\n".join(lines) + "\n"
+
+
+def _default_setting(name: str) -> str:
+    env = envs.make(name)
+    contacts = "all" if env.max_contacts is None else env.max_contacts
+    return f"{env.config.solver_iterations} / {env.config.ls_iterations} / {contacts}"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -241,7 +307,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--chunk-size", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sweep-tasks", nargs="*", default=["cheetah-run", "walker-walk"], choices=TASKS)
-    parser.add_argument("--sweep-iterations", nargs="*", type=int, default=[4, 8, 16])
+    parser.add_argument("--sweep", nargs="*", default=["8/8/all", "8/8/task", "4/4/task", "8/2/task", "16/2/task"],
+                        help="solver settings ITERATIONS/LS_ITERATIONS/CONTACTS to compare")
+    parser.add_argument("--long-tasks", nargs="*", default=["cheetah-run"], choices=TASKS,
+                        help="tasks for the B=--long-batch x 1000-step run")
+    parser.add_argument("--long-batch", type=int, default=1024)
     parser.add_argument("--sweep-steps", type=int, default=100)
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
@@ -249,12 +319,13 @@ def main(argv: list[str] | None = None) -> None:
     sweep_rows = [
         row
         for name in args.sweep_tasks
-        for row in solver_sweep(name, args.sweep_iterations, args.sweep_steps, args.repeats)
+        for row in solver_sweep(name, args.sweep, args.sweep_steps, args.repeats)
     ]
     rows = [
         row for name in args.tasks for row in throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)
     ]
-    text = _markdown(sweep_rows, rows, args)
+    long_rows = [long_run(name, args.long_batch, 1000, args.chunk_size) for name in args.long_tasks]
+    text = _markdown(sweep_rows, rows, long_rows, args)
     print(text)
     if not args.no_write:
         report.write_section(ROOT / "BENCHMARKS.md", SECTION, text)

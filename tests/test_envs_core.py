@@ -31,6 +31,8 @@ def test_unknown_name_lists_valid_ones():
         dict(episode_length=0),
         dict(obs_mode="rgb"),
         dict(max_abs_state=-1.0),
+        dict(max_contacts=0),
+        dict(max_contacts="some"),
     ],
 )
 def test_bad_config_field_is_named(overrides):

@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
+from mujoco.mjx._src import collision_driver
 
 from iap_mjx.envs.base import State
 
@@ -49,6 +50,15 @@ class EnvConfig:
         i.e. ``ceil(1000 / action_repeat)`` env steps.
       solver_iterations: MJX constraint-solver iterations (MuJoCo ``opt.iterations``).
       ls_iterations: MJX line-search iterations (MuJoCo ``opt.ls_iterations``).
+      max_contacts: contact slots MJX keeps per step (its ``max_contact_points``: the
+        closest candidate contacts win). MJX otherwise carries a constraint row block for
+        every candidate geom pair at every step (cheetah: 35 contacts, 146 rows) where
+        native MuJoCo carries only the touching ones (cheetah: at most 5 in our
+        measurements), and the solver's cost grows with the rows. ``"task"`` is the
+        task's measured default (``DmControlEnv.default_max_contacts``), ``"all"`` keeps
+        every candidate, an int sets the number. ``metrics["contact_saturated"]`` reports
+        an episode in which every kept slot was touching at once (a contact may have
+        been dropped).
       max_abs_state: an env whose ``|qpos|`` or ``|qvel|`` exceeds this (or is not finite)
         is ended as a bad state.
       obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
@@ -58,7 +68,8 @@ class EnvConfig:
     action_repeat: int = 1
     episode_length: int | None = None
     solver_iterations: int = 8
-    ls_iterations: int = 8
+    ls_iterations: int = 4
+    max_contacts: int | str = "task"
     max_abs_state: float = 1e6
     obs_mode: str = "state"
     camera_id: int = 0
@@ -73,6 +84,15 @@ class EnvConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"EnvConfig.{name} must be an int >= 1, got {value!r}.")
+        if self.max_contacts not in ("task", "all") and (
+            not isinstance(self.max_contacts, int)
+            or isinstance(self.max_contacts, bool)
+            or self.max_contacts < 1
+        ):
+            raise ValueError(
+                'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got '
+                f"{self.max_contacts!r}."
+            )
         if self.episode_length is not None and (
             not isinstance(self.episode_length, int) or self.episode_length < 1
         ):
@@ -134,12 +154,18 @@ class DmControlEnv:
     name: ClassVar[str]
     domain: ClassVar[Any]  # the dm_control.suite module, e.g. dm_control.suite.cheetah
     n_sub_steps: ClassVar[int] = 1
+    default_max_contacts: ClassVar[int | None] = None  # None: keep every candidate contact
 
     def __init__(self, config: EnvConfig | None = None, **overrides: Any):
         config = config if config is not None else EnvConfig()
         self.config = dataclasses.replace(config, **overrides) if overrides else config
         xml, assets = self.domain.get_model_and_assets()
-        mj_model = mujoco.MjModel.from_xml_string(xml, assets)
+        spec = mujoco.MjSpec.from_string(xml, assets)
+        all_condims = collision_driver.make_condim(spec.compile())
+        self.max_contacts = self._resolve_max_contacts(all_condims)
+        if self.max_contacts is not None:
+            spec.add_numeric(name="max_contact_points", data=[self.max_contacts])
+        mj_model = spec.compile()
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
         mj_model.opt.ls_iterations = self.config.ls_iterations
@@ -147,6 +173,13 @@ class DmControlEnv:
         self.mj_model = mj_model
         self.mjx_model = mjx.put_model(mj_model)
         self._action_size = int(mj_model.nu)
+        # The contact slots of each condim group that lost candidates to the limit.
+        kept = collision_driver.make_condim(mj_model)
+        self._limited_slots = tuple(
+            np.flatnonzero(kept == c)
+            for c in np.unique(all_condims)
+            if np.sum(kept == c) < np.sum(all_condims == c)
+        )
 
     # ---- the Env protocol -------------------------------------------------------------
 
@@ -196,14 +229,19 @@ class DmControlEnv:
         action = self._checked_action(action)
         data = state.data.replace(ctrl=action)
 
-        def control_step(data: mjx.Data, _: Any) -> tuple[mjx.Data, jax.Array]:
-            data = jax.lax.fori_loop(
-                0, self.n_sub_steps, lambda _, d: physics_step(self.mjx_model, d), data
-            )
-            data = self._sync_task(data, state.info)
-            return data, self.reward(data)
+        def physics_substep(_: Any, carry: tuple[mjx.Data, jax.Array]):
+            data, saturated = carry
+            data = physics_step(self.mjx_model, data)
+            return data, saturated | self._contacts_saturated(data)
 
-        data, rewards = jax.lax.scan(control_step, data, length=self.config.action_repeat)
+        def control_step(carry: tuple[mjx.Data, jax.Array], _: Any):
+            data, saturated = jax.lax.fori_loop(0, self.n_sub_steps, physics_substep, carry)
+            data = self._sync_task(data, state.info)
+            return (data, saturated), self.reward(data)
+
+        (data, saturated), rewards = jax.lax.scan(
+            control_step, (data, jnp.zeros((), bool)), length=self.config.action_repeat
+        )
         reward = jnp.sum(rewards)
 
         bad = ~self._state_is_good(data)
@@ -216,6 +254,9 @@ class DmControlEnv:
         metrics = dict(state.metrics)
         metrics["nan_terminations"] = jnp.maximum(
             state.metrics["nan_terminations"], jnp.where(bad & ~ended, 1.0, 0.0)
+        )
+        metrics["contact_saturated"] = jnp.maximum(
+            state.metrics["contact_saturated"], jnp.where(saturated & ~ended, 1.0, 0.0)
         )
         return state.replace(
             data=data,
@@ -261,7 +302,10 @@ class DmControlEnv:
             obs=self.state_observation(data),
             reward=jnp.zeros((), jnp.float32),
             done=jnp.zeros((), jnp.float32),
-            metrics={"nan_terminations": jnp.zeros((), jnp.float32)},
+            metrics={
+                "nan_terminations": jnp.zeros((), jnp.float32),
+                "contact_saturated": jnp.zeros((), jnp.float32),
+            },
             info={**task_info, "steps": jnp.zeros((), jnp.int32)},
         )
 
@@ -276,6 +320,25 @@ class DmControlEnv:
         if dtype is None or not jnp.issubdtype(dtype, jnp.floating):
             raise TypeError(f"{self.name}: action must be a floating-point array, got {dtype}.")
         return jnp.asarray(action, jnp.float32)
+
+    def _resolve_max_contacts(self, all_condims: np.ndarray) -> int | None:
+        """The ``max_contact_points`` to set, or ``None`` for no limit."""
+        setting = self.config.max_contacts
+        if setting == "all":
+            return None
+        limit = self.default_max_contacts if setting == "task" else setting
+        if limit is None or limit >= len(all_condims):
+            return None
+        return int(limit)
+
+    def _contacts_saturated(self, data: mjx.Data) -> jax.Array:
+        """``()`` bool: some limited condim group has every kept slot touching."""
+        contact = data._impl.contact
+        touching = contact.dist < contact.includemargin
+        saturated = jnp.zeros((), bool)
+        for slots in self._limited_slots:
+            saturated = saturated | jnp.all(touching[slots])
+        return saturated
 
     def _state_is_good(self, data: mjx.Data) -> jax.Array:
         state = jnp.concatenate([data.qpos, data.qvel])
