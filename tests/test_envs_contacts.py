@@ -45,3 +45,34 @@ def test_unsaturated_limit_keeps_the_trajectory():
 def test_a_too_small_limit_is_reported():
     state, _ = _run(envs.make("cheetah-run", max_contacts=1))
     assert np.all(np.asarray(state.metrics["contact_saturated"]) == 1)
+
+
+def _dm_control_max_touching(domain: str, task: str, steps: int = 1000) -> int:
+    """Most contacts touching at once in dm_control over three 1000-step episodes of
+    uniform, saturated and periodic actions."""
+    from dm_control import suite
+
+    env = suite.load(domain, task, task_kwargs={"random": 0})
+    spec = env.action_spec()
+    rng = np.random.default_rng(0)
+    most = 0
+    for mode in range(3):
+        env.reset()
+        for t in range(steps):
+            if mode == 0:
+                action = rng.uniform(spec.minimum, spec.maximum)
+            elif mode == 1:
+                action = np.where(rng.random(spec.shape) < 0.5, spec.minimum, spec.maximum)
+            else:
+                action = np.sign(np.sin(t / 7.0 + np.arange(spec.shape[0]))) * spec.maximum
+            env.step(action)
+            most = max(most, int(env.physics.data.ncon))
+    return most
+
+
+def test_task_defaults_leave_headroom_over_dm_control():
+    """Each task's default slots are at least twice what dm_control ever has touching."""
+    for name in ("cheetah-run", "walker-walk", "ball_in_cup-catch"):
+        env = envs.make(name)
+        domain, task = name.split("-")
+        assert env.max_contacts >= 2 * _dm_control_max_touching(domain, task), name

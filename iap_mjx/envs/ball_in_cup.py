@@ -21,7 +21,7 @@ class BallInCupCatch(DmControlEnv):
     name = "ball_in_cup-catch"
     domain = ball_in_cup
     n_sub_steps = 10
-    default_max_contacts = 6  # dm_control: <= 3 touching (BENCHMARKS.md)
+    default_max_contacts = 6  # dm_control: <= 3 touching (tests/test_envs_contacts.py)
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -44,8 +44,8 @@ class BallInCupCatch(DmControlEnv):
             return self.forward(blank.replace(qpos=qpos))
 
         def penetrating(data):
-            # mj_collision keeps a contact iff dist < margin (0 here); MJX keeps every
-            # candidate pair with its distance.
+            # mj_collision keeps a contact iff dist < margin (0 here); MJX keeps the closest
+            # candidates (max_contacts) with their distances, the closest always among them.
             contact = data._impl.contact
             return jnp.any(contact.dist < contact.includemargin)
 

@@ -24,7 +24,7 @@ class CheetahRun(DmControlEnv):
     name = "cheetah-run"
     domain = cheetah
     n_sub_steps = 1
-    default_max_contacts = 10  # dm_control: <= 5 touching (BENCHMARKS.md)
+    default_max_contacts = 10  # dm_control: <= 5 touching (tests/test_envs_contacts.py)
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)

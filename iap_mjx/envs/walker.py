@@ -26,7 +26,7 @@ class WalkerWalk(DmControlEnv):
     name = "walker-walk"
     domain = walker
     n_sub_steps = 10
-    default_max_contacts = 12  # dm_control: <= 6 touching (BENCHMARKS.md)
+    default_max_contacts = 12  # dm_control: <= 6 touching (tests/test_envs_contacts.py)
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
