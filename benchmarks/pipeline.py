@@ -44,9 +44,12 @@ def main() -> int:
     parser.add_argument("--population", type=int, default=64)
     parser.add_argument("--episode-length", type=int, default=250)
     parser.add_argument("--iterations", type=int, default=4)
+    parser.add_argument("--action-repeat", type=int, default=1,
+                        help="1: every control step renders a frame and runs the policy")
     parser.add_argument("--output", type=Path, default=report.ROOT / "BENCHMARKS.md")
     args = parser.parse_args()
     overrides = [f"es.population_size={args.population}", f"env.episode_length={args.episode_length}",
+                 f"env.action_repeat={args.action_repeat}",
                  f"run.iterations={args.iterations}", "run.checkpoint_every=0", "run.tensorboard=false"]
     rows = [measure(preset, overrides) for preset in PRESETS]
     base = rows[-1]["steps_per_s"]
@@ -57,7 +60,8 @@ def main() -> int:
     body = "\n".join(lines)
     print(body)
     command = (f"python benchmarks/pipeline.py --population {args.population} "
-               f"--episode-length {args.episode_length} --iterations {args.iterations}")
+               f"--episode-length {args.episode_length} --iterations {args.iterations} "
+               f"--action-repeat {args.action_repeat}")
     report.write_section(args.output, "pipeline", (
         "## Full pixel pipeline (physics + 100x100 camera + attention + controller + ES)\n\n"
         f"Measured on {report.machine_line()}. Command: `{command}`.\n\n"

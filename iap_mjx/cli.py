@@ -93,10 +93,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_video(args: argparse.Namespace) -> int:
     """Renders an episode of a run's latest checkpoint with the selected patches outlined."""
+    from iap_mjx import es
     from iap_mjx.viz import artifacts
 
     try:
-        result = artifacts.load_result(args.run_dir)
+        result = es.load_run(args.run_dir)
         out = Path(args.out) if args.out else Path(args.run_dir) / "episode.mp4"
         path, episode_return = artifacts.write_video(result, out, seed=args.seed, steps=args.steps)
     except (FileNotFoundError, ValueError) as error:

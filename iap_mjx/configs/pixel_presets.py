@@ -2,7 +2,7 @@
 
 ``cheetah-run-pixels`` follows the paper's Cheetah-Run ablation (Figure 6): 100x100 RGB,
 non-overlapping 4x4 patches (``L = 625``), the top 10 patch centres into a linear controller,
-hybrid features ``(m, r) = (10, 5)``. The variants change only the attention kernel:
+hybrid features ``(m, r) = (10, 5)``; one frame per 4 control steps (action repeat 4). The variants change only the attention kernel:
 ``-relu``, ``-hybrid-M-R`` for the paper's four ``(m, r)`` pairs, ``-brute`` (explicit
 softmax with row normalisation: Tang et al.'s AttentionAgent) and ``-cnn``.
 ``cheetah-run-pixels-quick`` is the same policy on short episodes and a small population:
@@ -24,16 +24,24 @@ KERNELS = {
     "hybrid-16-8": (("kernel", "hybrid"), ("m", 16), ("r", 8)),
     "brute": (("kernel", "brute"), ("row_normalize", True)),
 }
+# One frame (camera + attention + controller) per 4 control steps, as PlaNet/DrQ do on
+# cheetah from pixels: the episode is still dm_control's 1000 steps and its return.
+ACTION_REPEAT = 4
 PIXEL_ES = ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005,
                     normalize_observations=False)
 
 
-def pixel_config(policy: PolicyConfig, *, episode_length: int = 1000, es: ESConfig = PIXEL_ES,
+def pixel_config(policy: PolicyConfig, *, episode_length: int | None = None,
+                 es: ESConfig = PIXEL_ES,
                  run: RunConfig = RunConfig(iterations=100, eval_episodes=4, checkpoint_every=5)
                  ) -> TrainConfig:
-    """Cheetah-Run from 100x100 RGB with ``policy``."""
-    env = EnvConfig("cheetah-run", PIXELS + (("episode_length", episode_length),))
-    return TrainConfig(env=env, policy=policy, es=es, run=run)
+    """Cheetah-Run from 100x100 RGB with ``policy``, each frame's action held for
+    ``ACTION_REPEAT`` control steps; ``episode_length`` in env steps (``None``: dm_control's
+    1000 control steps)."""
+    options = PIXELS + (("action_repeat", ACTION_REPEAT),)
+    if episode_length is not None:
+        options += (("episode_length", episode_length),)
+    return TrainConfig(env=EnvConfig("cheetah-run", options), policy=policy, es=es, run=run)
 
 
 def iap_policy(kernel: str) -> PolicyConfig:
@@ -52,8 +60,8 @@ for _name in KERNELS:
 register("cheetah-run-pixels-cnn", "cheetah-run from 100x100 RGB with a small CNN policy (baseline)",
          lambda: pixel_config(PolicyConfig("cnn")))
 register("cheetah-run-pixels-quick",
-         "cheetah-run-pixels on 200-step episodes, population 16, 10 iterations: a few minutes",
+         "cheetah-run-pixels on 200-control-step episodes, population 16, 10 iterations: a few minutes",
          lambda: pixel_config(
-             iap_policy("hybrid-10-5"), episode_length=200,
+             iap_policy("hybrid-10-5"), episode_length=200 // ACTION_REPEAT,
              es=ESConfig(population_size=16, sigma=0.05, learning_rate=0.02, normalize_observations=False),
              run=RunConfig(iterations=10, eval_episodes=2, checkpoint_every=5, chunk_size=16)))

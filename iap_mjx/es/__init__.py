@@ -7,10 +7,10 @@
 from iap_mjx.es.config import EnvConfig, ESConfig, PolicyConfig, RunConfig, TrainConfig
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
-from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, train
+from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, load_run, train
 
 __all__ = [
     "ESConfig", "EnvConfig", "EvosaxStrategy", "OpenES", "PolicyConfig", "RunConfig",
     "SHAPINGS", "TrainConfig", "TrainResult", "TrainState", "build", "centred_ranks",
-    "estimate_gradient", "evaluate_run", "train",
+    "estimate_gradient", "evaluate_run", "load_run", "train",
 ]

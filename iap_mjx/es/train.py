@@ -474,6 +474,15 @@ def train(
     return result_from_state(parts, state, history, run_dir)
 
 
+def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> TrainResult:
+    """A run's latest checkpoint as a :class:`TrainResult` (params, ``policy_fn``, config,
+    history), without training. ``env``/``policy`` as in :func:`train`."""
+    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    parts = build(config, env=env, policy=policy)
+    state = _restore(parts, run_dir, init_state(parts))
+    return result_from_state(parts, state, read_history(run_dir), run_dir)
+
+
 def evaluate_run(
     run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, env: Any = None,
     policy: Any = None,

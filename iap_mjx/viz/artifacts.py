@@ -14,18 +14,6 @@ from iap_mjx.viz import curves, video
 logger = logging.getLogger(__name__)
 
 
-def load_result(run_dir: str | Path) -> Any:
-    """A run's latest checkpoint as an ``es.TrainResult`` (params, policy_fn, config)."""
-    from iap_mjx.es import checkpoint
-    from iap_mjx.es.config import TrainConfig
-    from iap_mjx.es.train import _restore, build, init_state, result_from_state
-
-    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
-    parts = build(config)
-    state = _restore(parts, run_dir, init_state(parts))
-    return result_from_state(parts, state, curves.read_history(run_dir), run_dir)
-
-
 def env_and_policy(config: Any) -> tuple[Any, Any]:
     """The env and policy a ``TrainConfig`` names (built again, as values)."""
     env = envs.make(config.env.name, **dict(config.env.overrides))
