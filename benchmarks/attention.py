@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from pathlib import Path
 
@@ -45,6 +46,7 @@ BATCHES = (1, 256)
 D_QK, TOP_L = 4, 10
 MEMORY_BUDGET = 4 * 2**30  # bytes the benchmark lets one compiled program use
 CHUNK = 4  # images vectorised together: small enough for the working set to stay in cache
+LOAD_BEFORE = os.getloadavg()[0]
 BATCH_SECONDS_CAP = 60.0  # brute force at batch 256 is not run where batch 1 predicts longer
 
 
@@ -133,6 +135,26 @@ def table(rows: list[Row]) -> str:
     return "\n".join(lines)
 
 
+def bar_lines(rows: list[Row]) -> str:
+    """The foundation issue's two bars, read off this run's rows."""
+    def time_of(patches, kernel, batch=256):
+        return next((r.per_image_ms for r in rows if r.patches == patches and r.kernel == kernel
+                     and r.batch == batch and r.per_image_ms), None)
+
+    lines = [f"Bars, from this run (1-min load average before/after: {LOAD_BEFORE:.1f}/"
+             f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores):"]
+    brute, hybrid = time_of(2500, "brute"), time_of(2500, "hybrid (10,5)")
+    if brute and hybrid:
+        ratio = brute / hybrid
+        lines.append(f"- hybrid (10,5) vs brute force at L = 2500, batch 256: **{ratio:.1f}x** faster "
+                     f"(bar: 50x: {'met' if ratio >= 50 else 'NOT met'}).")
+    large = time_of(19200, "hybrid (10,5)")
+    if large:
+        lines.append(f"- hybrid (10,5) at L = 19200, batch 256: **{large:.2f} ms per image** "
+                     f"(bar: under 5 ms: {'met' if large < 5 else 'NOT met'}).")
+    return "\n".join(lines)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a small table, printed only")
@@ -150,6 +172,8 @@ def main() -> int:
                       flush=True)
     body = table(rows)
     print("\n" + body)
+    bars = bar_lines(rows)
+    print(bars)
     if not args.quick:
         command = "python benchmarks/attention.py"
         section = (
@@ -164,7 +188,7 @@ def main() -> int:
             "brute-force time measured in the same run by the row's time. Memory is XLA's own "
             "analysis of the compiled program (arguments + outputs + temporaries). Brute force "
             f"runs in chunks that fit a {MEMORY_BUDGET / 2**30:.0f} GiB budget, and not at all where "
-            "a single image's L x L matrix does not fit.\n\n" + body)
+            "a single image's L x L matrix does not fit.\n\n" + bars + "\n\n" + body)
         report.write_section(args.output, "attention", section)
     return 0
 

@@ -175,7 +175,9 @@ def _write(args, rows, native) -> None:
         "steady state; states from dm_control's initial distribution plus random actions.",
         f"Machine: {report.machine_line()}.",
         "",
-        "| resolution | B | ours, 1 device | ours, 2 devices | compile (s) | vmapped `mjx.ray` (depth+geom only), 1 device | ours / `mjx.ray` | MuJoCo RGB | MuJoCo depth | ours (best of 1, 2 devices) / MuJoCo RGB |",
+        "| resolution | B | ours, 1 device | ours, 2 devices | compile (s) "
+        "| vmapped `mjx.ray` (depth+geom only), 1 device | ours / `mjx.ray` | MuJoCo RGB "
+        "| MuJoCo depth | ours (best of 1, 2 devices) / MuJoCo RGB |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:

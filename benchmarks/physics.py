@@ -252,7 +252,8 @@ def _markdown(sweep_rows, rows, long_rows, args) -> str:
     ]
     for r in sweep_rows:
         lines.append(
-            f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} | {r['error']:.1e} | {r['native_error']:.1e} | {r['rate']:,.0f} |"
+            f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} | "
+            f"{r['error']:.1e} | {r['native_error']:.1e} | {r['rate']:,.0f} |"
         )
     lines += [
         "",

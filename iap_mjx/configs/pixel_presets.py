@@ -2,9 +2,10 @@
 
 ``cheetah-run-pixels`` follows the paper's Cheetah-Run ablation (Figure 6): 100x100 RGB,
 non-overlapping 4x4 patches (``L = 625``), the top 10 patch centres into a linear controller,
-hybrid features ``(m, r) = (10, 5)``; one frame per 4 control steps (action repeat 4). The variants change only the attention kernel:
-``-relu``, ``-hybrid-M-R`` for the paper's four ``(m, r)`` pairs, ``-brute`` (explicit
-softmax with row normalisation: Tang et al.'s AttentionAgent) and ``-cnn``.
+hybrid features ``(m, r) = (10, 5)``; one frame per 4 control steps (action repeat 4). The
+variants change only the attention kernel: ``-relu``, ``-hybrid-M-R`` for the paper's four
+``(m, r)`` pairs, ``-brute`` (explicit softmax with row normalisation: Tang et al.'s
+AttentionAgent) and ``-cnn``.
 ``cheetah-run-pixels-quick`` is the same policy on short episodes and a small population:
 the README's first command, a few minutes on two cores.
 """
