@@ -84,6 +84,23 @@ def test_factorised_hybrid_scores_equal_the_feature_map():
         np.testing.assert_allclose(fast, via_features, rtol=2e-4, atol=1e-4 * float(jnp.abs(via_features).max()))
 
 
+def test_factorised_hybrid_scores_survive_norm_10_and_keep_the_ranking():
+    """Norms up to 10 overflow float32 without the shift (exp(50) squared); with it the
+    scores stay finite and rank the keys as the stabilised feature maps do."""
+    keys = jax.random.split(jax.random.PRNGKey(5), 4)
+    directions = jax.random.normal(keys[0], (2, 80, 4))
+    directions = directions / jnp.linalg.norm(directions, axis=-1, keepdims=True)
+    norms = jax.random.uniform(keys[1], (2, 80, 1), minval=8.0, maxval=10.0)
+    q, k = directions * norms
+    proj = ft.draw_projections(keys[2], "hybrid", m=10, d=4, r=5)
+    fast = np.asarray(jax.jit(iap.hybrid_scores)(q, k, proj))
+    via_features = np.asarray(iap.linear_scores(
+        ft.feature_map("hybrid", q, proj, role="query", stabilize=True),
+        ft.feature_map("hybrid", k, proj, role="key", stabilize=True)))
+    assert np.all(np.isfinite(fast))
+    np.testing.assert_array_equal(np.argsort(-fast)[:10], np.argsort(-via_features)[:10])
+
+
 def test_top_l_breaks_ties_toward_the_lower_index():
     scores = jnp.array([1.0, 3.0, 2.0, 3.0, 3.0, 0.0])
     np.testing.assert_array_equal(jax.jit(iap.top_l, static_argnums=1)(scores, 4), [1, 3, 4, 2])
