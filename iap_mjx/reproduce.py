@@ -53,18 +53,23 @@ def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> floa
     return (time.perf_counter() - start) / passes
 
 
-def final_return(config: configs.TrainConfig, seed: int, run_dir: Path) -> float:
-    """Trains ``config`` with ``seed`` and returns the last evaluation return of the centre."""
+def eval_curve(config: configs.TrainConfig, seed: int, run_dir: Path) -> list[float]:
+    """Trains ``config`` with ``seed`` (resuming from ``run_dir``'s checkpoint, so a finished
+    run is not trained again) and returns the centre's evaluation return per iteration."""
     from iap_mjx.es import train
 
     config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
     result = train(config, run_dir=run_dir, progress=False)
-    return float(next(row["eval_return"] for row in reversed(result.history) if "eval_return" in row))
+    return [float(row["eval_return"]) for row in result.history if "eval_return" in row]
 
 
 def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
               passes: int = 100) -> str:
-    """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table."""
+    """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table.
+
+    Each (preset, seed) trains in ``<out_dir>/<preset>-seed<seed>``: a killed run resumes
+    there, and ``fig1`` reuses the Brute and (10,5) runs of a ``fig6`` in the same ``out_dir``.
+    """
     if figure not in VARIANTS:
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
     out_dir = Path(out_dir)
@@ -75,18 +80,20 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
     for label, config, preset in variants:
         seconds = inference_seconds(config, passes=passes)
         start = time.perf_counter()
-        returns = [final_return(config, seed, out_dir / f"{preset}-seed{seed}") for seed in range(seeds)]
+        curves = [eval_curve(config, seed, out_dir / f"{preset}-seed{seed}") for seed in range(seeds)]
         rows.append({"variant": label, "preset": preset, "inference_s": seconds,
-                     "returns": returns, "train_wall_s": time.perf_counter() - start,
+                     "returns": [curve[-1] for curve in curves], "curves": curves,
+                     "train_wall_s": time.perf_counter() - start,
                      "iterations": config.run.iterations})
-        logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, returns)
+        logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, rows[-1]["returns"])
     (out_dir / f"{figure}.json").write_text(json.dumps(rows, indent=2))
     plot(rows, out_dir / f"{figure}.png", title=f"{figure}: Cheetah-Run from 100x100 RGB")
     return table(rows)
 
 
 def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
-    """Bars: inference time per forward pass; crosses with std bars: mean final return."""
+    """Left, as the paper: bars of inference time per forward pass, crosses with std bars
+    of the mean final return. Right: mean evaluation-return curves, shaded +- std over seeds."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -94,7 +101,7 @@ def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
 
     labels = [row["variant"] for row in rows]
     x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(1.3 * len(rows) + 3, 4))
+    fig, (ax, curves) = plt.subplots(1, 2, figsize=(1.3 * len(rows) + 8, 4))
     ax.bar(x, [row["inference_s"] for row in rows], color="tab:blue", alpha=0.7)
     ax.set_ylabel("inference time (s)")
     ax.set_xticks(x, labels)
@@ -103,6 +110,17 @@ def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
                   fmt="x", color="tab:orange", markersize=10, capsize=4)
     twin.set_ylabel("reward (mean over seeds)")
     ax.set_title(title)
+    for row in rows:
+        length = min(len(curve) for curve in row["curves"])
+        stacked = np.array([curve[:length] for curve in row["curves"]])
+        steps = np.arange(1, length + 1)
+        mean, std = stacked.mean(0), stacked.std(0)
+        curves.plot(steps, mean, label=row["variant"])
+        curves.fill_between(steps, mean - std, mean + std, alpha=0.2)
+    curves.set_xlabel("ES iteration")
+    curves.set_ylabel("evaluation return")
+    curves.set_title(f"mean +- std over {len(rows[0]['curves'])} seeds")
+    curves.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

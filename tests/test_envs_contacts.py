@@ -47,6 +47,24 @@ def test_a_too_small_limit_is_reported():
     assert np.all(np.asarray(state.metrics["contact_saturated"]) == 1)
 
 
+def test_the_es_rollout_counts_saturated_episodes():
+    """``run_episode`` carries the env's flag into ``EpisodeResult.saturated``, which the
+    training loop sums into ``contact_saturated_episodes``."""
+    from iap_mjx.es.rollout import run_episode
+    from iap_mjx.policies import LinearPolicy
+
+    policy = LinearPolicy(17, 6)
+    params = jax.tree_util.tree_map(lambda x: x + 0.5, policy.init(None))  # a moving cheetah
+
+    def saturated(max_contacts):
+        env = envs.make("cheetah-run", max_contacts=max_contacts, episode_length=STEPS)
+        one = lambda key: run_episode(env, policy, params, key, None, False).saturated  # noqa: E731
+        return np.asarray(jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(0), 2)))
+
+    np.testing.assert_array_equal(saturated(1), [1.0, 1.0])
+    np.testing.assert_array_equal(saturated("task"), [0.0, 0.0])
+
+
 def _dm_control_max_touching(domain: str, task: str, steps: int = 1000) -> int:
     """Most contacts touching at once in dm_control over three 1000-step episodes of
     uniform, saturated and periodic actions."""

@@ -100,7 +100,7 @@ def test_metrics_files_and_policy_fn(tmp_path):
     for row in rows:
         assert row["env_steps_per_s"] > 0 and row["compile_s"] > 0
         assert row["return_min"] <= row["return_mean"] <= row["return_max"]
-        assert row["nan_episodes"] == 0
+        assert row["nan_episodes"] == 0 and row["contact_saturated_episodes"] == 0
     assert rows[-1]["env_steps"] == 6 * 16 * 2 * env.episode_length
     assert any((tmp_path / "tensorboard").iterdir())
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["3", "6"]

@@ -17,3 +17,11 @@ def test_table_reports_mean_and_std_over_seeds():
              "returns": [10.0, 20.0, 30.0], "train_wall_s": 12.0, "iterations": 5}]
     line = reproduce.table(rows).splitlines()[-1]
     assert "| 2.100 |" in line and "20.0 ± 8.2" in line and "| 3 | 5 |" in line
+
+
+def test_plot_draws_bars_and_curves_of_unequal_length(tmp_path):
+    rows = [{"variant": name, "preset": name, "inference_s": seconds, "returns": [5.0, 7.0],
+             "curves": [[1.0, 3.0, 5.0], [2.0, 7.0]], "train_wall_s": 1.0, "iterations": 3}
+            for name, seconds in (("IAP", 0.002), ("Brute", 0.01))]
+    path = reproduce.plot(rows, tmp_path / "fig.png", title="t")
+    assert path.stat().st_size > 10_000

@@ -161,11 +161,13 @@ class DmControlEnv:
         self.config = dataclasses.replace(config, **overrides) if overrides else config
         xml, assets = self.domain.get_model_and_assets()
         spec = mujoco.MjSpec.from_string(xml, assets)
-        all_condims = collision_driver.make_condim(spec.compile())
+        spec.add_numeric(name="max_contact_points", data=[-1])  # -1: MJX keeps every candidate
+        mj_model = spec.compile()  # once: the limit is set in the compiled model below
+        all_condims = collision_driver.make_condim(mj_model)
         self.max_contacts = self._resolve_max_contacts(all_condims)
         if self.max_contacts is not None:
-            spec.add_numeric(name="max_contact_points", data=[self.max_contacts])
-        mj_model = spec.compile()
+            slot = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
+            mj_model.numeric_data[mj_model.numeric_adr[slot]] = self.max_contacts
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
         mj_model.opt.ls_iterations = self.config.ls_iterations

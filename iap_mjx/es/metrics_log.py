@@ -3,7 +3,9 @@
 Columns: ``env_steps`` counts training steps so far (population x episodes x horizon, the
 sample budget); ``return_*`` are over the population's fitness (mean return per member);
 ``eval_return``/``eval_return_std`` over the centre's evaluation episodes at the start of the
-iteration; ``nan_episodes`` counts episodes that met a bad state; ``env_steps_per_s`` counts
+iteration; ``nan_episodes`` counts episodes that met a bad state; ``contact_saturated_episodes``
+counts population episodes that filled every MJX contact slot at some step (a contact may have
+been dropped: raise ``env.max_contacts`` if it is not 0); ``env_steps_per_s`` counts
 every simulated step (training, evaluation, padding) per second of run time; ``run_s`` is one
 iteration's run time, ``compile_s`` the compile time so far, ``wall_s`` the time since
 ``train`` started (this session).
@@ -27,6 +29,7 @@ COLUMNS = (
     "eval_return",
     "eval_return_std",
     "nan_episodes",
+    "contact_saturated_episodes",
     "sigma",
     "params_norm",
     "env_steps_per_s",

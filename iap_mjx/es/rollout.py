@@ -31,20 +31,23 @@ class EpisodeResult:
 
     ``ret`` ``()`` the return, ``steps`` ``()`` control steps before ``done``, ``bad``
     ``()`` 1.0 if a non-finite reward/observation was met or the env flagged
-    ``metrics["nan_terminations"]``, ``obs_sum``/``obs_sq_sum``
+    ``metrics["nan_terminations"]``, ``saturated`` ``()`` 1.0 if the env flagged
+    ``metrics["contact_saturated"]`` (every contact slot filled at some step, so a contact
+    may have been dropped; 0.0 for envs without the flag), ``obs_sum``/``obs_sq_sum``
     ``(obs_size,)`` sums over the live steps (zeros when not tracked).
     """
 
     ret: jax.Array
     steps: jax.Array
     bad: jax.Array
+    saturated: jax.Array
     obs_sum: jax.Array
     obs_sq_sum: jax.Array
 
 
 jax.tree_util.register_dataclass(
     EpisodeResult,
-    data_fields=["ret", "steps", "bad", "obs_sum", "obs_sq_sum"],
+    data_fields=["ret", "steps", "bad", "saturated", "obs_sum", "obs_sq_sum"],
     meta_fields=[],
 )
 
@@ -96,8 +99,10 @@ def run_episode(
     zero = jnp.zeros((), jnp.float32)
     carry = (state, policy_state, zero, one, zero, zeros, zeros)
     carry, steps_alive = jax.lax.scan(step, carry, None, length=env.episode_length)
-    _, _, ret, _, bad, obs_sum, obs_sq_sum = carry
-    return EpisodeResult(ret, jnp.sum(steps_alive), bad, obs_sum, obs_sq_sum)
+    final, _, ret, _, bad, obs_sum, obs_sq_sum = carry
+    saturated = (final.metrics["contact_saturated"] > 0).astype(jnp.float32) \
+        if "contact_saturated" in final.metrics else zero
+    return EpisodeResult(ret, jnp.sum(steps_alive), bad, saturated, obs_sum, obs_sq_sum)
 
 
 def make_mesh(num_devices: int = 0, devices: Any = None) -> Mesh:

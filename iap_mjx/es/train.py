@@ -246,6 +246,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
             "return_std": jnp.nanstd(fitness),
             "nan_episodes": jnp.sum(bad),
+            "contact_saturated_episodes": jnp.sum(result.saturated),
             "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
         }
         if eval_episodes:
