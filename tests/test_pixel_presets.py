@@ -19,8 +19,9 @@ def test_pixel_preset_builds_env_and_policy(name):
     params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
     if config.policy.kind == "iap":
         assert policy.layer.num_patches == 625 and policy.attention.top_l == 10
-        # W_Q, W_K (48 x 4 each) and a linear controller on 10 centres: a few hundred numbers.
-        assert param_count(params) == 2 * 48 * 4 + 20 * env.action_size + env.action_size
+        # W_Q, W_K (48 x 4 each) and a 16-unit LSTM on 10 centres, read out to the actions.
+        lstm = (20 + 16) * 4 * 16 + 4 * 16 + 16 * env.action_size + env.action_size
+        assert param_count(params) == 2 * 48 * 4 + lstm
         expected_kernel = name.removeprefix("cheetah-run-pixels").lstrip("-").split("-")[0] or "hybrid"
         assert policy.attention.kernel == {"quick": "hybrid"}.get(expected_kernel, expected_kernel)
 

@@ -1,8 +1,10 @@
 """Presets that learn from pixels: Cheetah-Run at 100x100 RGB with IAP, its ablations, baselines.
 
 ``cheetah-run-pixels`` follows the paper's Cheetah-Run ablation (Figure 6): 100x100 RGB,
-non-overlapping 4x4 patches (``L = 625``), the top 10 patch centres into a linear controller,
-hybrid features ``(m, r) = (10, 5)``; one frame per 4 control steps (action repeat 4). The
+non-overlapping 4x4 patches (``L = 625``), the top 10 patch centres into an LSTM controller
+(16 units, Tang et al.'s choice: one frame's patch centres carry no velocity, and cheetah's
+reward is its speed), hybrid features ``(m, r) = (10, 5)``; one frame per 4 control steps
+(action repeat 4). ``RESULTS.md`` (learning) compares it with a linear controller. The
 variants change only the attention kernel: ``-relu``, ``-hybrid-M-R`` for the paper's four
 ``(m, r)`` pairs, ``-brute`` (explicit softmax with row normalisation: Tang et al.'s
 AttentionAgent) and ``-cnn``.
@@ -17,6 +19,7 @@ from iap_mjx.es.config import EnvConfig, ESConfig, PolicyConfig, RunConfig, Trai
 
 PIXELS = (("obs_mode", "pixels"), ("height", 100), ("width", 100))
 ATTENTION = (("patch_size", 4), ("top_l", 10), ("d_qk", 4))
+CONTROLLER = (("controller", "lstm"), ("hidden_sizes", (16,)))
 KERNELS = {
     "relu": (("kernel", "relu"),),
     "hybrid-3-2": (("kernel", "hybrid"), ("m", 3), ("r", 2)),
@@ -47,11 +50,11 @@ def pixel_config(policy: PolicyConfig, *, episode_length: int | None = None,
 
 def iap_policy(kernel: str) -> PolicyConfig:
     """The IAP policy with ``kernel`` (a key of :data:`KERNELS`)."""
-    return PolicyConfig("iap", ATTENTION + KERNELS[kernel])
+    return PolicyConfig("iap", ATTENTION + KERNELS[kernel] + CONTROLLER)
 
 
 register("cheetah-run-pixels",
-         "cheetah-run from 100x100 RGB: IAP hybrid (10, 5), 4x4 patches, top 10 -> linear (the paper's pick)",
+         "cheetah-run from 100x100 RGB: IAP hybrid (10, 5) (the paper's pick), 4x4 patches, top 10 -> LSTM(16)",
          lambda: pixel_config(iap_policy("hybrid-10-5")))
 for _name in KERNELS:
     if _name != "hybrid-10-5":
