@@ -53,14 +53,20 @@ def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> floa
     return (time.perf_counter() - start) / passes
 
 
-def eval_curve(config: configs.TrainConfig, seed: int, run_dir: Path) -> list[float]:
-    """Trains ``config`` with ``seed`` (resuming from ``run_dir``'s checkpoint, so a finished
-    run is not trained again) and returns the centre's evaluation return per iteration."""
+def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path) -> tuple[list[float], float]:
+    """Trains ``config`` with ``seed`` in ``run_dir`` (resuming from its checkpoint, so a
+    finished run is not trained again).
+
+    Returns the centre's evaluation return at the start of iterations ``1..run.iterations``
+    (a run directory trained further is cut there) and the seconds those iterations took:
+    their run times summed over every session, plus the first session's compile.
+    """
     from iap_mjx.es import train
 
     config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
-    result = train(config, run_dir=run_dir, progress=False)
-    return [float(row["eval_return"]) for row in result.history if "eval_return" in row]
+    history = train(config, run_dir=run_dir, progress=False).history[:config.run.iterations]
+    seconds = sum(row["run_s"] for row in history) + (history[0]["compile_s"] if history else 0.0)
+    return [float(row["eval_return"]) for row in history], seconds
 
 
 def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
@@ -72,19 +78,21 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
     """
     if figure not in VARIANTS:
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     variants = [(label, configs.apply_overrides(configs.get(preset), overrides), preset)
                 for label, preset in VARIANTS[figure]]  # every config validated before any compile
+    if any(config.run.eval_episodes < 1 for _, config, _ in variants):
+        raise ValueError("reproduce reads the evaluation return: run.eval_episodes must be >= 1")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for label, config, preset in variants:
         seconds = inference_seconds(config, passes=passes)
-        start = time.perf_counter()
-        curves = [eval_curve(config, seed, out_dir / f"{preset}-seed{seed}") for seed in range(seeds)]
+        trained = [trained_curve(config, seed, out_dir / f"{preset}-seed{seed}") for seed in range(seeds)]
+        curves = [curve for curve, _ in trained]
         rows.append({"variant": label, "preset": preset, "inference_s": seconds,
                      "returns": [curve[-1] for curve in curves], "curves": curves,
-                     "train_wall_s": time.perf_counter() - start,
-                     "iterations": config.run.iterations})
+                     "train_wall_s": sum(s for _, s in trained),
+                     "iterations": min(len(curve) for curve in curves)})
         logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, rows[-1]["returns"])
     (out_dir / f"{figure}.json").write_text(json.dumps(rows, indent=2))
     plot(rows, out_dir / f"{figure}.png", title=f"{figure}: Cheetah-Run from 100x100 RGB")
@@ -92,8 +100,19 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
 
 
 def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
+    """Writes :func:`figure` of ``rows`` to ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = figure(rows, title=title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def figure(rows: list[dict[str, Any]], *, title: str):
     """Left, as the paper: bars of inference time per forward pass, crosses with std bars
-    of the mean final return. Right: mean evaluation-return curves, shaded +- std over seeds."""
+    of the mean final return. Right: mean evaluation-return curves, shaded +- std over seeds
+    (cut to the shortest seed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -117,19 +136,17 @@ def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
         mean, std = stacked.mean(0), stacked.std(0)
         curves.plot(steps, mean, label=row["variant"])
         curves.fill_between(steps, mean - std, mean + std, alpha=0.2)
-    curves.set_xlabel("ES iteration")
+    curves.set_xlabel("ES iteration (the centre at its start)")
     curves.set_ylabel("evaluation return")
     curves.set_title(f"mean +- std over {len(rows[0]['curves'])} seeds")
     curves.legend(fontsize="small")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def table(rows: list[dict[str, Any]]) -> str:
     """A markdown table of the rows."""
-    lines = ["| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training wall s |",
+    lines = ["| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training s (all seeds) |",
              "|---|---|---:|---:|---:|---:|---:|"]
     for row in rows:
         lines.append(f"| {row['variant']} | `{row['preset']}` | {1e3 * row['inference_s']:.3f} | "

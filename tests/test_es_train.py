@@ -122,6 +122,34 @@ def test_nan_episodes_are_counted_and_do_not_poison_the_update():
     assert np.all(np.isfinite(flat(result.params)))
 
 
+@dataclasses.dataclass(frozen=True)
+class FlaggingPointMass(PointMass):
+    """``PointMass`` whose episodes set the sticky ``metrics["contact_saturated"]`` flag:
+    ``"always"``, or ``"right"`` when the start position has ``x > 0`` (about half)."""
+
+    flag: str = "always"
+
+    def _flagged(self, state):
+        flagged = jnp.ones(()) if self.flag == "always" else (state.data["pos"][0] > 0).astype(jnp.float32)
+        return state.replace(metrics={"contact_saturated": flagged})
+
+    def reset(self, key):
+        return self._flagged(super().reset(key))
+
+    def step(self, state, action):
+        return super().step(state, action).replace(metrics=state.metrics)
+
+
+def test_contact_saturated_episodes_count_the_population_episodes_flagged():
+    config = small_config(checkpoint_every=0, iterations=3)
+    members = config.es.population_size * config.es.n_episodes  # 32; the 4 eval episodes not counted
+    every = train(config, env=FlaggingPointMass(flag="always"), progress=False).history
+    assert [row["contact_saturated_episodes"] for row in every] == [members] * 3
+    some = [row["contact_saturated_episodes"]
+            for row in train(config, env=FlaggingPointMass(flag="right"), progress=False).history]
+    assert all(0 < count < members for count in some), some
+
+
 def test_interrupt_saves_checkpoint_and_resume_is_exact(tmp_path):
     env = PointMass()
     whole = train(small_config(), env=env, progress=False)

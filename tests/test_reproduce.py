@@ -1,5 +1,6 @@
 """The reproduce command: bad input fails before anything compiles; the table reads its rows."""
 
+import numpy as np
 import pytest
 
 from iap_mjx import cli, reproduce
@@ -19,9 +20,18 @@ def test_table_reports_mean_and_std_over_seeds():
     assert "| 2.100 |" in line and "20.0 ± 8.2" in line and "| 3 | 5 |" in line
 
 
-def test_plot_draws_bars_and_curves_of_unequal_length(tmp_path):
+def test_figure_has_bars_crosses_and_one_curve_per_variant(tmp_path):
     rows = [{"variant": name, "preset": name, "inference_s": seconds, "returns": [5.0, 7.0],
-             "curves": [[1.0, 3.0, 5.0], [2.0, 7.0]], "train_wall_s": 1.0, "iterations": 3}
+             "curves": [[1.0, 3.0, 5.0], [2.0, 7.0]], "train_wall_s": 1.0, "iterations": 2}
             for name, seconds in (("IAP", 0.002), ("Brute", 0.01))]
-    path = reproduce.plot(rows, tmp_path / "fig.png", title="t")
-    assert path.stat().st_size > 10_000
+    bars, curves, crosses = reproduce.figure(rows, title="t").axes  # the bars' twin axis (made last) holds the crosses
+    assert [patch.get_height() for patch in bars.patches] == [0.002, 0.01]
+    np.testing.assert_allclose(np.asarray(crosses.lines[0].get_ydata(), dtype=float), [6.0, 6.0])
+    assert [line.get_label() for line in curves.lines] == ["IAP", "Brute"]
+    np.testing.assert_allclose(curves.lines[0].get_ydata(), [1.5, 5.0])  # cut to the shortest seed
+    assert reproduce.plot(rows, tmp_path / "fig.png", title="t").stat().st_size > 0
+
+
+def test_eval_episodes_zero_is_refused_before_training():
+    with pytest.raises(ValueError, match="run.eval_episodes"):
+        reproduce.reproduce("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))

@@ -7,7 +7,7 @@ reward is its speed), hybrid features ``(m, r) = (10, 5)``; one frame per 4 cont
 (action repeat 4). ``RESULTS.md`` (learning) compares it with a linear controller. The
 variants change only the attention kernel: ``-relu``, ``-hybrid-M-R`` for the paper's four
 ``(m, r)`` pairs, ``-brute`` (explicit softmax with row normalisation: Tang et al.'s
-AttentionAgent) and ``-cnn``.
+AttentionAgent); ``-cnn`` replaces the whole policy with a small feed-forward CNN (baseline).
 ``cheetah-run-pixels-quick`` is the same policy on short episodes and a small population:
 the README's first command, a few minutes on two cores.
 """

@@ -167,7 +167,10 @@ class DmControlEnv:
         self.max_contacts = self._resolve_max_contacts(all_condims)
         if self.max_contacts is not None:
             slot = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
-            mj_model.numeric_data[mj_model.numeric_adr[slot]] = self.max_contacts
+            # MJX reads numeric_data[id] (not numeric_adr[id]): the same cell while every numeric
+            # before ours has size 1, as in every suite model (they define none).
+            assert mj_model.numeric_adr[slot] == slot, "a model numeric of size > 1 precedes ours"
+            mj_model.numeric_data[slot] = self.max_contacts
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
         mj_model.opt.ls_iterations = self.config.ls_iterations
