@@ -9,6 +9,10 @@ share of the cores, so it completes fewer iterations in the budget than it would
 runs are deterministic in their iterations (bit-identical per seed), so a return reached
 with a share of the machine is reached no later with all of it.
 
+A seed that finished its budget leaves ``seed-<k>.done`` next to its run directory, and the
+same command run again (say, after the machine was taken away) keeps it and trains only the
+others. A seed without the marker is trained afresh: resuming it would restart its clock.
+
 Run (heavy; it owns the machine for the budget):
 
     flock /work/bench.lock python benchmarks/learning.py --preset cheetah-run-pixels --seeds 3 --minutes 60 --parallel
@@ -19,6 +23,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -43,22 +48,33 @@ def run_seeds(args) -> list[Path]:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     run_dirs = [out / f"seed-{seed}" for seed in range(args.seeds)]
+    todo = [(seed, run_dir) for seed, run_dir in enumerate(run_dirs)
+            if not run_dir.with_suffix(".done").exists()]
+    for _, run_dir in todo:
+        shutil.rmtree(run_dir, ignore_errors=True)  # a resumed run would restart its clock
     commands = [train_command(args.preset, seed, args.minutes, run_dir, args.overrides)
-                for seed, run_dir in enumerate(run_dirs)]
+                for seed, run_dir in todo]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+    def finished(run_dir: Path, code: int) -> int:
+        if code == 0:
+            run_dir.with_suffix(".done").touch()
+        return code
+
     if args.parallel:
-        logs = [open(run_dir.with_suffix(".log"), "w") for run_dir in run_dirs]
+        logs = [open(run_dir.with_suffix(".log"), "w") for _, run_dir in todo]
         procs = [subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
                  for cmd, log in zip(commands, logs)]
-        codes = [proc.wait() for proc in procs]
+        codes = [finished(run_dir, proc.wait()) for (_, run_dir), proc in zip(todo, procs)]
         for log in logs:
             log.close()
     else:
         codes = []
-        for cmd, run_dir in zip(commands, run_dirs):
+        for cmd, (_, run_dir) in zip(commands, todo):
             with open(run_dir.with_suffix(".log"), "w") as log:
-                codes.append(subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT, env=env))
-    failed = [str(d) for d, code in zip(run_dirs, codes) if code != 0]
+                code = subprocess.call(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+            codes.append(finished(run_dir, code))
+    failed = [str(run_dir) for (_, run_dir), code in zip(todo, codes) if code != 0]
     if failed:
         raise SystemExit(f"training failed for {failed}; see the .log next to each run directory")
     return run_dirs
