@@ -21,7 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from iap_mjx import runtime  # noqa: E402
 
 runtime.set_host_device_count()
-runtime.enable_compilation_cache()
+CACHE_DIR = runtime.enable_compilation_cache()
+CACHE_WAS_COLD = not any(CACHE_DIR.iterdir())  # before this run compiled anything
 
 import report  # noqa: E402
 from iap_mjx import configs  # noqa: E402
@@ -67,7 +68,13 @@ def main() -> int:
         f"Measured on {report.machine_line()}. Command: `{command}`.\n\n"
         "Steady-state env-steps/s (median over the iterations after the first, counting every "
         "simulated step), and the compile time of the first iteration; \"x brute\" divides by "
-        "the brute-force attention preset measured in the same run.\n\n" + body))
+        "the brute-force attention preset measured in the same run. "
+        + ("The persistent compilation cache was empty at the start (cold compile; run with "
+           "`IAP_MJX_CACHE_DIR=$(mktemp -d)` to reproduce that)."
+           if CACHE_WAS_COLD else
+           "The persistent compilation cache already held programs, so the compile column is "
+           "mostly cache loading; run with `IAP_MJX_CACHE_DIR=$(mktemp -d)` for a cold compile.")
+        + "\n\n" + body))
     return 0
 
 
