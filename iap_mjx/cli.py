@@ -113,7 +113,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     try:
         markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
-                                       overrides=tuple(args.overrides), passes=args.passes)
+                                       overrides=tuple(args.overrides), passes=args.passes,
+                                       train=not args.report_only)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -182,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     repro.add_argument("--out", default="results", help="output directory (default: results)")
     repro.add_argument("--seeds", type=int, default=3)
     repro.add_argument("--passes", type=int, default=100, help="timed forward passes")
+    repro.add_argument("--report-only", action="store_true",
+                       help="train nothing: report the runs already in --out, however far they got")
     repro.set_defaults(func=cmd_reproduce)
 
     figures = commands.add_parser(

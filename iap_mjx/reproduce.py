@@ -53,28 +53,43 @@ def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> floa
     return (time.perf_counter() - start) / passes
 
 
-def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path) -> tuple[list[float], float]:
+def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path, *,
+                  train: bool = True) -> tuple[list[float], float] | None:
     """Trains ``config`` with ``seed`` in ``run_dir`` (resuming from its checkpoint, so a
     finished run is not trained again).
 
     Returns the centre's evaluation return at the start of iterations ``1..run.iterations``
     (a run directory trained further is cut there) and the seconds those iterations took:
-    their run times summed over every session, plus the first session's compile.
+    their run times summed over every session, plus the first session's compile. With
+    ``train=False`` nothing is trained: the run's rows up to its last checkpoint are read
+    (``None`` when it has none).
     """
-    from iap_mjx.es import train
+    from iap_mjx.es import checkpoint
+    from iap_mjx.es.metrics_log import read_history
 
-    config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
-    history = train(config, run_dir=run_dir, progress=False).history[:config.run.iterations]
+    if train:
+        from iap_mjx.es import train as train_es
+
+        config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
+        history = train_es(config, run_dir=run_dir, progress=False).history
+    else:
+        step = checkpoint.latest_step(run_dir) if run_dir.exists() else None
+        if step is None:
+            return None
+        history = read_history(run_dir, up_to=step)
+    history = history[:config.run.iterations]
     seconds = sum(row["run_s"] for row in history) + (history[0]["compile_s"] if history else 0.0)
     return [float(row["eval_return"]) for row in history], seconds
 
 
 def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
-              passes: int = 100) -> str:
+              passes: int = 100, train: bool = True) -> str:
     """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table.
 
     Each (preset, seed) trains in ``<out_dir>/<preset>-seed<seed>``: a killed run resumes
     there, and ``fig1`` reuses the Brute and (10,5) runs of a ``fig6`` in the same ``out_dir``.
+    ``train=False`` trains nothing and reports the runs already there, however far they got
+    (the table's seeds and iterations columns say how far).
     """
     if figure not in VARIANTS:
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
@@ -86,16 +101,26 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
     out_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for label, config, preset in variants:
-        seconds = inference_seconds(config, passes=passes)
-        trained = [trained_curve(config, seed, out_dir / f"{preset}-seed{seed}") for seed in range(seeds)]
+        runs = [trained_curve(config, seed, out_dir / f"{preset}-seed{seed}", train=train)
+                for seed in range(seeds)]
+        trained = [run for run in runs if run is not None and run[0]]
+        if not trained:
+            logger.info("%s: no runs in %s yet", label, out_dir)
+            continue
         curves = [curve for curve, _ in trained]
+        seconds = inference_seconds(config, passes=passes)
         rows.append({"variant": label, "preset": preset, "inference_s": seconds,
                      "returns": [curve[-1] for curve in curves], "curves": curves,
                      "train_wall_s": sum(s for _, s in trained),
                      "iterations": min(len(curve) for curve in curves)})
+        rows[-1]["complete"] = len(curves) == seeds and rows[-1]["iterations"] == config.run.iterations
         logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, rows[-1]["returns"])
+    if not rows:
+        raise ValueError(f"no runs of {figure} in {out_dir} to report")
+    complete = len(rows) == len(variants) and all(row["complete"] for row in rows)
     (out_dir / f"{figure}.json").write_text(json.dumps(rows, indent=2))
-    plot(rows, out_dir / f"{figure}.png", title=f"{figure}: Cheetah-Run from 100x100 RGB")
+    plot(rows, out_dir / f"{figure}.png", title=f"{figure}: Cheetah-Run from 100x100 RGB"
+         + ("" if complete else " (in progress)"))
     return table(rows)
 
 

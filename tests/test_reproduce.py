@@ -35,3 +35,21 @@ def test_figure_has_bars_crosses_and_one_curve_per_variant(tmp_path):
 def test_eval_episodes_zero_is_refused_before_training():
     with pytest.raises(ValueError, match="run.eval_episodes"):
         reproduce.reproduce("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))
+
+
+def test_report_only_reads_rows_up_to_the_last_checkpoint_and_trains_nothing(tmp_path):
+    from iap_mjx import configs
+    from iap_mjx.es import checkpoint
+    from iap_mjx.es.metrics_log import MetricsWriter
+
+    config = configs.get("cheetah-run-pixels")
+    run_dir = tmp_path / "cheetah-run-pixels-seed0"
+    assert reproduce.trained_curve(config, 0, run_dir, train=False) is None  # nothing there yet
+    writer = MetricsWriter(run_dir, None, tensorboard=False)
+    for i in range(1, 5):  # iteration 4 ran but the run was killed before its checkpoint
+        writer.write({"iteration": i, "eval_return": 10.0 * i, "run_s": 2.0, "compile_s": 30.0})
+    checkpoint.save(run_dir, 3, {"x": np.zeros(2)}, config.to_dict())
+    curve, seconds = reproduce.trained_curve(config, 0, run_dir, train=False)
+    assert curve == [10.0, 20.0, 30.0] and seconds == 3 * 2.0 + 30.0
+    with pytest.raises(ValueError, match="no runs of fig1"):
+        reproduce.reproduce("fig1", tmp_path / "empty", train=False)
