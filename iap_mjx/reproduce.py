@@ -108,11 +108,11 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
             logger.info("%s: no runs in %s yet", label, out_dir)
             continue
         curves = [curve for curve, _ in trained]
+        length = min(len(curve) for curve in curves)  # seeds compared at the same iteration
         seconds = inference_seconds(config, passes=passes)
         rows.append({"variant": label, "preset": preset, "inference_s": seconds,
-                     "returns": [curve[-1] for curve in curves], "curves": curves,
-                     "train_wall_s": sum(s for _, s in trained),
-                     "iterations": min(len(curve) for curve in curves)})
+                     "returns": [curve[length - 1] for curve in curves], "curves": curves,
+                     "train_wall_s": sum(s for _, s in trained), "iterations": length})
         rows[-1]["complete"] = len(curves) == seeds and rows[-1]["iterations"] == config.run.iterations
         logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, rows[-1]["returns"])
     if not rows:
