@@ -169,7 +169,9 @@ class DmControlEnv:
             slot = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
             # MJX reads numeric_data[id] (not numeric_adr[id]): the same cell while every numeric
             # before ours has size 1, as in every suite model (they define none).
-            assert mj_model.numeric_adr[slot] == slot, "a model numeric of size > 1 precedes ours"
+            if mj_model.numeric_adr[slot] != slot:
+                raise ValueError(f"{self.name}: a model numeric of size > 1 precedes max_contact_points, "
+                                 "where MJX would read the wrong cell; use max_contacts='all'")
             mj_model.numeric_data[slot] = self.max_contacts
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
