@@ -1,8 +1,9 @@
 """The learning bar: a preset's evaluation return within a wall-clock budget, several seeds.
 
 Trains ``--preset`` for ``--minutes`` of wall-clock (compile included: ``run.max_minutes``)
-on each of ``--seeds`` seeds, then writes the ``learning`` section of ``RESULTS.md`` (a table
-and ``benchmarks/learning_<preset>.png``, evaluation return against minutes).
+on each of ``--seeds`` seeds, then writes the ``--section`` section of ``RESULTS.md``
+(default ``learning``): a table and ``benchmarks/<section>_<preset>.png``, evaluation return
+against minutes.
 
 ``--parallel`` runs the seeds at the same time, one process each: every seed then gets a
 share of the cores, so it completes fewer iterations in the budget than it would alone. The
@@ -36,8 +37,7 @@ import report  # noqa: E402
 
 from iap_mjx.viz.curves import read_history  # noqa: E402
 
-SECTION = "learning"
-
+DEFAULT_OUT = str(ROOT / "runs" / "learning")
 
 def train_command(preset: str, seed: int, minutes: float, run_dir: Path, overrides: list[str]) -> list[str]:
     return [sys.executable, "-m", "iap_mjx.cli", "train", preset, f"run.seed={seed}",
@@ -122,11 +122,14 @@ def plot(summaries: list[dict], threshold: float, path: Path, title: str) -> Pat
 def section(args, summaries: list[dict], png: Path, started: str, load: str) -> str:
     command = " ".join(["python benchmarks/learning.py", f"--preset {args.preset}",
                         f"--seeds {args.seeds}", f"--minutes {args.minutes:g}"]
-                       + (["--parallel"] if args.parallel else []) + args.overrides)
+                       + (["--parallel"] if args.parallel else [])
+                       + ([f"--section {args.section}"] if args.section != "learning" else [])
+                       + ([f"--out {args.out}"] if args.out != DEFAULT_OUT else []) + args.overrides)
     sharing = (f"the {args.seeds} seeds ran at the same time, one process each, sharing the 2 cores"
                if args.parallel else "one seed at a time, each with the whole machine")
     lines = [
-        f"## Learning: `{args.preset}` within {args.minutes:g} minutes",
+        f"## Learning: `{args.preset}` within {args.minutes:g} minutes, "
+        + ("seeds in parallel" if args.parallel else "one seed at a time"),
         "",
         f"Command: `{command}` (started {started}; {sharing}; 1-min load average before/after: {load}).",
         "",
@@ -153,7 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=60.0)
     parser.add_argument("--threshold", type=float, default=200.0)
     parser.add_argument("--parallel", action="store_true", help="run the seeds at the same time")
-    parser.add_argument("--out", default=str(ROOT / "runs" / "learning"))
+    parser.add_argument("--out", default=DEFAULT_OUT)
+    parser.add_argument("--section", default="learning",
+                        help="the RESULTS.md section to write; also names the PNG")
     parser.add_argument("--summarise-only", action="store_true",
                         help="do not train; summarise the run directories already in --out")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. env.action_repeat=4")
@@ -167,11 +172,11 @@ def main(argv: list[str] | None = None) -> int:
         run_dirs = run_seeds(args)
         print(f"trained {len(run_dirs)} seeds in {(time.perf_counter() - start) / 60:.1f} min", flush=True)
     summaries = [summarise(run_dir, args.threshold) for run_dir in run_dirs]
-    png = plot(summaries, args.threshold, ROOT / "benchmarks" / f"learning_{args.preset}.png",
+    png = plot(summaries, args.threshold, ROOT / "benchmarks" / f"{args.section}_{args.preset}.png",
                f"{args.preset}: {args.seeds} seeds, {args.minutes:g} min")
     text = section(args, summaries, png, started, f"{load_before:.1f}/{os.getloadavg()[0]:.1f}")
     print(text)
-    report.write_section(ROOT / "RESULTS.md", SECTION, text)
+    report.write_section(ROOT / "RESULTS.md", args.section, text)
     return 0
 
 
