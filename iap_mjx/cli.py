@@ -46,7 +46,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.coordinator:
         from iap_mjx.es import distributed
 
-        distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+        try:
+            distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+        except ValueError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+    import jax
+
     from iap_mjx import es
 
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(args.preset)
@@ -57,9 +63,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted; checkpoint saved. Resume with: iap-mjx train {args.preset} "
+        from iap_mjx.es import checkpoint
+
+        step = checkpoint.latest_step(run_dir)
+        saved = f"last checkpoint: iteration {step}" if step is not None else "no checkpoint yet"
+        print(f"\ninterrupted; {saved}. Resume with: iap-mjx train {args.preset} "
               f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(), file=sys.stderr)
         return 130
+    if jax.process_index() != 0:  # several processes share one run directory: one writes
+        return 0
     from iap_mjx.viz import artifacts
 
     written = artifacts.write_run_artifacts(result, run_dir)
@@ -131,6 +143,22 @@ def cmd_figures(args: argparse.Namespace) -> int:
     return 0
 
 
+def _count(text: str) -> int:
+    """An argparse type: an int >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _index(text: str) -> int:
+    """An argparse type: an int >= 0."""
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``iap-mjx`` parser; each subparser sets ``func`` to its command function."""
     parser = argparse.ArgumentParser(
@@ -155,13 +183,13 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--coordinator", metavar="HOST:PORT",
                        help="multi-host: the coordinator address (see iap_mjx.es.distributed)")
-    train.add_argument("--num-processes", type=int, default=1, help="multi-host: processes")
-    train.add_argument("--process-id", type=int, default=0, help="multi-host: this process")
+    train.add_argument("--num-processes", type=_count, default=1, help="multi-host: processes")
+    train.add_argument("--process-id", type=_index, default=0, help="multi-host: this process")
     train.set_defaults(func=cmd_train)
 
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
     evaluate.add_argument("run_dir")
-    evaluate.add_argument("--episodes", type=int, default=8)
+    evaluate.add_argument("--episodes", type=_count, default=8)
     evaluate.add_argument("--seed", type=int, default=12345,
                           help="evaluation seed (distinct from the training seeds)")
     evaluate.set_defaults(func=cmd_eval)
@@ -170,7 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("run_dir")
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
-    video.add_argument("--steps", type=int, default=None, help="control steps (default: the episode)")
+    video.add_argument("--steps", type=_count, default=None, help="control steps (default: the episode)")
     video.set_defaults(func=cmd_video)
 
     repro = commands.add_parser(
@@ -181,8 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     repro.add_argument("figure", choices=["fig1", "fig6"])
     repro.add_argument("overrides", nargs="*", metavar="key=value")
     repro.add_argument("--out", default="results", help="output directory (default: results)")
-    repro.add_argument("--seeds", type=int, default=3)
-    repro.add_argument("--passes", type=int, default=100, help="timed forward passes")
+    repro.add_argument("--seeds", type=_count, default=3)
+    repro.add_argument("--passes", type=_count, default=100, help="timed forward passes")
     repro.add_argument("--report-only", action="store_true",
                        help="train nothing: report the runs already in --out, however far they got")
     repro.set_defaults(func=cmd_reproduce)
@@ -193,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "closed forms with Monte Carlo points).")
     figures.add_argument("which", choices=["mse"])
     figures.add_argument("--out", default="figures", help="output directory (default: figures)")
-    figures.add_argument("--draws", type=int, default=100_000, help="Monte Carlo draws per point")
+    figures.add_argument("--draws", type=_count, default=100_000, help="Monte Carlo draws per point")
     figures.set_defaults(func=cmd_figures)
     return parser
 

@@ -93,8 +93,12 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
     """
     if figure not in VARIANTS:
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
+    from iap_mjx import envs
+
     variants = [(label, configs.apply_overrides(configs.get(preset), overrides), preset)
                 for label, preset in VARIANTS[figure]]  # every config validated before any compile
+    for _, config, _ in variants:
+        envs.check(config.env.name, **dict(config.env.overrides))
     if any(config.run.eval_episodes < 1 for _, config, _ in variants):
         raise ValueError("reproduce reads the evaluation return: run.eval_episodes must be >= 1")
     out_dir = Path(out_dir)

@@ -40,9 +40,25 @@ def test_bad_override_fails_naming_the_field(capsys):
     assert "policy.options" in capsys.readouterr().err
 
 
-def test_eval_of_missing_run_fails(tmp_path, capsys):
+def test_misspelt_env_setting_fails_listing_the_valid_ones(capsys):
+    assert cli.main(["train", "cheetah-run-state", "env.heigth=64", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "heigth" in err and "height" in err
+
+
+def test_eval_of_missing_run_fails_and_creates_nothing(tmp_path, capsys):
     assert cli.main(["eval", str(tmp_path / "nothing")]) == 2
     assert "no checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "nothing").exists()
+
+
+@pytest.mark.parametrize("argv", [["eval", "x", "--episodes", "0"], ["video", "x", "--steps", "0"],
+                                  ["reproduce", "fig1", "--seeds", "0"],
+                                  ["train", "cheetah-run-state", "--process-id", "-1"]])
+def test_counts_below_one_are_refused_by_the_parser(argv, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(argv)
+    assert exit_.value.code == 2 and "must be >=" in capsys.readouterr().err
 
 
 def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):

@@ -82,3 +82,12 @@ def test_bad_overrides_fail_with_the_field(override, message):
 def test_configs_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         configs.get("cheetah-run-state").run.iterations = 3
+
+
+def test_none_is_a_string_setting_and_None_or_null_is_None():
+    assert configs.parse_value("none") == "none"  # e.g. the attention's scaling=none
+    assert configs.parse_value("None") is None and configs.parse_value("null") is None
+    config = apply_overrides(configs.get("cheetah-run-pixels"), ["policy.scaling=none",
+                                                                  "env.episode_length=None"])
+    assert dict(config.policy.options)["scaling"] == "none"
+    assert dict(config.env.overrides)["episode_length"] is None

@@ -41,6 +41,15 @@ def test_bad_config_field_is_named(overrides):
         envs.make("cheetah-run", **overrides)
 
 
+def test_unknown_setting_lists_valid_ones():
+    with pytest.raises(ValueError, match="heigth") as error:
+        envs.check("cheetah-run", heigth=64)
+    assert "height" in str(error.value) and "action_repeat" in str(error.value)
+    with pytest.raises(ValueError, match="heigth"):
+        envs.make("cheetah-run", heigth=64)
+    assert envs.check("cheetah-run", height=64).height == 64
+
+
 # The done/bad-state machinery is shared by all tasks (iap_mjx/envs/dmc.py); it is tested on
 # reacher-easy, the cheapest to compile and run.
 @pytest.fixture(scope="module")

@@ -150,17 +150,20 @@ def test_contact_saturated_episodes_count_the_population_episodes_flagged():
     assert all(0 < count < members for count in some), some
 
 
-def test_interrupt_saves_checkpoint_and_resume_is_exact(tmp_path):
+@pytest.mark.parametrize("at, saved", [(4, ["3"]), (5, ["3", "4"])])
+def test_interrupt_saves_checkpoint_and_resume_is_exact(tmp_path, at, saved):
+    """An interrupt while iteration ``at`` is being recorded keeps the last finished iteration:
+    at 4 that is the periodic checkpoint 3 (saving it again would fail), at 5 it saves 4."""
     env = PointMass()
     whole = train(small_config(), env=env, progress=False)
 
     def interrupt(row):
-        if row["iteration"] == 4:
+        if row["iteration"] == at:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
         train(small_config(), env=env, run_dir=tmp_path, progress=False, progress_fn=interrupt)
-    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["3", "4"]
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == saved
     resumed = train(small_config(), env=env, run_dir=tmp_path, progress=False)
     np.testing.assert_array_equal(flat(whole.params), flat(resumed.params))
     assert [r["iteration"] for r in resumed.history] == list(range(1, 7))
@@ -175,6 +178,18 @@ def test_resume_with_a_different_config_is_refused(tmp_path):
         train(other, env=env, run_dir=tmp_path, progress=False)
     longer = train(small_config(iterations=6), env=env, run_dir=tmp_path, progress=False)
     assert longer.history[-1]["iteration"] == 6
+
+
+def test_a_sigma_schedule_refuses_a_longer_resume(tmp_path):
+    """The schedule decays over run.iterations: extending the run would make sigma jump."""
+    def scheduled(iterations):
+        config = small_config(iterations=iterations)
+        return dataclasses.replace(config, es=dataclasses.replace(
+            config.es, sigma_schedule="linear", sigma_final=0.01))
+
+    train(scheduled(3), env=PointMass(), run_dir=tmp_path, progress=False)
+    with pytest.raises(ValueError, match="run.iterations"):
+        train(scheduled(6), env=PointMass(), run_dir=tmp_path, progress=False)
 
 
 CHILD = textwrap.dedent("""

@@ -102,3 +102,9 @@ def test_bad_pixel_policy_settings_fail_early():
         policies.make("iap", (17,), 2)
     with pytest.raises(ValueError, match="IAPPolicy.controller"):
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="gru")
+    with pytest.raises(ValueError, match="IAPPolicy.hidden_sizes"):
+        policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="mlp", hidden_sizes=32)
+    with pytest.raises(ValueError, match="IAPPolicy.hidden_sizes"):
+        policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm", hidden_sizes=())
+    with pytest.raises(ValueError, match="CNNPolicy.channels"):
+        policies.make("cnn", SHAPE, 2, channels=())

@@ -37,6 +37,12 @@ def test_eval_episodes_zero_is_refused_before_training():
         reproduce.reproduce("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))
 
 
+def test_misspelt_env_setting_is_refused_before_training(tmp_path):
+    with pytest.raises(ValueError, match="heigth"):
+        reproduce.reproduce("fig1", tmp_path, overrides=("env.heigth=64",))
+    assert not list(tmp_path.iterdir())
+
+
 def test_report_only_reads_rows_up_to_the_last_checkpoint_and_trains_nothing(tmp_path):
     from iap_mjx import configs
     from iap_mjx.es import checkpoint

@@ -2,7 +2,7 @@
 
 A feature map ``phi`` turns queries and keys of shape ``(..., d)`` into features of shape
 ``(..., M)`` such that ``phi(x, role="query") . phi(y, role="key")`` estimates a kernel
-``K(x, y)`` (``../shared/design/iap-math.md`` sections 3-5):
+``K(x, y)`` (``docs/iap-math.md`` sections 3-5):
 
 ================  ==========================================  =====================
 kind              estimates                                   features ``M``

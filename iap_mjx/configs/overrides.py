@@ -19,11 +19,13 @@ _OPEN_SECTIONS = {"policy": "options", "env": "overrides"}
 
 
 def parse_value(text: str) -> Any:
-    """``"0.1"`` -> 0.1, ``"true"`` -> True, ``"64,64"`` -> (64, 64), ``"adam"`` -> "adam"."""
+    """``"0.1"`` -> 0.1, ``"true"`` -> True, ``"64,64"`` -> (64, 64), ``"adam"`` -> "adam",
+    ``"None"`` or ``"null"`` -> None, ``"none"`` -> "none" (a valid string setting, e.g. the
+    attention's ``scaling``)."""
     lowered = text.strip().lower()
     if lowered in ("true", "false"):
         return lowered == "true"
-    if lowered in ("none", "null"):
+    if text.strip() == "null":
         return None
     try:
         value = ast.literal_eval(text)

@@ -1,12 +1,13 @@
 """Environments: MJX ports of dm_control tasks with the brax State convention.
 
-``make(name, **overrides)`` builds one (see ``names()``); ``EnvConfig`` lists the overrides;
+``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
+arguments without building); ``EnvConfig`` lists the overrides;
 ``batch`` runs large populations in chunks.
 """
 
 from iap_mjx.envs.base import Env, State
 from iap_mjx.envs.dmc import EnvConfig
 from iap_mjx.envs import batch
-from iap_mjx.envs.registry import make, names
+from iap_mjx.envs.registry import check, make, names
 
-__all__ = ["Env", "EnvConfig", "State", "batch", "make", "names"]
+__all__ = ["Env", "EnvConfig", "State", "batch", "check", "make", "names"]

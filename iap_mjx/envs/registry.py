@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from iap_mjx.envs.dmc import DmControlEnv, EnvConfig
@@ -23,6 +24,25 @@ def names() -> tuple[str, ...]:
     return tuple(sorted(_task_classes()))
 
 
+def check(name: str, config: EnvConfig | None = None, **overrides: Any) -> EnvConfig:
+    """The ``EnvConfig`` that ``make(name, config, **overrides)`` would use, built without
+    loading any model: cheap enough to run when a training config is constructed.
+
+    Raises:
+      ValueError: unknown ``name`` or override name (the message lists the valid ones), or a
+        bad override value.
+    """
+    classes = _task_classes()
+    if name not in classes:
+        raise ValueError(f"Unknown env {name!r}; valid names: {', '.join(sorted(classes))}.")
+    fields = {field.name for field in dataclasses.fields(EnvConfig)}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ValueError(f"Unknown env setting(s) {unknown} for {name!r}; valid: {sorted(fields)}.")
+    config = config if config is not None else EnvConfig()
+    return dataclasses.replace(config, **overrides) if overrides else config
+
+
 def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
     """Builds the env ``name`` with ``config`` and/or ``EnvConfig`` field ``overrides``.
 
@@ -30,12 +50,10 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
     ``iap_mjx.envs.pixels.with_pixels`` with the config's camera settings.
 
     Raises:
-      ValueError: unknown ``name`` (the message lists the valid ones) or a bad config field.
+      ValueError: as :func:`check`.
     """
-    classes = _task_classes()
-    if name not in classes:
-        raise ValueError(f"Unknown env {name!r}; valid names: {', '.join(sorted(classes))}.")
-    env = classes[name](config, **overrides)
+    config = check(name, config, **overrides)
+    env = _task_classes()[name](config)
     if env.config.obs_mode == "state":
         return env
     from iap_mjx.envs.pixels import with_pixels

@@ -19,11 +19,19 @@ logger = logging.getLogger(__name__)
 CHECKPOINT_DIR = "checkpoints"
 
 
-def _manager(run_dir: str | Path, max_to_keep: int = 3) -> ocp.CheckpointManager:
+def _manager(run_dir: str | Path, max_to_keep: int = 3, *, create: bool = True) -> ocp.CheckpointManager:
     options = ocp.CheckpointManagerOptions(
-        max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False
+        max_to_keep=max_to_keep, create=create, enable_async_checkpointing=False
     )
     return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options)
+
+
+def _reader(run_dir: str | Path) -> ocp.CheckpointManager:
+    """A manager that only reads: a missing checkpoint directory raises ``FileNotFoundError``
+    (nothing is created, so a mistyped run directory leaves no trace)."""
+    if not (Path(run_dir) / CHECKPOINT_DIR).is_dir():
+        raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
+    return _manager(run_dir, create=False)
 
 
 def to_host(tree: Any) -> Any:
@@ -36,7 +44,7 @@ def latest_step(run_dir: str | Path) -> int | None:
     """The iteration of the newest complete checkpoint in ``run_dir``, or ``None``."""
     if not (Path(run_dir) / CHECKPOINT_DIR).is_dir():
         return None
-    with _manager(run_dir) as manager:
+    with _reader(run_dir) as manager:
         return manager.latest_step()
 
 
@@ -57,7 +65,7 @@ def save(run_dir: str | Path, step: int, state: Any, config: dict[str, Any]) -> 
 
 def load_config(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
     """The JSON config stored with checkpoint ``step`` (default: the latest)."""
-    with _manager(run_dir) as manager:
+    with _reader(run_dir) as manager:
         step = manager.latest_step() if step is None else step
         if step is None:
             raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
@@ -67,7 +75,7 @@ def load_config(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
 
 def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[int, Any]:
     """``(step, state)`` restored into the structure, shapes and dtypes of ``like``."""
-    with _manager(run_dir) as manager:
+    with _reader(run_dir) as manager:
         step = manager.latest_step() if step is None else step
         if step is None:
             raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")

@@ -15,9 +15,13 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
+import os
 from pathlib import Path
 from typing import Any
+
+logger = logging.getLogger(__name__)
 
 COLUMNS = (
     "iteration",
@@ -40,11 +44,23 @@ COLUMNS = (
 
 
 def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str, Any]]:
-    """The rows of ``metrics.jsonl`` (only iterations ``<= up_to`` when given)."""
+    """The rows of ``metrics.jsonl`` (only iterations ``<= up_to`` when given).
+
+    A last line cut short (the process died mid-write) is dropped with a warning: its
+    iteration is past the last checkpoint, so resuming recomputes it.
+    """
     path = Path(run_dir) / "metrics.jsonl"
     if not path.exists():
         return []
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    rows = []
+    for number, line in enumerate(lines, 1):
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            if number < len(lines):
+                raise ValueError(f"{path}, line {number}: not a JSON row") from None
+            logger.warning("%s: dropping a truncated last line", path)
     return [r for r in rows if up_to is None or r["iteration"] <= up_to]
 
 
@@ -65,13 +81,19 @@ class MetricsWriter:
                 resume_from + 1 if resume_from is not None else None))
 
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
-        with open(self.run_dir / "metrics.jsonl", "w") as f:
+        """Both files anew, each written aside and renamed over the old one: a kill mid-write
+        leaves the old file, never a half-written one."""
+        jsonl = self.run_dir / "metrics.jsonl.tmp"
+        with open(jsonl, "w") as f:
             for row in rows:
                 f.write(json.dumps(row) + "\n")
-        with open(self.run_dir / "metrics.csv", "w", newline="") as f:
+        table = self.run_dir / "metrics.csv.tmp"
+        with open(table, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(rows)
+        os.replace(jsonl, self.run_dir / "metrics.jsonl")
+        os.replace(table, self.run_dir / "metrics.csv")
 
     def write(self, row: dict[str, Any]) -> None:
         """Appends one iteration's row (keys from ``COLUMNS``; missing ones stay empty)."""

@@ -157,9 +157,6 @@ def build(
     if env is None:
         from iap_mjx import envs
 
-        names = envs.names() if hasattr(envs, "names") else []
-        if config.env.name not in names:
-            raise ValueError(f"env.name = {config.env.name!r}: choose one of {names}")
         env = envs.make(config.env.name, **dict(config.env.overrides))
     if policy is None:
         policy = policies.make(
@@ -343,11 +340,12 @@ def _restore(parts: Components, run_dir, state: TrainState) -> TrainState:
 
 
 def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
-    """Resuming must not change the run: only ``run.iterations``, ``run.tensorboard`` and
-    ``run.max_minutes`` may differ."""
+    """Resuming must not change the run: only ``run.iterations`` (unless a sigma schedule
+    spans it), ``run.tensorboard`` and ``run.max_minutes`` may differ."""
     def comparable(c: TrainConfig) -> dict:
         flat = c.to_dict()
-        flat["run"].pop("iterations")
+        if c.es.sigma_schedule == "constant":  # else sigma would jump at the resumed iteration
+            flat["run"].pop("iterations")
         flat["run"].pop("tensorboard")
         flat["run"].pop("max_minutes")
         return flat
@@ -419,7 +417,7 @@ def train(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=run.iterations, initial=start, desc="ES", unit="it")
-    done = start
+    done = saved = start
     try:
         while done < run.iterations:
             count = min(run.iterations_per_call, run.iterations - done)
@@ -428,10 +426,9 @@ def train(
             new_state, metrics = call(state)
             metrics = checkpoint.to_host(metrics)
             run_s = time.perf_counter() - tick
-            state, done = new_state, done + count
             rows = []
             for i in range(count):
-                iteration = done - count + i + 1
+                iteration = done + i + 1
                 rows.append({
                     "iteration": iteration,
                     "env_steps": iteration * parts.steps_per_iteration,
@@ -447,6 +444,7 @@ def train(
                     writer.write(row)
                 if progress_fn is not None:
                     progress_fn(row)
+            state, done = new_state, done + count  # only once its rows are written
             if bar is not None:
                 bar.update(count)
                 bar.set_postfix(ret=f"{rows[-1]['return_mean']:.1f}",
@@ -458,12 +456,13 @@ def train(
                 or (run.checkpoint_every and done % run.checkpoint_every == 0)
             ):
                 checkpoint.save(run_dir, done, state, config_dict)
+                saved = done
             if out_of_time:
                 logger.info("run.max_minutes = %s reached after %d iterations",
                             run.max_minutes, done)
                 break
     except KeyboardInterrupt:
-        if run_dir is not None and done > start:
+        if run_dir is not None and done > saved:
             logger.warning("interrupted: saving checkpoint %d", done)
             checkpoint.save(run_dir, done, state, config_dict)
         raise
@@ -490,6 +489,8 @@ def evaluate_run(
 ) -> np.ndarray:
     """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
     seeds (derived from ``seed``, not the training seeds)."""
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
     config = dataclasses.replace(
         config, run=dataclasses.replace(config.run, eval_episodes=episodes)

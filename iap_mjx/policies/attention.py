@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive
+from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive, check_sizes
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 
 CONTROLLERS = ("linear", "mlp", "lstm")
@@ -78,6 +78,7 @@ class IAPPolicy:
         check_positive("IAPPolicy", "action_size", self.action_size)
         check_choice("IAPPolicy", "controller", self.controller, CONTROLLERS)
         check_choice("IAPPolicy", "activation", self.activation, ACTIVATIONS)
+        check_sizes("IAPPolicy", "hidden_sizes", self.hidden_sizes, non_empty=self.controller == "lstm")
         if not isinstance(self.state_size, int) or self.state_size < 0:
             raise ValueError(f"IAPPolicy.state_size = {self.state_size!r} must be a non-negative int")
         IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
@@ -177,8 +178,7 @@ class CNNPolicy:
     def __post_init__(self):
         check_positive("CNNPolicy", "action_size", self.action_size)
         check_positive("CNNPolicy", "hidden_size", self.hidden_size)
-        for size in self.channels:
-            check_positive("CNNPolicy", "channels[...]", size)
+        check_sizes("CNNPolicy", "channels", self.channels, non_empty=True)
 
     def init(self, key: jax.Array) -> dict[str, Any]:
         """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""

@@ -62,3 +62,15 @@ def check_positive(owner: str, field: str, value: Any) -> None:
     """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not a positive int."""
     if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
         raise ValueError(f"{owner}.{field} = {value!r} must be a positive integer")
+
+
+def check_sizes(owner: str, field: str, value: Any, *, non_empty: bool = False) -> None:
+    """Raises ``ValueError`` naming ``owner.field`` unless ``value`` is a tuple of positive ints
+    (and not empty, if ``non_empty``)."""
+    if not isinstance(value, tuple) or (non_empty and not value):
+        raise ValueError(
+            f"{owner}.{field} = {value!r} must be a {'non-empty ' if non_empty else ''}tuple of "
+            "positive ints (one entry: (32,) in Python, 32, on the command line)"
+        )
+    for size in value:
+        check_positive(owner, f"{field}[...]", size)

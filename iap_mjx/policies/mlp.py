@@ -7,7 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive
+from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive, check_sizes
 
 
 def init_dense_layers(
@@ -50,12 +50,7 @@ class MLPPolicy:
     def __post_init__(self):
         check_positive("MLPPolicy", "obs_size", self.obs_size)
         check_positive("MLPPolicy", "action_size", self.action_size)
-        if not isinstance(self.hidden_sizes, tuple):
-            raise ValueError(
-                f"MLPPolicy.hidden_sizes = {self.hidden_sizes!r} must be a tuple of ints"
-            )
-        for size in self.hidden_sizes:
-            check_positive("MLPPolicy", "hidden_sizes[...]", size)
+        check_sizes("MLPPolicy", "hidden_sizes", self.hidden_sizes)
         check_choice("MLPPolicy", "activation", self.activation, ACTIVATIONS)
 
     def init(self, key: jax.Array) -> list[dict[str, jax.Array]]:

@@ -29,6 +29,8 @@ def has_pixels(env: Any) -> bool:
 
 def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None) -> tuple[Path, float]:
     """An episode of ``result``'s centre params on its (pixel) env, patches outlined."""
+    if steps is not None and (not isinstance(steps, int) or steps < 1):
+        raise ValueError(f"steps = {steps!r} must be None (the episode) or an int >= 1")
     env, policy = env_and_policy(result.config)
     if not has_pixels(env):
         raise ValueError(f"run's env {result.config.env.name!r} observes the state, not pixels: "
