@@ -119,7 +119,7 @@ def plot(summaries: list[dict], threshold: float, path: Path, title: str) -> Pat
     return path
 
 
-def section(args, summaries: list[dict], png: Path, started: str, load: str) -> str:
+def section(args, summaries: list[dict], png: Path, when: str) -> str:
     command = " ".join(["python benchmarks/learning.py", f"--preset {args.preset}",
                         f"--seeds {args.seeds}", f"--minutes {args.minutes:g}"]
                        + (["--parallel"] if args.parallel else [])
@@ -131,7 +131,7 @@ def section(args, summaries: list[dict], png: Path, started: str, load: str) -> 
         f"## Learning: `{args.preset}` within {args.minutes:g} minutes, "
         + ("seeds in parallel" if args.parallel else "one seed at a time"),
         "",
-        f"Command: `{command}` (started {started}; {sharing}; 1-min load average before/after: {load}).",
+        f"Command: `{command}` ({sharing}; {when}).",
         "",
         "Evaluation return: the centre params on the run's evaluation episodes, every iteration. "
         f"Wall-clock includes compilation. Bar: mean evaluation return >= {args.threshold:g}.",
@@ -174,7 +174,10 @@ def main(argv: list[str] | None = None) -> int:
     summaries = [summarise(run_dir, args.threshold) for run_dir in run_dirs]
     png = plot(summaries, args.threshold, ROOT / "benchmarks" / f"{args.section}_{args.preset}.png",
                f"{args.preset}: {args.seeds} seeds, {args.minutes:g} min")
-    text = section(args, summaries, png, started, f"{load_before:.1f}/{os.getloadavg()[0]:.1f}")
+    when = (f"summarised {started} from the run directories in `{args.out}`" if args.summarise_only
+            else f"started {started}; 1-min load average before/after: "
+                 f"{load_before:.1f}/{os.getloadavg()[0]:.1f}")
+    text = section(args, summaries, png, when)
     print(text)
     report.write_section(ROOT / "RESULTS.md", args.section, text)
     return 0
