@@ -73,7 +73,7 @@ def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path, *,
         config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
         history = train_es(config, run_dir=run_dir, progress=False).history
     else:
-        step = checkpoint.latest_step(run_dir) if run_dir.exists() else None
+        step = checkpoint.latest_step(run_dir)
         if step is None:
             return None
         history = read_history(run_dir, up_to=step)

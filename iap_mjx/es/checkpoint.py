@@ -44,7 +44,7 @@ def latest_step(run_dir: str | Path) -> int | None:
     """The iteration of the newest complete checkpoint in ``run_dir``, or ``None``."""
     if not (Path(run_dir) / CHECKPOINT_DIR).is_dir():
         return None
-    with _reader(run_dir) as manager:
+    with _manager(run_dir, create=False) as manager:
         return manager.latest_step()
 
 
