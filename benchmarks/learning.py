@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import report  # noqa: E402
 
-from iap_mjx.viz.curves import read_history  # noqa: E402
+from iap_mjx.es.metrics_log import read_history  # noqa: E402
 
 DEFAULT_OUT = str(ROOT / "runs" / "learning")
 

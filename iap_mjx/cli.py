@@ -1,4 +1,4 @@
-"""The ``iap-mjx`` command line: ``train``, ``eval``, ``presets``.
+"""The ``iap-mjx`` command line: ``presets``, ``show``, ``train``, ``eval``, ``video``, ...
 
 One small function per command; ``build_parser`` wires them to ``argparse`` subparsers, so a
 new command is a new ``add_parser`` call and a function. JAX is imported only inside the
@@ -26,6 +26,54 @@ def cmd_presets(args: argparse.Namespace) -> int:
     width = max(len(name) for name in configs.names())
     for name in configs.names():
         print(f"{name:<{width}}  {configs.describe(name)}")
+    return 0
+
+
+def resolve_target(target: str, overrides: list[str]):
+    """The ``TrainConfig`` of a preset name or of a run directory's ``config.json``, with
+    ``overrides`` applied (``ValueError`` naming the problem otherwise)."""
+    from iap_mjx import configs
+    from iap_mjx.es import metrics_log
+
+    if Path(target).is_dir():
+        try:
+            config = configs.TrainConfig.from_dict(metrics_log.read_config(target))
+        except FileNotFoundError as error:
+            raise ValueError(f"{error}: {target!r} is a directory, not a run directory") from None
+    else:
+        config = configs.get(target)
+    return configs.apply_overrides(config, overrides)
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    """Prints the resolved config of a preset (or run directory) with overrides, and what it
+    builds: every env setting, the policy's settings and its number of parameters."""
+    import dataclasses
+
+    try:
+        config = resolve_target(args.target, args.overrides)
+        from iap_mjx import es
+
+        parts = es.build(config)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    env, policy = parts.env, parts.policy
+    view = {
+        "config": config.to_dict(),
+        "env": {
+            "settings": dataclasses.asdict(env.config),
+            "observation_shape": env.observation_shape,
+            "action_size": env.action_size,
+            "env_steps_per_episode": env.episode_length,
+        },
+        "policy": {
+            "settings": dataclasses.asdict(policy) if dataclasses.is_dataclass(policy) else repr(policy),
+            "parameters": parts.num_dims,
+        },
+        "env_steps_per_iteration": parts.steps_per_iteration,
+    }
+    print(json.dumps(view, indent=2, default=str))
     return 0
 
 
@@ -170,6 +218,15 @@ def build_parser() -> argparse.ArgumentParser:
     presets = commands.add_parser("presets", help="list the named presets")
     presets.set_defaults(func=cmd_presets)
 
+    show = commands.add_parser(
+        "show", help="print a preset's resolved config",
+        description="Print the config PRESET (or a run directory's config.json) resolves to "
+                    "with key=value overrides, every env setting, the policy's settings and "
+                    "its parameter count, building nothing that compiles.")
+    show.add_argument("target", metavar="PRESET", help="a name from `iap-mjx presets`, or a run directory")
+    show.add_argument("overrides", nargs="*", metavar="key=value")
+    show.set_defaults(func=cmd_show)
+
     train = commands.add_parser(
         "train", help="train a preset",
         description="Train PRESET with key=value overrides (e.g. es.population_size=128 "
@@ -230,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: sets up devices and the compilation cache, then runs the command."""
     runtime.set_host_device_count()
     runtime.enable_compilation_cache()
+    runtime.disable_dm_control_rendering()
     args = build_parser().parse_args(argv)
     # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
     logging.basicConfig(

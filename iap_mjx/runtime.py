@@ -1,8 +1,10 @@
-"""Process-level JAX set-up: the persistent compilation cache and the number of CPU devices.
+"""Process-level set-up: the persistent compilation cache, the number of CPU devices, and
+dm_control's OpenGL backend.
 
-Both must be decided before JAX compiles anything (the device count even before JAX
-initialises its backend), so entry points (the CLI, benchmarks, ``tests/conftest.py``) call
-these first. Library code never calls them: importing ``iap_mjx`` changes no global state.
+Each must be decided before the library it concerns starts (the device count before JAX
+initialises its backend, the GL backend before dm_control is imported), so entry points (the
+CLI, benchmarks, ``tests/conftest.py``, the notebook) call these first. Library code never
+calls them: importing ``iap_mjx`` changes no global state.
 """
 
 from __future__ import annotations
@@ -53,3 +55,15 @@ def set_host_device_count(count: int | None = None) -> int:
     count = count if count is not None else (os.cpu_count() or 1)
     os.environ["XLA_FLAGS"] = f"{flags} {key}{count}".strip()
     return count
+
+
+def disable_dm_control_rendering() -> str:
+    """Tells dm_control, before it is imported, that this process renders nothing with OpenGL.
+
+    We use dm_control for its models and as a reference, and draw every image with our own
+    camera; MuJoCo's renderer, where a test or benchmark compares against it, runs in a child
+    process that chooses its own backend. Left unset, importing ``dm_control.suite`` probes
+    GLFW first, which on a machine without a screen prints an X11 error. An existing
+    ``MUJOCO_GL`` is left as it is. Returns the value in force.
+    """
+    return os.environ.setdefault("MUJOCO_GL", "disable")

@@ -9,6 +9,7 @@ from pathlib import Path
 from iap_mjx import runtime
 
 runtime.set_host_device_count(2)
+runtime.disable_dm_control_rendering()  # reference renders run in child processes
 runtime.enable_compilation_cache(
     Path(__file__).resolve().parent.parent / ".jax_cache"
 )

@@ -84,11 +84,16 @@ def test_train_then_eval_on_cheetah_run(tmp_path):
         env=env, capture_output=True, text=True, timeout=600,
     )
     assert train.returncode == 0, train.stderr
-    summary = json.loads(train.stdout.strip().splitlines()[-1])
+    (line,) = train.stdout.splitlines()  # stdout is the summary alone
+    summary = json.loads(line)
     assert summary["run_dir"] == str(run_dir) and summary["iterations"] == 2
     rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     assert [r["iteration"] for r in rows] == [1, 2]
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["1", "2"]
+    expected = configs.apply_overrides(configs.get("cheetah-run-state"), tiny)
+    written = json.loads((run_dir / "config.json").read_text())
+    assert written["es"]["population_size"] == 4 and written["env"]["overrides"] == {"episode_length": 4}
+    assert configs.TrainConfig.from_dict(written) == expected
     evaluated = subprocess.run(
         [sys.executable, "-m", "iap_mjx.cli", "eval", str(run_dir), "--episodes", "3"],
         env=env, capture_output=True, text=True, timeout=600,
@@ -98,3 +103,34 @@ def test_train_then_eval_on_cheetah_run(tmp_path):
     assert report["episodes"] == 3 and len(report["returns"]) == 3
     # cheetah-run rewards are in [0, 1] per step: a 4-step return is in [0, 4]
     assert all(0.0 <= r <= 4.0 for r in report["returns"])
+
+
+def test_show_prints_the_resolved_config_of_a_preset_and_of_a_run(tmp_path, capsys):
+    overrides = ["es.population_size=8", "env.height=64", "env.width=64"]
+    assert cli.main(["show", "walker-walk-pixels", *overrides]) == 0
+    view = json.loads(capsys.readouterr().out)
+    expected = configs.apply_overrides(configs.get("walker-walk-pixels"), overrides)
+    assert configs.TrainConfig.from_dict(view["config"]) == expected
+    settings = view["env"]["settings"]
+    assert (settings["action_repeat"], settings["height"], settings["solver_iterations"]) == (2, 64, 8)
+    assert view["env"]["observation_shape"] == [64, 64, 3] and view["env"]["env_steps_per_episode"] == 500
+    assert view["policy"]["settings"]["attention"]["kernel"] == "hybrid"
+    # W_Q, W_K (48 x 4 each) and the LSTM(16) on 10 patch centres into walker's 6 actions
+    assert view["policy"]["parameters"] == 2 * 48 * 4 + (20 + 16) * 64 + 64 + 16 * 6 + 6
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.json").write_text(json.dumps(expected.to_dict()))
+    assert cli.main(["show", str(run_dir), "es.sigma=0.1"]) == 0
+    again = configs.TrainConfig.from_dict(json.loads(capsys.readouterr().out)["config"])
+    assert again == configs.apply_overrides(expected, ["es.sigma=0.1"])
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["show", "no-such-preset"], "no-such-preset"),
+    (["show", "cheetah-run-state", "env.heigth=3"], "height"),
+])
+def test_show_fails_naming_the_problem(argv, message, tmp_path, capsys):
+    assert cli.main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert cli.main(["show", str(tmp_path)]) == 2
+    assert "not a run directory" in capsys.readouterr().err

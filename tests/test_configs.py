@@ -8,7 +8,7 @@ import json
 import pytest
 
 from iap_mjx import configs
-from iap_mjx.configs import ESConfig, PolicyConfig, RunConfig, TrainConfig, apply_overrides
+from iap_mjx.configs import ESConfig, PolicySpec, RunConfig, TrainConfig, apply_overrides
 
 
 @pytest.mark.parametrize("name", configs.names())
@@ -39,8 +39,8 @@ def test_unknown_preset_lists_the_valid_ones():
     (lambda: RunConfig(iterations_per_call=4, checkpoint_every=10), "run.checkpoint_every"),
     (lambda: RunConfig(eval_episodes=-1), "run.eval_episodes"),
     (lambda: RunConfig(chunk_size=0), "run.chunk_size"),
-    (lambda: PolicyConfig(kind="transformer"), "policy.kind"),
-    (lambda: PolicyConfig(options=(("hidden_sizes", [8]),)), "policy.options"),
+    (lambda: PolicySpec(kind="transformer"), "policy.kind"),
+    (lambda: PolicySpec(options=(("hidden_sizes", [8]),)), "policy.options"),
 ])
 def test_invalid_values_fail_naming_the_field(make, field):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):

@@ -19,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from iap_mjx.es import ESConfig, EnvConfig, PolicyConfig, RunConfig, TrainConfig, train
+from iap_mjx.configs import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
+from iap_mjx.es import train
 from iap_mjx.es.train import evaluate_run
 from test_es_envs import PointMass
 
@@ -28,8 +29,8 @@ TESTS = Path(__file__).resolve().parent
 
 def small_config(**run) -> TrainConfig:
     return TrainConfig(
-        env=EnvConfig("point-mass"),
-        policy=PolicyConfig("linear"),
+        env=EnvSpec("point-mass"),
+        policy=PolicySpec("linear"),
         es=ESConfig(population_size=16, sigma=0.1, learning_rate=0.05, n_episodes=2),
         run=RunConfig(**{"iterations": 6, "eval_episodes": 4,
                          "checkpoint_every": 3, "chunk_size": 8, "tensorboard": False, **run}),

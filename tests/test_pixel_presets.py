@@ -1,12 +1,22 @@
-"""Every pixel preset builds its env and policy (no compile) and its policy is the one named."""
+"""Every pixel preset builds its env and policy (no compile) and its policy is the one named;
+every task's ``<task>-pixels`` preset trains one iteration."""
+
+import dataclasses
 
 import jax
+import numpy as np
 import pytest
 
 from iap_mjx import configs, envs, policies
+from iap_mjx.configs.presets import ACTION_REPEAT
+from iap_mjx.es import train
 from iap_mjx.policies.base import param_count
 
 PIXEL_PRESETS = [name for name in configs.names() if "pixels" in name]
+
+
+def test_every_table1_task_has_a_pixel_preset():
+    assert {f"{task}-pixels" for task in envs.names()} <= set(PIXEL_PRESETS)
 
 
 @pytest.mark.parametrize("name", PIXEL_PRESETS)
@@ -14,6 +24,7 @@ def test_pixel_preset_builds_env_and_policy(name):
     config = configs.get(name)
     env = envs.make(config.env.name, **dict(config.env.overrides))
     assert env.observation_shape == (100, 100, 3)
+    assert env.config.action_repeat == ACTION_REPEAT[config.env.name]
     policy = policies.make(config.policy.kind, env.observation_shape, env.action_size,
                            **dict(config.policy.options))
     params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
@@ -22,8 +33,9 @@ def test_pixel_preset_builds_env_and_policy(name):
         # W_Q, W_K (48 x 4 each) and a 16-unit LSTM on 10 centres, read out to the actions.
         lstm = (20 + 16) * 4 * 16 + 4 * 16 + 16 * env.action_size + env.action_size
         assert param_count(params) == 2 * 48 * 4 + lstm
-        expected_kernel = name.removeprefix("cheetah-run-pixels").lstrip("-").split("-")[0] or "hybrid"
-        assert policy.attention.kernel == {"quick": "hybrid"}.get(expected_kernel, expected_kernel)
+        variant = name.removeprefix(f"{config.env.name}-pixels").lstrip("-")
+        expected = variant.split("-")[0] if variant in configs.presets.KERNELS else "hybrid"
+        assert policy.attention.kernel == expected
 
 
 def test_paper_feature_settings():
@@ -33,3 +45,19 @@ def test_paper_feature_settings():
     options = dict(configs.get("cheetah-run-pixels").policy.options)
     assert (options["kernel"], options["m"], options["r"]) == ("hybrid", 10, 5)
     assert dict(configs.get("cheetah-run-pixels-brute").policy.options)["row_normalize"] is True
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", sorted(ACTION_REPEAT))
+def test_task_pixel_preset_trains_one_iteration(task):
+    """The preset as named, shrunk only in its budget (2 frames per episode, 4 members, one
+    iteration): the env, camera, policy and ES update compile and give finite numbers."""
+    config = configs.apply_overrides(configs.get(f"{task}-pixels"), [
+        "env.episode_length=2", "es.population_size=4", "run.iterations=1",
+        "run.eval_episodes=2", "run.checkpoint_every=0", "run.tensorboard=false"])
+    result = train(config, progress=False)
+    (row,) = result.history
+    assert np.isfinite(row["return_mean"]) and np.isfinite(row["eval_return"])
+    assert row["nan_episodes"] == 0
+    start = configs.get(f"{task}-pixels")
+    assert dataclasses.replace(config, env=start.env, es=start.es, run=start.run) == start

@@ -1,15 +1,24 @@
-"""Named, frozen, validated configurations: presets and ``key=value`` overrides.
+"""Every configuration in one place: what a run trains, the env settings, presets, overrides.
 
-The dataclasses themselves live in :mod:`iap_mjx.es.config` (``train`` needs them, and a
-lower layer never imports a higher one); they are re-exported here.
+- :class:`TrainConfig` (``training.py``): a whole run, four sections: ``env`` (:class:`EnvSpec`:
+  a registry name and its settings' overrides), ``policy`` (:class:`PolicySpec`: a kind and its
+  options), ``es`` (:class:`ESConfig`) and ``run`` (:class:`RunConfig`).
+- :class:`EnvConfig` (``env.py``): an env's own settings (action repeat, solver, observation
+  mode, camera size, ...): the names ``env.<field>=...`` overrides may set.
+- the presets (``presets.py``): one table of named rows; ``get(name)`` gives its ``TrainConfig``.
+- ``apply_overrides`` (``overrides.py``): ``key=value`` strings as typed on the command line.
+
+The settings of the parts themselves (``iap_mjx.attention.AttentionConfig``,
+``iap_mjx.render.CameraConfig``) are reached through the policy options and env settings.
+``iap-mjx show PRESET [key=value ...]`` prints a resolved config.
 """
 
+from iap_mjx.configs.env import EnvConfig
 from iap_mjx.configs.overrides import apply_overrides, parse_value
-from iap_mjx.configs import pixel_presets  # noqa: F401  (registers the pixel presets)
-from iap_mjx.configs.presets import describe, get, names, register
-from iap_mjx.es.config import EnvConfig, ESConfig, PolicyConfig, RunConfig, TrainConfig
+from iap_mjx.configs.presets import Preset, describe, get, lookup, names, register
+from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 
 __all__ = [
-    "ESConfig", "EnvConfig", "PolicyConfig", "RunConfig", "TrainConfig", "apply_overrides",
-    "describe", "get", "names", "parse_value", "register",
+    "ESConfig", "EnvConfig", "EnvSpec", "PolicySpec", "Preset", "RunConfig", "TrainConfig",
+    "apply_overrides", "describe", "get", "lookup", "names", "parse_value", "register",
 ]

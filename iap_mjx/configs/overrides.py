@@ -13,7 +13,7 @@ import ast
 import dataclasses
 from typing import Any, Iterable
 
-from iap_mjx.es.config import TrainConfig
+from iap_mjx.configs.training import TrainConfig
 
 _OPEN_SECTIONS = {"policy": "options", "env": "overrides"}
 

@@ -1,74 +1,156 @@
-"""Named presets: ``get(name) -> TrainConfig``, ``names()``, ``describe(name)``.
+"""The named presets: one table, one row a preset (``iap-mjx presets`` lists them).
 
-A preset is a function returning a ``TrainConfig``; ``register`` adds one (later issues add
-the pixel presets the same way).
+A row (:class:`Preset`) names a task, a policy, and the ES and loop settings; ``get(name)``
+turns it into a validated :class:`TrainConfig`. The helpers below (``pixels``, ``iap``) spell
+the settings the rows share once, so each row says only what makes it different.
+
+The pixel presets follow the paper's Cheetah-Run setting (Figure 6): 100x100 RGB,
+non-overlapping 4x4 patches (``L = 625``), the top 10 patch centres into an LSTM controller
+(16 units, Tang et al.'s choice: one frame's patch centres carry no velocity), hybrid features
+``(m, r) = (10, 5)``; one frame per ``ACTION_REPEAT[task]`` control steps, as PlaNet and DrQ
+do from pixels (the episode is still dm_control's 1000 control steps and its return).
+``RESULTS.md`` has what they reach.
+
+Other modules add rows with :func:`register`.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+import dataclasses
+from typing import Any
 
-from iap_mjx.es.config import EnvConfig, ESConfig, PolicyConfig, RunConfig, TrainConfig
+from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 
-_PRESETS: dict[str, tuple[str, Callable[[], TrainConfig]]] = {}
+Options = tuple[tuple[str, Any], ...]
+
+ACTION_REPEAT = {"cheetah-run": 4, "walker-walk": 2, "cartpole-swingup": 8,
+                 "ball_in_cup-catch": 4, "reacher-easy": 4}
+"""Control steps per frame from pixels, per task (PlaNet/DrQ's settings)."""
+
+KERNELS: dict[str, Options] = {
+    "relu": (("kernel", "relu"),),
+    "hybrid-3-2": (("kernel", "hybrid"), ("m", 3), ("r", 2)),
+    "hybrid-6-3": (("kernel", "hybrid"), ("m", 6), ("r", 3)),
+    "hybrid-10-5": (("kernel", "hybrid"), ("m", 10), ("r", 5)),
+    "hybrid-16-8": (("kernel", "hybrid"), ("m", 16), ("r", 8)),
+    "brute": (("kernel", "brute"), ("row_normalize", True)),
+}
+"""The attention kernels of the paper's Figure 6 ablation (``brute``: explicit softmax with
+row normalisation, Tang et al.'s AttentionAgent)."""
 
 
-def register(name: str, description: str, make: Callable[[], TrainConfig]) -> None:
-    """Adds preset ``name``; ``make()`` builds its config."""
-    _PRESETS[name] = (description, make)
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """One row of the table.
+
+    Attributes:
+      name, description: what ``iap-mjx presets`` shows.
+      env, env_options: a registry env name and its ``EnvConfig`` overrides.
+      policy, policy_options: a policy kind and its options.
+      es, run: the evolution strategy and the training loop.
+    """
+
+    name: str
+    description: str
+    env: str
+    policy: str
+    env_options: Options = ()
+    policy_options: Options = ()
+    es: ESConfig = ESConfig()
+    run: RunConfig = RunConfig()
+
+    def config(self) -> TrainConfig:
+        """The validated ``TrainConfig`` this row stands for."""
+        return TrainConfig(env=EnvSpec(self.env, self.env_options),
+                           policy=PolicySpec(self.policy, self.policy_options),
+                           es=self.es, run=self.run)
+
+
+def pixels(task: str, *, episode_steps: int | None = None, size: int = 100) -> Options:
+    """Env options for ``size`` x ``size`` RGB frames, one per ``ACTION_REPEAT[task]`` control
+    steps; ``episode_steps`` control steps per episode (``None``: dm_control's 1000)."""
+    repeat = ACTION_REPEAT[task]
+    options = (("obs_mode", "pixels"), ("height", size), ("width", size), ("action_repeat", repeat))
+    if episode_steps is not None:
+        options += (("episode_length", episode_steps // repeat),)
+    return options
+
+
+def iap(kernel: str = "hybrid-10-5") -> Options:
+    """Policy options of the IAP policy: 4x4 patches, top 10, ``kernel`` (a key of
+    :data:`KERNELS`), a 16-unit LSTM controller."""
+    return (("patch_size", 4), ("top_l", 10), ("d_qk", 4)) + KERNELS[kernel] + (
+        ("controller", "lstm"), ("hidden_sizes", (16,)))
+
+
+STATE_ES = ESConfig(population_size=64, sigma=0.03, learning_rate=0.02, weight_decay=0.005)
+PIXEL_ES = ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005,
+                    normalize_observations=False)
+PIXEL_RUN = RunConfig(iterations=100, eval_episodes=4, checkpoint_every=5)
+
+PRESETS: tuple[Preset, ...] = (
+    Preset("cheetah-run-state",
+           "cheetah-run from the 17-d state, linear policy, OpenES (the sanity bar: >= 400 in 15 min)",
+           "cheetah-run", "linear", es=STATE_ES,
+           run=RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)),
+    Preset("cheetah-run-state-mlp", "cheetah-run from the 17-d state, MLP (32, 32) policy, OpenES",
+           "cheetah-run", "mlp", policy_options=(("hidden_sizes", (32, 32)),),
+           es=dataclasses.replace(STATE_ES, population_size=256, sigma=0.02, learning_rate=0.01),
+           run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10)),
+    Preset("cheetah-run-state-cmaes",
+           "cheetah-run from the state, linear policy, CMA-ES through the evosax adapter",
+           "cheetah-run", "linear",
+           es=ESConfig(strategy="CMA_ES", population_size=64, sigma=0.1, antithetic=False),
+           run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10)),
+    *(Preset(f"{task}-pixels",
+             f"{task} from 100x100 RGB: IAP hybrid (10, 5), 4x4 patches, top 10 -> LSTM(16), "
+             f"action repeat {ACTION_REPEAT[task]}",
+             task, "iap", pixels(task), iap(), PIXEL_ES, PIXEL_RUN)
+      for task in ACTION_REPEAT),
+    *(Preset(f"cheetah-run-pixels-{kernel}",
+             f"cheetah-run-pixels with the {kernel} attention kernel (Figure 6 ablation)",
+             "cheetah-run", "iap", pixels("cheetah-run"), iap(kernel), PIXEL_ES, PIXEL_RUN)
+      for kernel in KERNELS if kernel != "hybrid-10-5"),
+    Preset("cheetah-run-pixels-cnn", "cheetah-run from 100x100 RGB with a small CNN policy (baseline)",
+           "cheetah-run", "cnn", pixels("cheetah-run"), es=PIXEL_ES, run=PIXEL_RUN),
+    Preset("cheetah-run-pixels-quick",
+           "cheetah-run-pixels on 200-control-step episodes, population 16, 10 iterations: a few minutes",
+           "cheetah-run", "iap", pixels("cheetah-run", episode_steps=200), iap(),
+           dataclasses.replace(PIXEL_ES, population_size=16),
+           RunConfig(iterations=10, eval_episodes=2, checkpoint_every=5, chunk_size=16)),
+)
+
+_REGISTRY: dict[str, Preset] = {}
+
+
+def register(preset: Preset) -> None:
+    """Adds a row; a name already taken raises ``ValueError``."""
+    if preset.name in _REGISTRY:
+        raise ValueError(f"preset {preset.name!r} is already registered")
+    _REGISTRY[preset.name] = preset
+
+
+for _preset in PRESETS:
+    register(_preset)
 
 
 def names() -> list[str]:
     """All preset names, sorted."""
-    return sorted(_PRESETS)
+    return sorted(_REGISTRY)
 
 
 def describe(name: str) -> str:
     """The preset's one-line description."""
-    return _lookup(name)[0]
+    return lookup(name).description
 
 
 def get(name: str) -> TrainConfig:
     """The preset's config; an unknown name raises ``ValueError`` listing the valid ones."""
-    return _lookup(name)[1]()
+    return lookup(name).config()
 
 
-def _lookup(name: str) -> tuple[str, Callable[[], TrainConfig]]:
-    if name not in _PRESETS:
+def lookup(name: str) -> Preset:
+    """The preset's row; an unknown name raises ``ValueError`` listing the valid ones."""
+    if name not in _REGISTRY:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(names())}")
-    return _PRESETS[name]
-
-
-register(
-    "cheetah-run-state",
-    "cheetah-run from the 17-d state, linear policy, OpenES (the sanity bar: >= 400 in 15 min)",
-    lambda: TrainConfig(
-        env=EnvConfig("cheetah-run"),
-        policy=PolicyConfig("linear"),
-        es=ESConfig(population_size=64, sigma=0.03, learning_rate=0.02, weight_decay=0.005,
-                    n_episodes=1, normalize_observations=True),
-        run=RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10),
-    ),
-)
-register(
-    "cheetah-run-state-mlp",
-    "cheetah-run from the 17-d state, MLP (32, 32) policy, OpenES",
-    lambda: TrainConfig(
-        env=EnvConfig("cheetah-run"),
-        policy=PolicyConfig("mlp", (("hidden_sizes", (32, 32)),)),
-        es=ESConfig(population_size=256, sigma=0.02, learning_rate=0.01, weight_decay=0.005,
-                    n_episodes=1, normalize_observations=True),
-        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
-    ),
-)
-register(
-    "cheetah-run-state-cmaes",
-    "cheetah-run from the state, linear policy, CMA-ES through the evosax adapter",
-    lambda: TrainConfig(
-        env=EnvConfig("cheetah-run"),
-        policy=PolicyConfig("linear"),
-        es=ESConfig(strategy="CMA_ES", population_size=64, sigma=0.1, antithetic=False,
-                    normalize_observations=True),
-        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
-    ),
-)
+    return _REGISTRY[name]

@@ -5,8 +5,9 @@ arguments without building); ``EnvConfig`` lists the overrides;
 ``batch`` runs large populations in chunks.
 """
 
+from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)
 from iap_mjx.envs.base import Env, State
-from iap_mjx.envs.dmc import EnvConfig
+from iap_mjx.configs.env import EnvConfig
 from iap_mjx.envs import batch
 from iap_mjx.envs.registry import check, make, names
 

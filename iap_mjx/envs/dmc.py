@@ -34,77 +34,10 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver
 
+from iap_mjx.configs.env import EnvConfig
 from iap_mjx.envs.base import State
 
-OBS_MODES = ("state", "pixels", "pixels_depth", "pixels+state")
 DM_CONTROL_EPISODE_STEPS = 1000
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """Static settings of one env (hashable, so jitted code can depend on it).
-
-    Attributes:
-      action_repeat: control steps per env step (the action is held; rewards are summed).
-      episode_length: env steps per episode; ``None`` means dm_control's 1000 control steps,
-        i.e. ``ceil(1000 / action_repeat)`` env steps.
-      solver_iterations: MJX constraint-solver iterations (MuJoCo ``opt.iterations``).
-      ls_iterations: MJX line-search iterations (MuJoCo ``opt.ls_iterations``).
-      max_contacts: contact slots MJX keeps per step (its ``max_contact_points``: the
-        closest candidate contacts win). MJX otherwise carries a constraint row block for
-        every candidate geom pair at every step (cheetah: 35 contacts, 146 rows) where
-        native MuJoCo carries only the touching ones (cheetah: at most 5 in our
-        measurements), and the solver's cost grows with the rows. ``"task"`` is the
-        task's measured default (``DmControlEnv.default_max_contacts``), ``"all"`` keeps
-        every candidate, an int sets the number. ``metrics["contact_saturated"]`` reports
-        an episode in which every kept slot was touching at once (a contact may have
-        been dropped).
-      max_abs_state: an env whose ``|qpos|`` or ``|qvel|`` exceeds this (or is not finite)
-        is ended as a bad state.
-      obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
-      camera_id, height, width, frame_stack: the camera settings for pixel modes.
-    """
-
-    action_repeat: int = 1
-    episode_length: int | None = None
-    solver_iterations: int = 8
-    ls_iterations: int = 4
-    max_contacts: int | str = "task"
-    max_abs_state: float = 1e6
-    obs_mode: str = "state"
-    camera_id: int = 0
-    height: int = 100
-    width: int = 100
-    frame_stack: int = 1
-
-    def __post_init__(self):
-        positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height",
-                         "width", "frame_stack")
-        for name in positive_ints:
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"EnvConfig.{name} must be an int >= 1, got {value!r}.")
-        if self.max_contacts not in ("task", "all") and (
-            not isinstance(self.max_contacts, int)
-            or isinstance(self.max_contacts, bool)
-            or self.max_contacts < 1
-        ):
-            raise ValueError(
-                'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got '
-                f"{self.max_contacts!r}."
-            )
-        if self.episode_length is not None and (
-            not isinstance(self.episode_length, int) or self.episode_length < 1
-        ):
-            raise ValueError(
-                f"EnvConfig.episode_length must be None or an int >= 1, got {self.episode_length!r}."
-            )
-        if not self.max_abs_state > 0:
-            raise ValueError(f"EnvConfig.max_abs_state must be > 0, got {self.max_abs_state!r}.")
-        if self.obs_mode not in OBS_MODES:
-            raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
-        if not isinstance(self.camera_id, int) or self.camera_id < 0:
-            raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
 
 
 def position_velocity_stage(model: mjx.Model, data: mjx.Data) -> mjx.Data:
@@ -162,7 +95,14 @@ class DmControlEnv:
         xml, assets = self.domain.get_model_and_assets()
         spec = mujoco.MjSpec.from_string(xml, assets)
         spec.add_numeric(name="max_contact_points", data=[-1])  # -1: MJX keeps every candidate
+        # MuJoCo 3.17 deprecates the compiler's settotalmass (cheetah sets it): compile without
+        # it and scale the masses as it would have (the same model, to the last bit).
+        total_mass = float(spec.compiler.settotalmass)
+        spec.compiler.settotalmass = -1.0
         mj_model = spec.compile()  # once: the limit is set in the compiled model below
+        if total_mass > 0:
+            mujoco.mj_setTotalmass(mj_model, total_mass)
+            mujoco.mj_setConst(mj_model, mujoco.MjData(mj_model))
         all_condims = collision_driver.make_condim(mj_model)
         self.max_contacts = self._resolve_max_contacts(all_condims)
         if self.max_contacts is not None:

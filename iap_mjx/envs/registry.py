@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from iap_mjx.envs.dmc import DmControlEnv, EnvConfig
+from iap_mjx.configs.env import EnvConfig
+from iap_mjx.envs.dmc import DmControlEnv
 
 
 def _task_classes() -> dict[str, type[DmControlEnv]]:

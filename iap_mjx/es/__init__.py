@@ -1,16 +1,14 @@
 """Evolution strategies: the compiled population evaluation, the update, and ``train()``.
 
-``train(config)`` is the one call; ``TrainConfig`` and its sections are the configuration
-(presets in :mod:`iap_mjx.configs`). ``OpenES`` and ``EvosaxStrategy`` are the strategies.
+``train(config)`` is the one call, with a :class:`iap_mjx.configs.TrainConfig` (presets in
+:mod:`iap_mjx.configs`). ``OpenES`` and ``EvosaxStrategy`` are the strategies.
 """
 
-from iap_mjx.es.config import EnvConfig, ESConfig, PolicyConfig, RunConfig, TrainConfig
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
 from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, load_run, train
 
 __all__ = [
-    "ESConfig", "EnvConfig", "EvosaxStrategy", "OpenES", "PolicyConfig", "RunConfig",
-    "SHAPINGS", "TrainConfig", "TrainResult", "TrainState", "build", "centred_ranks",
-    "estimate_gradient", "evaluate_run", "load_run", "train",
+    "EvosaxStrategy", "OpenES", "SHAPINGS", "TrainResult", "TrainState", "build",
+    "centred_ranks", "estimate_gradient", "evaluate_run", "load_run", "train",
 ]

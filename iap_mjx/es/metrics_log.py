@@ -1,4 +1,6 @@
-"""Per-iteration metrics on disk: ``metrics.jsonl``, ``metrics.csv`` and TensorBoard events.
+"""What a run directory holds for a person: ``config.json`` (the resolved config, written
+when training starts) and the per-iteration metrics: ``metrics.jsonl``, ``metrics.csv`` and
+TensorBoard events.
 
 Columns: ``env_steps`` counts training steps so far (population x episodes x horizon, the
 sample budget); ``return_*`` are over the population's fitness (mean return per member);
@@ -23,6 +25,8 @@ from typing import Any
 
 logger = logging.getLogger(__name__)
 
+CONFIG_FILE = "config.json"
+
 COLUMNS = (
     "iteration",
     "env_steps",
@@ -41,6 +45,25 @@ COLUMNS = (
     "compile_s",
     "wall_s",
 )
+
+
+def write_config(run_dir: str | Path, config: dict[str, Any]) -> Path:
+    """Writes ``config`` (``TrainConfig.to_dict()``) as ``run_dir/config.json``, atomically."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    path = run_dir / CONFIG_FILE
+    temporary = path.with_suffix(".json.tmp")
+    temporary.write_text(json.dumps(config, indent=2) + "\n")
+    os.replace(temporary, path)
+    return path
+
+
+def read_config(run_dir: str | Path) -> dict[str, Any]:
+    """``run_dir/config.json`` as written by :func:`write_config`."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"no {CONFIG_FILE} in {run_dir}")
+    return json.loads(path.read_text())
 
 
 def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str, Any]]:

@@ -26,8 +26,8 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import NamedSharding, PartitionSpec
 
 from iap_mjx.es import checkpoint
-from iap_mjx.es.config import OPEN_ES, ESConfig, TrainConfig
-from iap_mjx.es.metrics_log import MetricsWriter, read_history
+from iap_mjx.configs.training import OPEN_ES, ESConfig, TrainConfig
+from iap_mjx.es.metrics_log import MetricsWriter, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
 from iap_mjx.es.rollout import EpisodeResult, make_evaluator, make_mesh, padded_share
 from iap_mjx.es.shaping import SHAPINGS
@@ -397,6 +397,8 @@ def train(
         _check_resumable(config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
         state = _restore(parts, run_dir, state)
         start = int(_scalar(state.iteration))
+    if run_dir is not None and primary:
+        write_config(run_dir, config.to_dict())
     writer = (MetricsWriter(run_dir, start if start else None, run.tensorboard)
               if run_dir is not None and primary else None)
     history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])

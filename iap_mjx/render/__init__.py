@@ -5,6 +5,7 @@
 pixel, depth and background conventions.
 """
 
+from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)
 from iap_mjx.render.camera import Camera, CameraConfig
 from iap_mjx.render.scene import Scene, build_scene
 

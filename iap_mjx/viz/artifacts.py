@@ -43,7 +43,7 @@ def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | No
 def write_run_artifacts(result: Any, run_dir: str | Path) -> list[Path]:
     """Writes ``reward_curve.png`` and, for pixel envs, ``episode.mp4`` into ``run_dir``."""
     run_dir = Path(run_dir)
-    paths = [curves.plot_reward_curve(curves.read_history(run_dir), run_dir / "reward_curve.png",
+    paths = [curves.plot_reward_curve(result.history, run_dir / "reward_curve.png",
                                       title=f"{result.config.env.name}: {result.config.policy.kind} policy")]
     env, _ = env_and_policy(result.config)
     if has_pixels(env):

@@ -1,19 +1,13 @@
-"""Reward curves of a training run, from its history (``metrics.csv`` rows)."""
+"""Reward curves of a training run, from its history (the rows of ``metrics.jsonl``:
+``TrainResult.history`` or ``iap_mjx.es.metrics_log.read_history``)."""
 
 from __future__ import annotations
 
-import csv
 import logging
 from pathlib import Path
 from typing import Any, Iterable
 
 logger = logging.getLogger(__name__)
-
-
-def read_history(run_dir: str | Path) -> list[dict[str, float]]:
-    """The rows of ``run_dir/metrics.csv`` as floats (empty cells dropped)."""
-    with open(Path(run_dir) / "metrics.csv", newline="") as handle:
-        return [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(handle)]
 
 
 def plot_reward_curve(history: Iterable[dict[str, Any]], path: str | Path, *, title: str = "") -> Path:

@@ -2,7 +2,7 @@
 
 One episode runs compiled (``lax.scan``); the host then upscales each frame, outlines the
 top-l patches the attention layer picked (as the paper's Figures 9-10) and writes the return
-so far, and saves an MP4 (imageio's bundled ffmpeg) or a GIF.
+so far, and saves an MP4 (H.264 through PyAV, in this process: nothing is forked) or a GIF.
 """
 
 from __future__ import annotations
@@ -86,15 +86,24 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
 
 
 def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) -> Path:
-    """Writes ``frames`` as MP4 (``.mp4``) or GIF (any other suffix) and returns the path."""
-    import imageio.v2 as imageio
+    """Writes ``frames`` (``(H, W, 3)`` uint8 each) as MP4 (``.mp4``) or GIF (any other
+    suffix) and returns the path.
+
+    MP4s are encoded in-process by PyAV's bundled FFmpeg libraries (no ``ffmpeg`` subprocess:
+    forking a process that runs JAX's threads can deadlock); frames are padded to even sizes,
+    which H.264's 4:2:0 chroma needs.
+    """
+    import imageio.v3 as iio
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".mp4":
-        imageio.mimsave(path, frames, fps=fps, macro_block_size=1)
+        stack = np.stack(frames)
+        height, width = stack.shape[1:3]
+        stack = np.pad(stack, ((0, 0), (0, height % 2), (0, width % 2), (0, 0)))
+        iio.imwrite(path, stack, plugin="pyav", codec="libx264", fps=fps)
     else:
-        imageio.mimsave(path, frames, duration=1000 / fps, loop=0)
+        iio.imwrite(path, np.stack(frames), plugin="pillow", duration=1000 / fps, loop=0)
     logger.info("wrote %s (%d frames)", path, len(frames))
     return path
 

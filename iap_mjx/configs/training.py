@@ -1,7 +1,10 @@
-"""The training configuration: frozen, hashable dataclasses validated on construction.
+"""A training run's configuration: ``TrainConfig`` and its four sections.
 
-An invalid value raises ``ValueError`` naming the field and the valid values, before anything
-is compiled. Presets and ``key=value`` overrides live in :mod:`iap_mjx.configs`.
+``TrainConfig(env=EnvSpec, policy=PolicySpec, es=ESConfig, run=RunConfig)``: which env (a
+registry name and its ``EnvConfig`` overrides), which policy (a kind and its options), the
+evolution strategy and the training loop. Frozen, hashable dataclasses validated on
+construction: an invalid value raises ``ValueError`` naming the field and the valid values,
+before anything is compiled.
 """
 
 from __future__ import annotations
@@ -51,8 +54,9 @@ def _pairs(owner: str, field: str, value: Any) -> None:
 
 
 @dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """Which env: a name from ``iap_mjx.envs.names()`` and keyword overrides for ``make``."""
+class EnvSpec:
+    """Which env: a name from ``iap_mjx.envs.names()`` and ``overrides`` of its settings
+    (``iap_mjx.configs.EnvConfig`` fields, as ``(name, value)`` pairs) passed to ``make``."""
 
     name: str = "cheetah-run"
     overrides: tuple[tuple[str, Any], ...] = ()
@@ -64,7 +68,7 @@ class EnvConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class PolicyConfig:
+class PolicySpec:
     """Which policy: a kind from ``iap_mjx.policies.names()`` and its keyword options.
 
     On the command line ``policy.hidden_sizes=64,64`` sets an option (any name that is not a
@@ -194,32 +198,46 @@ class RunConfig:
 class TrainConfig:
     """Everything ``iap_mjx.es.train`` needs: env, policy, strategy and loop."""
 
-    env: EnvConfig = EnvConfig()
-    policy: PolicyConfig = PolicyConfig()
+    env: EnvSpec = EnvSpec()
+    policy: PolicySpec = PolicySpec()
     es: ESConfig = ESConfig()
     run: RunConfig = RunConfig()
 
     def __post_init__(self):
-        for name, cls in (("env", EnvConfig), ("policy", PolicyConfig), ("es", ESConfig),
+        for name, cls in (("env", EnvSpec), ("policy", PolicySpec), ("es", ESConfig),
                           ("run", RunConfig)):
             if not isinstance(getattr(self, name), cls):
                 _fail("config", name, getattr(self, name), f"must be a {cls.__name__}")
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (tuples become lists)."""
-        return dataclasses.asdict(self)
+        """A JSON-ready dict: ``(name, value)`` pairs (env overrides, policy options, evosax
+        options) become ``{name: value}`` objects in their order, tuples become lists."""
+        data = dataclasses.asdict(self)
+        for section, field in _PAIR_FIELDS:
+            data[section][field] = {name: value for name, value in data[section][field]}
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
-        """The inverse of :meth:`to_dict` (lists become tuples again)."""
-        sections = {"env": EnvConfig, "policy": PolicyConfig, "es": ESConfig, "run": RunConfig}
+        """The inverse of :meth:`to_dict` (also reads pairs stored as lists of lists)."""
+        sections = {"env": EnvSpec, "policy": PolicySpec, "es": ESConfig, "run": RunConfig}
         unknown = set(data) - set(sections)
         if unknown:
             raise ValueError(f"unknown config sections {sorted(unknown)}; valid: {sorted(sections)}")
+        pair_fields = set(_PAIR_FIELDS)
+
+        def value(section: str, field: str, stored: Any) -> Any:
+            if (section, field) in pair_fields and isinstance(stored, dict):
+                stored = list(stored.items())
+            return _tuplify(stored)
+
         return cls(**{
-            name: section(**{k: _tuplify(v) for k, v in data.get(name, {}).items()})
+            name: section(**{k: value(name, k, v) for k, v in data.get(name, {}).items()})
             for name, section in sections.items()
         })
+
+
+_PAIR_FIELDS = (("env", "overrides"), ("policy", "options"), ("es", "evosax_options"))
 
 
 def _tuplify(value: Any) -> Any:
