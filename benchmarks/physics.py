@@ -20,11 +20,20 @@ Writes the ``physics`` section of ``BENCHMARKS.md``:
 Run (heavy; serialise with the other benchmarks):
 
     flock /work/bench.lock python benchmarks/physics.py
+
+``--quadruped`` measures our A1-class quadruped instead (``quadruped-flat``,
+``quadruped-walls``) and writes the ``physics-quadruped`` section: the same three parts with
+native MuJoCo (``mujoco.mj_step``/``mujoco.rollout``, float64) on the env's own compiled model
+as the reference (there is no dm_control task), plus the first-person camera's frames/s:
+
+    flock -x /work/coord/cpu.lock python benchmarks/physics.py --quadruped
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import os
 import platform
 import statistics
 import sys
@@ -52,6 +61,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import report  # noqa: E402
 TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy")
+QUADRUPED_TASKS = ("quadruped-flat", "quadruped-walls")
 
 
 def _timed(fn, *args, repeats: int):
@@ -87,18 +97,39 @@ def measure_mjx(env, states, actions, chunk_size: int, mesh: Mesh | None, repeat
     return compile_s, actions.shape[0] * actions.shape[1] / seconds
 
 
-def measure_native(name: str, qpos, qvel, actions, n_sub_steps: int, nthread: int, repeats: int):
-    """env-steps per second of ``mujoco.rollout`` on dm_control's model from the same states."""
+def native_model(name: str, env) -> mujoco.MjModel:
+    """The native reference model: dm_control's for a suite task, else the env's own."""
+    if name in QUADRUPED_TASKS:
+        return env.mj_model
     domain, task = name.split("-")
-    model = suite.load(domain, task).physics.model.ptr
+    return suite.load(domain, task).physics.model.ptr
+
+
+def native_controls(name: str, actions) -> np.ndarray:
+    """``data.ctrl`` for env actions: the quadruped's are joint targets mapped from [-1, 1]."""
+    if name in QUADRUPED_TASKS:
+        from iap_mjx.envs import a1
+
+        return np.asarray(a1.action_to_targets(np.asarray(actions, np.float64)))
+    return np.asarray(actions, np.float64)
+
+
+def measure_native(name: str, env, states, actions, n_sub_steps: int, nthread: int, repeats: int):
+    """env-steps per second of ``mujoco.rollout`` on the native model from the same states
+    (qpos, qvel and, for the course, the walls' mocap positions)."""
+    model = native_model(name, env)
+    qpos, qvel = np.asarray(states.data.qpos), np.asarray(states.data.qvel)
+    mocap = np.asarray(states.data.mocap_pos)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     data = mujoco.MjData(model)
     initial = np.empty((qpos.shape[0], mujoco.mj_stateSize(model, spec)))
     for i in range(qpos.shape[0]):
         mujoco.mj_resetData(model, data)
         data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
+        if model.nmocap:
+            data.mocap_pos[:] = mocap[i]
         mujoco.mj_getState(model, data, initial[i], spec)
-    control = np.repeat(np.asarray(actions, np.float64), n_sub_steps, axis=1)
+    control = np.repeat(native_controls(name, actions), n_sub_steps, axis=1)
     datas = [mujoco.MjData(model) for _ in range(nthread)]
     # nthread=1 runs on the calling thread (a pool of 0); otherwise a persistent pool.
     with native_rollout.Rollout(nthread=0 if nthread == 1 else nthread) as pool:
@@ -126,9 +157,8 @@ def throughput(name: str, batches, steps: int, chunk_size: int, repeats: int) ->
         one = measure_mjx(env, states, actions, chunk, None, repeats)
         share = min(size // len(devices), chunk_size)
         many = measure_mjx(env, states, actions, share, mesh, repeats) if mesh else (np.nan, np.nan)
-        qpos, qvel = np.asarray(states.data.qpos), np.asarray(states.data.qvel)
         native = [
-            measure_native(name, qpos, qvel, np.asarray(actions), env.n_sub_steps, t, repeats)
+            measure_native(name, env, states, np.asarray(actions), env.n_sub_steps, t, repeats)
             for t in (1, 2)
         ]
         rows.append(
@@ -167,11 +197,15 @@ def _dm_reference(name: str, seed: int, steps: int):
 
 
 def parse_setting(text: str) -> dict:
-    """``"8/4/12"`` -> solver_iterations 8, ls_iterations 4, max_contacts 12 (or ``all``/``task``)."""
-    iterations, ls_iterations, contacts = text.split("/")
-    contacts = contacts if contacts in ("all", "task") else int(contacts)
-    return dict(solver_iterations=int(iterations), ls_iterations=int(ls_iterations),
-                max_contacts=contacts)
+    """``"8/4/12"`` -> solver_iterations 8, ls_iterations 4, max_contacts 12 (or ``all``/``task``);
+    a fourth field sets the quadruped's ``max_geom_pairs`` the same way."""
+    iterations, ls_iterations, contacts, *pairs = text.split("/")
+    count = lambda v: v if v in ("all", "task") else int(v)  # noqa: E731
+    setting = dict(solver_iterations=int(iterations), ls_iterations=int(ls_iterations),
+                   max_contacts=count(contacts))
+    if pairs:
+        setting["max_geom_pairs"] = count(pairs[0])
+    return setting
 
 
 def solver_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]:
@@ -300,23 +334,247 @@ def _default_setting(name: str) -> str:
     return f"{env.config.solver_iterations} / {env.config.ls_iterations} / {contacts}"
 
 
+
+# ---- the quadruped: native MuJoCo on the env's own model is the reference ----------------
+
+
+def _native_run(model: mujoco.MjModel, data0, controls: np.ndarray, n_sub_steps: int,
+                qvel_ulp: bool = False) -> np.ndarray:
+    """qpos after every control step of ``mujoco.mj_step`` (float64) from an env state."""
+    data = mujoco.MjData(model)
+    qpos, qvel = np.asarray(data0.qpos, np.float64), np.asarray(data0.qvel, np.float64)
+    data.qpos[:] = qpos
+    data.qvel[:] = np.nextafter(qvel.astype(np.float32), np.float32(np.inf)) if qvel_ulp else qvel
+    if model.nmocap:
+        data.mocap_pos[:] = np.asarray(data0.mocap_pos)
+    out = []
+    for ctrl in controls:
+        data.ctrl[:] = ctrl
+        for _ in range(n_sub_steps):
+            mujoco.mj_step(model, data)
+        out.append(data.qpos.copy())
+    return np.array(out)
+
+
+def _accurate(model: mujoco.MjModel) -> mujoco.MjModel:
+    """A copy of ``model`` with MuJoCo's solver run to convergence (100 / 50 iterations)."""
+    accurate = copy.copy(model)
+    accurate.opt.iterations, accurate.opt.ls_iterations = 100, 50
+    return accurate
+
+
+def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]:
+    """Per solver setting: MJX vs native on the same compiled model (``same``), vs native
+    run to convergence (``converged``), native's own sensitivity, and env-steps/s at B=256.
+
+    Three episodes from the env's own first states; PD targets the standing pose plus
+    uniform +-0.3 rad (a walking-like load: the robot stays up, feet on the ground)."""
+    from iap_mjx.envs import a1
+
+    rng = np.random.default_rng(0)
+    targets = a1.HOME_JOINTS + rng.uniform(-0.3, 0.3, (3, steps, 12))
+    actions = np.asarray(a1.targets_to_action(targets), np.float32)
+    rows = []
+    devices = jax.devices()
+    mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
+    native_own = None
+    for setting in settings:
+        env = envs.make(name, episode_length=10 * steps, **parse_setting(setting))
+        run = jax.jit(lambda s, a: jax.lax.scan(lambda s, a: (env.step(s, a),) * 2, s, a)[1])
+        reset = jax.jit(env.reset)
+        same, converged, done = [], [], 0
+        for seed in range(3):
+            first = reset(jax.random.key(seed))
+            visited = run(first, jnp.asarray(actions[seed]))
+            ours = np.asarray(visited.data.qpos)
+            done += int(np.asarray(visited.done)[-1] > 0)
+            controls = native_controls(name, actions[seed])
+            same.append(np.abs(ours - _native_run(env.mj_model, first.data, controls, env.n_sub_steps)).max())
+            reference = _native_run(_accurate(env.mj_model), first.data, controls, env.n_sub_steps)
+            converged.append(np.abs(ours - reference).max())
+        if native_own is None:
+            own = []
+            for seed in range(3):
+                first = reset(jax.random.key(seed))
+                controls = native_controls(name, actions[seed])
+                model = _accurate(env.mj_model)
+                own.append(np.abs(_native_run(model, first.data, controls, env.n_sub_steps)
+                                  - _native_run(model, first.data, controls, env.n_sub_steps, qvel_ulp=True)).max())
+            native_own = statistics.median(own)
+        size = 256
+        states = jax.jit(batch.chunked_vmap(env.reset, 128))(jax.random.split(jax.random.key(0), size))
+        random_actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
+        _, rate = measure_mjx(env, states, random_actions, size // len(devices), mesh, repeats)
+        rows.append(dict(task=name, iterations=env.config.solver_iterations, ls_iterations=env.config.ls_iterations,
+                         contacts="all" if env.max_contacts is None else env.max_contacts,
+                         pairs="all" if env.max_geom_pairs is None else env.max_geom_pairs,
+                         same=statistics.median(same), converged=statistics.median(converged),
+                         native_error=native_own, ended=done, rate=rate))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def camera_rate(name: str, batches, repeats: int) -> list[dict]:
+    """First-person frames/s (RGB at the env's default size) on states of random episodes."""
+    env = envs.make(name, obs_mode="pixels")
+    devices = jax.devices()
+    mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
+    rows = []
+    for size in batches:
+        states = jax.jit(batch.chunked_vmap(env.env.reset, min(size, 128)))(jax.random.split(jax.random.key(3), size))
+        actions = jax.random.uniform(jax.random.key(4), (size, 20, env.action_size), minval=-0.2, maxval=0.2)
+        states = _steps_program(env.env, 20, min(size, 128), None)(states, actions)
+        render = jax.vmap(lambda d: env.render(d))
+        one = jax.jit(render)
+        start = time.perf_counter()
+        one = one.lower(states.data).compile()
+        compile_s = time.perf_counter() - start
+        jax.block_until_ready(one(states.data))
+        rate_1 = size / _timed(one, states.data, repeats=repeats)
+        rate_n = np.nan
+        if mesh is not None and size % len(devices) == 0:
+            many = jax.jit(batch.shard(render, mesh)).lower(states.data).compile()
+            jax.block_until_ready(many(states.data))
+            rate_n = size / _timed(many, states.data, repeats=repeats)
+        cfg = env.camera.config
+        rows.append(dict(task=name, batch=size, height=cfg.height, width=cfg.width, fps_1=rate_1, fps_n=rate_n,
+                         compile=compile_s))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
+    walls = [r for r in rows if r["task"] == "quadruped-walls" and r["batch"] == 256]
+    cam = [r for r in camera_rows if r["batch"] == 256]
+    lines = [
+        "## Physics: the A1-class quadruped (MJX vs native MuJoCo on the same model)",
+        "",
+        f"Command: `flock -x /work/coord/cpu.lock python benchmarks/physics.py {args.argv}`".rstrip() + "  ",
+        f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
+        f"jax {jax.__version__}, mujoco {mujoco.__version__}; 1-min load average at the start "
+        f"{args.load_before:.1f}, at the end {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.",
+        "",
+        "Bars (issue 15), from this run:",
+    ]
+    if walls:
+        lines.append(f"- `quadruped-walls` at B=256 on both cores: **{walls[0]['mjx_n']:,.0f}** control steps/s "
+                     f"(bar 4,000: {'met' if walls[0]['mjx_n'] >= 4000 else 'not met'}); walls, foot and wall contacts on.")
+    if cam:
+        lines.append(f"- first-person camera at its default {cam[0]['width']}x{cam[0]['height']} RGB, B=256: "
+                     f"**{np.nanmax([cam[0]['fps_1'], cam[0]['fps_n']]):,.0f}** frames/s "
+                     f"(bar 10,000: {'met' if np.nanmax([cam[0]['fps_1'], cam[0]['fps_n']]) >= 10000 else 'not met'}).")
+    for r in long_rows:
+        lines.append(f"- {r['batch']} random-action episodes of `{r['task']}`, full length ({r['steps']} control steps): "
+                     f"**{r['nan']}** ended by NaN or a bad state; qpos finite: {r['finite']}.")
+    lines += [
+        "",
+        "### Solver settings (iterations / line-search iterations / contact slots / geom pairs)",
+        "",
+        f"qpos error = max |qpos gap| over {args.sweep_steps} control steps from the env's first state, median of 3 "
+        "episodes, PD targets = standing pose + uniform +-0.3 rad. same = native `mujoco.mj_step` (float64) on the "
+        "same compiled model (same solver settings): float32 noise is what should remain. converged = native "
+        "with 100 / 50 solver iterations. native's own = native (converged) restarted from the float32-rounded "
+        "state with qvel 1 ulp off. ended = episodes the env ended early (of 3). Rate: env-steps/s at B=256, "
+        "uniform random actions, all devices.",
+        "",
+        "| task | iterations / ls / contacts / pairs | vs native, same model | vs native, converged | native's own | ended | env-steps/s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in sweep_rows:
+        lines.append(f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} / {r['pairs']} | "
+                     f"{r['same']:.1e} | {r['converged']:.1e} | {r['native_error']:.1e} | {r['ended']} | {r['rate']:,.0f} |")
+    lines += [
+        "",
+        f"### Throughput ({args.steps} control steps per call, uniform random actions)",
+        "",
+        "env-steps/s = envs x control steps / s (one control step = 5 physics steps). MJX on 1 device "
+        f"and on {jax.device_count()} (`shard_map`); native = `mujoco.rollout` on the env's own model (float64, "
+        "same solver settings), same states and controls, 1 and 2 threads. ratio = MJX all devices / native 2 threads.",
+        "",
+        "| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['task']} | {r['batch']} | {r['mjx_1']:,.0f} | {r['mjx_n']:,.0f} | {r['native_1']:,.0f} | "
+                     f"{r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | {r['compile_1']:.0f} / {r['compile_n']:.0f} |")
+    if camera_rows:
+        lines += [
+            "",
+            "### First-person camera (`quadruped-walls`, `obs_mode=pixels`)",
+            "",
+            "`Camera.render` RGB frames/s, steady state, states after 20 control steps of small random actions; "
+            "the robot's own geoms are not drawn.",
+            "",
+            "| size | B | 1 device | all devices | compile s |",
+            "|---|---|---|---|---|",
+        ]
+        for r in camera_rows:
+            lines.append(f"| {r['width']}x{r['height']} | {r['batch']} | {r['fps_1']:,.0f} | {r['fps_n']:,.0f} | {r['compile']:.1f} |")
+    if long_rows:
+        lines += [
+            "",
+            "### Full-length random-action episodes",
+            "",
+            "One chunked, sharded call; uniform random actions in [-1, 1] (joint targets anywhere in their ranges). "
+            "done = episodes ended (time limit, fall, or bad state); nan = ended by a bad state (NaN or "
+            "|qpos|, |qvel| > max_abs_state); saturated = episodes that ever filled every contact slot or culled pair.",
+            "",
+            "| task | B | control steps | compile s | wall s | env-steps/s | done | nan | saturated | qpos finite |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for r in long_rows:
+            lines.append(f"| {r['task']} | {r['batch']} | {r['steps']} | {r['compile']:.0f} | {r['seconds']:.1f} | "
+                         f"{r['rate']:,.0f} | {r['done']} | {r['nan']} | {r['saturated']} | {r['finite']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main_quadruped(args) -> None:
+    args.load_before = os.getloadavg()[0]
+    sweep_rows = [row for name in args.sweep_tasks for row in quadruped_sweep(name, args.sweep, args.sweep_steps, args.repeats)]
+    rows = [row for name in args.tasks for row in throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)]
+    camera_rows = camera_rate("quadruped-walls", args.camera_batch, args.repeats) if args.camera_batch else []
+    long_rows = [long_run(name, args.long_batch, envs.make(name).episode_length, args.chunk_size)
+                 for name in args.long_tasks]
+    text = _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args)
+    print(text)
+    if not args.no_write:
+        report.write_section(ROOT / "BENCHMARKS.md", "physics-quadruped", text)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    parser.add_argument("--quadruped", action="store_true",
+                        help="the quadruped tasks, their sweep and camera: section physics-quadruped")
+    parser.add_argument("--tasks", nargs="+", default=None, choices=TASKS + QUADRUPED_TASKS)
     parser.add_argument("--batch", nargs="+", type=int, default=[64, 256, 1024])
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
     parser.add_argument("--chunk-size", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--sweep-tasks", nargs="*", default=["cheetah-run", "walker-walk"], choices=TASKS)
-    parser.add_argument("--sweep", nargs="*", default=["8/8/all", "8/8/task", "4/4/task", "8/2/task", "16/2/task"],
-                        help="solver settings ITERATIONS/LS_ITERATIONS/CONTACTS to compare")
-    parser.add_argument("--long-tasks", nargs="*", default=["cheetah-run"], choices=TASKS,
-                        help="tasks for the B=--long-batch x 1000-step run")
+    parser.add_argument("--sweep-tasks", nargs="*", default=None, choices=TASKS + QUADRUPED_TASKS)
+    parser.add_argument("--sweep", nargs="*", default=None,
+                        help="solver settings ITERATIONS/LS_ITERATIONS/CONTACTS to compare "
+                             "(quadruped: ITERATIONS/LS_ITERATIONS/CONTACTS/GEOM_PAIRS)")
+    parser.add_argument("--long-tasks", nargs="*", default=None, choices=TASKS + QUADRUPED_TASKS,
+                        help="tasks for the B=--long-batch full-episode run")
+    parser.add_argument("--camera-batch", nargs="*", type=int, default=[1, 256],
+                        help="quadruped: batches for the first-person camera's frames/s")
     parser.add_argument("--long-batch", type=int, default=1024)
     parser.add_argument("--sweep-steps", type=int, default=100)
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args(argv)
     args.argv = " ".join(argv) if argv else ""
+    if args.quadruped:
+        args.tasks = args.tasks or list(QUADRUPED_TASKS)
+        args.sweep_tasks = ["quadruped-walls"] if args.sweep_tasks is None else args.sweep_tasks
+        args.sweep = args.sweep or ["8/4/task/task", "4/4/task/task", "4/2/task/task", "2/2/task/task",
+                                    "8/4/all/all"]
+        args.long_tasks = ["quadruped-walls"] if args.long_tasks is None else args.long_tasks
+        main_quadruped(args)
+        return
+    args.tasks = args.tasks or list(TASKS)
+    args.sweep_tasks = ["cheetah-run", "walker-walk"] if args.sweep_tasks is None else args.sweep_tasks
+    args.sweep = args.sweep or ["8/8/all", "8/8/task", "4/4/task", "8/2/task", "16/2/task"]
+    args.long_tasks = ["cheetah-run"] if args.long_tasks is None else args.long_tasks
     sweep_rows = [
         row
         for name in args.sweep_tasks

@@ -152,7 +152,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_video(args: argparse.Namespace) -> int:
-    """Renders an episode of a run's latest checkpoint with the selected patches outlined."""
+    """Renders an episode of a run's latest checkpoint: a pixel agent's view with the selected
+    patches outlined, or a state agent's env from its video camera."""
     from iap_mjx import es
     from iap_mjx.viz import artifacts
 
@@ -251,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="evaluation seed (distinct from the training seeds)")
     evaluate.set_defaults(func=cmd_eval)
 
-    video = commands.add_parser("video", help="render an episode with the selected patches outlined")
+    video = commands.add_parser("video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)")
     video.add_argument("run_dir")
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")

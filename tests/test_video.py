@@ -33,3 +33,20 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
     frames = imageio.mimread(path)
     assert len(frames) == 4 and frames[0].shape[:2] == (88, 72)
     np.testing.assert_allclose(episode_return, record["rewards"].sum(), rtol=1e-5)
+
+
+def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
+    """A state env has no image to show: the frames are its model camera, ray-cast."""
+    env = envs.make("cartpole-swingup", episode_length=4)
+    policy = policies.make("linear", env.observation_shape, env.action_size)
+    params = policy.init(jax.random.PRNGKey(0))
+    record = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=3)
+    assert record["frames"].shape == (3, *video.STATE_VIDEO_SIZE, 3) and "indices" not in record
+    first = env.reset(jax.random.split(jax.random.PRNGKey(1))[0])
+    expected, _ = video.state_camera(env).render(first.data)
+    np.testing.assert_allclose(record["frames"][0], expected, atol=1e-6)
+    assert record["frames"][0].std() > 0.05  # a picture, not a blank
+    path, _ = video.episode_video(env, policy, params, tmp_path / "state.gif",
+                                  key=jax.random.PRNGKey(1), steps=3)
+    frames = imageio.mimread(path)
+    assert len(frames) == 3 and frames[0].shape[:2] == (video.STATE_VIDEO_SIZE[0] + 16, video.STATE_VIDEO_SIZE[1])

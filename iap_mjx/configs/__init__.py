@@ -17,6 +17,7 @@ from iap_mjx.configs.env import EnvConfig
 from iap_mjx.configs.overrides import apply_overrides, parse_value
 from iap_mjx.configs.presets import Preset, describe, get, lookup, names, register
 from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
+from iap_mjx.configs import quadruped_presets  # noqa: F401,E402  (registers the quadruped presets)
 
 __all__ = [
     "ESConfig", "EnvConfig", "EnvSpec", "PolicySpec", "Preset", "RunConfig", "TrainConfig",

@@ -77,3 +77,43 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
         if not isinstance(self.camera_id, int) or self.camera_id < 0:
             raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class QuadrupedConfig(EnvConfig):
+    """``EnvConfig`` plus the quadruped's settings (camera size defaults to the first-person
+    camera's 32x24).
+
+    Attributes:
+      v_cap: the reward's speed cap in m/s (per control step: ``v_cap * 0.02`` m).
+      joint_noise: the first joint angles are the standing pose plus uniform noise of this
+        half-width (rad).
+      n_walls: walls on the course (``quadruped-walls`` only; a static shape).
+      max_geom_pairs: candidate geom pairs MJX runs each collision function on per step (its
+        ``max_geom_pairs``: the pairs whose bounding spheres are nearest win; plane pairs are
+        never culled). ``"task"`` is the task's default (the course: 8, so the one wall near
+        the robot keeps all its pairs with the legs), ``"all"`` runs every pair, an int sets
+        it. ``metrics["contact_saturated"]`` also reports an episode in which more pairs of a
+        culled group had overlapping bounding spheres than were kept.
+    """
+
+    height: int = 24
+    width: int = 32
+    v_cap: float = 1.0
+    joint_noise: float = 0.05
+    n_walls: int = 3
+    max_geom_pairs: int | str = "task"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not isinstance(self.v_cap, (int, float)) or isinstance(self.v_cap, bool) or not self.v_cap > 0:
+            raise ValueError(f"QuadrupedConfig.v_cap must be a number > 0 (m/s), got {self.v_cap!r}.")
+        if not isinstance(self.joint_noise, (int, float)) or not 0 <= self.joint_noise <= 0.5:
+            raise ValueError(f"QuadrupedConfig.joint_noise must be in [0, 0.5] rad, got {self.joint_noise!r}.")
+        if not isinstance(self.n_walls, int) or isinstance(self.n_walls, bool) or self.n_walls < 1:
+            raise ValueError(f"QuadrupedConfig.n_walls must be an int >= 1, got {self.n_walls!r}.")
+        if self.max_geom_pairs not in ("task", "all") and (
+                not isinstance(self.max_geom_pairs, int) or isinstance(self.max_geom_pairs, bool)
+                or self.max_geom_pairs < 1):
+            raise ValueError('QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got '
+                             f"{self.max_geom_pairs!r}.")

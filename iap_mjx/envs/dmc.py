@@ -88,12 +88,13 @@ class DmControlEnv:
     domain: ClassVar[Any]  # the dm_control.suite module, e.g. dm_control.suite.cheetah
     n_sub_steps: ClassVar[int] = 1
     default_max_contacts: ClassVar[int | None] = None  # None: keep every candidate contact
+    default_episode_steps: ClassVar[int] = DM_CONTROL_EPISODE_STEPS  # control steps
+    config_class: ClassVar[type] = EnvConfig  # the registry validates settings against it
 
     def __init__(self, config: EnvConfig | None = None, **overrides: Any):
-        config = config if config is not None else EnvConfig()
+        config = config if config is not None else self.config_class()
         self.config = dataclasses.replace(config, **overrides) if overrides else config
-        xml, assets = self.domain.get_model_and_assets()
-        spec = mujoco.MjSpec.from_string(xml, assets)
+        spec = self._model_spec()
         spec.add_numeric(name="max_contact_points", data=[-1])  # -1: MJX keeps every candidate
         # MuJoCo 3.17 deprecates the compiler's settotalmass (cheetah sets it): compile without
         # it and scale the masses as it would have (the same model, to the last bit).
@@ -147,7 +148,7 @@ class DmControlEnv:
     def episode_length(self) -> int:
         if self.config.episode_length is not None:
             return self.config.episode_length
-        return math.ceil(DM_CONTROL_EPISODE_STEPS / self.config.action_repeat)
+        return math.ceil(self.default_episode_steps / self.config.action_repeat)
 
     @property
     def control_timestep(self) -> float:
@@ -182,9 +183,10 @@ class DmControlEnv:
             return data, saturated | self._contacts_saturated(data)
 
         def control_step(carry: tuple[mjx.Data, jax.Array], _: Any):
+            before = carry[0]
             data, saturated = jax.lax.fori_loop(0, self.n_sub_steps, physics_substep, carry)
             data = self._sync_task(data, state.info)
-            return (data, saturated), self.reward(data)
+            return (data, saturated), self.step_reward(before, data)
 
         (data, saturated), rewards = jax.lax.scan(
             control_step, (data, jnp.zeros((), bool)), length=self.config.action_repeat
@@ -197,7 +199,7 @@ class DmControlEnv:
         data = _select(frozen, state.data, data)
         reward = jnp.where(frozen, 0.0, reward)
         steps = state.info["steps"] + jnp.where(ended, 0, 1).astype(jnp.int32)
-        done = frozen | (steps >= self.episode_length)
+        done = frozen | self._terminated(data) | (steps >= self.episode_length)
         metrics = dict(state.metrics)
         metrics["nan_terminations"] = jnp.maximum(
             state.metrics["nan_terminations"], jnp.where(bad & ~ended, 1.0, 0.0)
@@ -223,6 +225,21 @@ class DmControlEnv:
     def reward(self, data: mjx.Data) -> jax.Array:
         """dm_control's ``get_reward`` on ``data`` (position/velocity stage current), ``()``."""
         raise NotImplementedError
+
+    def step_reward(self, before: mjx.Data, after: mjx.Data) -> jax.Array:
+        """The reward of one control step from ``before`` to ``after`` (default:
+        ``reward(after)``, as dm_control's tasks)."""
+        return self.reward(after)
+
+    def _terminated(self, data: mjx.Data) -> jax.Array:
+        """``()`` bool: the task ends the episode at ``data`` (default: never; dm_control's
+        tasks only end at the time limit). The step that got there keeps its reward."""
+        return jnp.zeros((), bool)
+
+    def _model_spec(self) -> mujoco.MjSpec:
+        """The task's model (default: dm_control's XML for ``domain``)."""
+        xml, assets = self.domain.get_model_and_assets()
+        return mujoco.MjSpec.from_string(xml, assets)
 
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict[str, jax.Array]]:
         """Randomised first physics state (stage computed) and task variables."""

@@ -1,4 +1,9 @@
-"""The env registry: ``make(name, **overrides)`` and ``names()``."""
+"""The env registry: ``make(name, **overrides)`` and ``names()``.
+
+Each task class names its config class (``config_class``: ``EnvConfig`` for the dm_control
+ports, ``QuadrupedConfig`` for the quadruped's tasks); a task's settings are validated against
+its own class before any model is built.
+"""
 
 from __future__ import annotations
 
@@ -13,10 +18,12 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
     from iap_mjx.envs.ball_in_cup import BallInCupCatch
     from iap_mjx.envs.cartpole import CartpoleSwingup
     from iap_mjx.envs.cheetah import CheetahRun
+    from iap_mjx.envs.quadruped import QuadrupedFlat, QuadrupedWalls
     from iap_mjx.envs.reacher import ReacherEasy
     from iap_mjx.envs.walker import WalkerWalk
 
-    classes = [BallInCupCatch, CartpoleSwingup, CheetahRun, ReacherEasy, WalkerWalk]
+    classes = [BallInCupCatch, CartpoleSwingup, CheetahRun, QuadrupedFlat, QuadrupedWalls,
+               ReacherEasy, WalkerWalk]
     return {cls.name: cls for cls in classes}
 
 
@@ -26,21 +33,25 @@ def names() -> tuple[str, ...]:
 
 
 def check(name: str, config: EnvConfig | None = None, **overrides: Any) -> EnvConfig:
-    """The ``EnvConfig`` that ``make(name, config, **overrides)`` would use, built without
-    loading any model: cheap enough to run when a training config is constructed.
+    """The config (the task's ``config_class``, an ``EnvConfig``) that ``make(name, config,
+    **overrides)`` would use, built without loading any model: cheap enough to run when a
+    training config is constructed.
 
     Raises:
-      ValueError: unknown ``name`` or override name (the message lists the valid ones), or a
-        bad override value.
+      ValueError: unknown ``name`` or override name (the message lists the task's valid ones),
+        a ``config`` of another task's class, or a bad override value.
     """
     classes = _task_classes()
     if name not in classes:
         raise ValueError(f"Unknown env {name!r}; valid names: {', '.join(sorted(classes))}.")
-    fields = {field.name for field in dataclasses.fields(EnvConfig)}
+    config_class = classes[name].config_class
+    fields = {field.name for field in dataclasses.fields(config_class)}
     unknown = sorted(set(overrides) - fields)
     if unknown:
         raise ValueError(f"Unknown env setting(s) {unknown} for {name!r}; valid: {sorted(fields)}.")
-    config = config if config is not None else EnvConfig()
+    config = config if config is not None else config_class()
+    if type(config) is not config_class:
+        raise ValueError(f"{name!r} takes a {config_class.__name__}, got a {type(config).__name__}.")
     return dataclasses.replace(config, **overrides) if overrides else config
 
 
@@ -48,7 +59,8 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
     """Builds the env ``name`` with ``config`` and/or ``EnvConfig`` field ``overrides``.
 
     For ``obs_mode`` other than ``"state"`` the env is wrapped by
-    ``iap_mjx.envs.pixels.with_pixels`` with the config's camera settings.
+    ``iap_mjx.envs.pixels.with_pixels`` with the config's camera settings (and the task's
+    ``camera_options``, e.g. the quadruped's first-person camera drawing the world only).
 
     Raises:
       ValueError: as :func:`check`.
@@ -67,4 +79,5 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
         height=cfg.height,
         width=cfg.width,
         frame_stack=cfg.frame_stack,
+        **getattr(env, "camera_options", {}),
     )

@@ -1,4 +1,5 @@
-"""Policies: observation -> action (linear and MLP over states; IAP and CNN over pixels).
+"""Policies: observation -> action (linear and MLP over states; IAP and CNN over pixels; PMTG,
+a trajectory generator modulated by a linear policy, for the quadruped).
 
 ``make(kind, observation_shape, action_size, **options)`` builds a policy by name;
 ``names()`` lists the kinds; ``register(kind, factory)`` adds one (the IAP policies do).
@@ -14,6 +15,7 @@ from iap_mjx.policies.attention import CNNPolicy, IAPPolicy, make_cnn_policy, ma
 from iap_mjx.policies.base import Policy, param_count
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
+from iap_mjx.policies.pmtg import PMTGPolicy, make_pmtg_policy
 
 _FACTORIES: dict[str, Callable[..., Policy]] = {}
 
@@ -61,5 +63,7 @@ register(
 
 register("iap", make_iap_policy)
 register("cnn", make_cnn_policy)
+register("pmtg", make_pmtg_policy)
 
-__all__ = ["CNNPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "Policy", "make", "names", "param_count", "register"]
+__all__ = ["CNNPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "PMTGPolicy", "Policy", "make", "names",
+           "param_count", "register"]

@@ -1,4 +1,6 @@
-"""What a finished run leaves for a person: the reward curve PNG and an annotated episode video."""
+"""What a finished run leaves for a person: the reward curve PNG and an annotated episode video
+(what a pixel agent saw; for a state agent, the env's own camera, made on request by
+``iap-mjx video``)."""
 
 from __future__ import annotations
 
@@ -22,19 +24,15 @@ def env_and_policy(config: Any) -> tuple[Any, Any]:
     return env, policy
 
 
-def has_pixels(env: Any) -> bool:
-    """Whether ``env`` observes pixels (so a video of what the agent sees exists)."""
-    return getattr(env, "obs_mode", "state") != "state"
+has_pixels = video.has_pixels
 
 
 def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None) -> tuple[Path, float]:
-    """An episode of ``result``'s centre params on its (pixel) env, patches outlined."""
+    """An episode of ``result``'s centre params on its env: a pixel env's frames with the
+    patches outlined, or a state env rendered from its video camera."""
     if steps is not None and (not isinstance(steps, int) or steps < 1):
         raise ValueError(f"steps = {steps!r} must be None (the episode) or an int >= 1")
     env, policy = env_and_policy(result.config)
-    if not has_pixels(env):
-        raise ValueError(f"run's env {result.config.env.name!r} observes the state, not pixels: "
-                         "there is no camera view to show")
     steps = env.episode_length if steps is None else steps
     return video.episode_video(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
                                steps=steps, policy_fn=result.policy_fn)

@@ -1,8 +1,12 @@
-"""Videos of what the agent sees: camera frames with the selected patches outlined in red.
+"""Videos of an episode: what a pixel agent sees, with the selected patches outlined in red, or,
+for a state agent, the env's own camera.
 
 One episode runs compiled (``lax.scan``); the host then upscales each frame, outlines the
 top-l patches the attention layer picked (as the paper's Figures 9-10) and writes the return
-so far, and saves an MP4 (H.264 through PyAV, in this process: nothing is forked) or a GIF.
+so far, and saves an MP4 (H.264 through PyAV, in this process: nothing is forked) or a GIF. A state env has no image in its
+observations, so its frames are rendered by the ray-cast camera from its ``video_camera_id``
+(a model camera, e.g. the quadruped's trunk-tracking one; default camera 0) at
+``STATE_VIDEO_SIZE``.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 RED = (230, 30, 30)
+STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
 
 
 def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
@@ -25,13 +30,32 @@ def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
     return pixels[..., pixels.shape[-1] - channels_per_frame:][..., :3]
 
 
+def has_pixels(env: Any) -> bool:
+    """Whether ``env`` observes pixels (else a video renders the env's own camera)."""
+    return getattr(env, "obs_mode", "state") != "state"
+
+
+def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
+    """The ray-cast camera a video of a state env is rendered with: the model camera
+    ``env.video_camera_id`` (default 0), every geom group drawn."""
+    from iap_mjx.render import Camera
+
+    if env.mj_model.ncam == 0:
+        raise ValueError(f"{getattr(env, 'name', env)!r} observes the state and its model has no camera "
+                         "to render a video from")
+    return Camera(env.mj_model, camera_id=int(getattr(env, "video_camera_id", 0)), height=size[0],
+                  width=size[1])
+
+
 def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
                 policy_fn: Any = None) -> dict[str, np.ndarray]:
     """Rolls one episode of ``steps`` control steps and records what a video needs.
 
     Args:
-      env: a pixel env (``obs_mode`` with pixels) following the Env protocol.
-      policy: the policy; if it has ``select`` (IAP), the selected patches are recorded.
+      env: an env following the Env protocol: a pixel env (its newest frame is recorded) or a
+        state env (frames from :func:`state_camera`).
+      policy: the policy; if it has ``select`` (IAP) and the env has pixels, the selected
+        patches are recorded.
       params: the policy's params.
       key: PRNG key for the env reset and the policy's per-episode state.
       steps: control steps to record.
@@ -44,11 +68,16 @@ def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: in
     act = policy_fn if policy_fn is not None else policy.apply
     channels = 4 if getattr(env, "obs_mode", "pixels") == "pixels_depth" else 3
     reset_key, policy_key = jax.random.split(key)
-    selects = hasattr(policy, "select")
+    pixels = has_pixels(env)
+    selects = pixels and hasattr(policy, "select")
+    camera = None if pixels else state_camera(env)
+
+    def frame(state):
+        return newest_rgb(state.obs, channels) if pixels else camera.render(state.data)[0]
 
     def step(carry, _):
         state, policy_state = carry
-        record = {"frames": newest_rgb(state.obs, channels)}
+        record = {"frames": frame(state)}
         if selects:
             record["indices"] = policy.select(params, state.obs, policy_state).indices
         action, policy_state = act(params, state.obs, policy_state)
@@ -109,12 +138,17 @@ def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) ->
 
 
 def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array,
-                  steps: int, policy_fn: Any = None, fps: int = 30) -> tuple[Path, float]:
+                  steps: int, policy_fn: Any = None, fps: int | None = None) -> tuple[Path, float]:
     """Runs one episode and writes its annotated video. Returns ``(path, episode return)``."""
     record = run_episode(env, policy, params, key, steps=steps, policy_fn=policy_fn)
     returns = np.cumsum(record["rewards"])
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
-    frames = [annotate(frame, None if indices is None else indices[t], layer, float(returns[t]))
+    scale = 3 if has_pixels(env) else 1
+    frames = [annotate(frame, None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
               for t, frame in enumerate(record["frames"])]
+    if fps is None:  # real time where the control step is known (the quadruped's 0.02 s: 50 fps)
+        timestep = getattr(env, "control_timestep", None)
+        repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
+        fps = max(1, round(1.0 / (timestep * repeat))) if timestep else 30
     return write_video(path, frames, fps=fps), float(returns[-1])

@@ -1,0 +1,206 @@
+"""The A1-class quadruped on MJX: ``quadruped-flat`` (the low level's gym) and ``quadruped-walls``
+(a raised platform with walls across the path, seen through a first-person camera).
+
+Both share the machinery of :class:`iap_mjx.envs.dmc.DmControlEnv` (stepping, done mask, bad
+states counted in ``metrics["nan_terminations"]``, contact slots and
+``metrics["contact_saturated"]``); the model is ours (:mod:`iap_mjx.envs.a1`).
+
+- Action ``(12,)`` in ``[-1, 1]``: each joint's position target, mapped linearly onto the
+  joint's range (the servos' ``ctrlrange``); :func:`targets_to_action` inverts it.
+- Observation ``(17,)``: the IMU's roll and pitch (rad), its angular velocity in the trunk
+  frame (3, rad/s; the last is the yaw rate), the 12 joint angles (rad).
+- Reward: the forward displacement of the trunk per control step, capped,
+  ``max(-c, min(x(t) - x(t-1), c))`` with ``c = v_cap * control_timestep`` (the paper's
+  ``f``). ``v_cap`` defaults to 1 m/s: about twice the walking speed we aim for (0.5 m/s)
+  and a fast trot for a robot of this size, so the reward pays for walking well and nothing
+  for lunges and falls forward, which in a 0.02 s step can cover many times that.
+- The episode ends early when the trunk touches the ground (its lowest box corner at or below
+  the ground) or, on the platform, when the trunk's centre leaves the platform's footprint.
+- Control step 0.02 s = 5 physics steps of 0.004 s (Playground's MJX quadrupeds). Episodes:
+  500 control steps (10 s) on the flat, 1000 (20 s) on the course.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+from mujoco.mjx._src import collision_driver
+
+from iap_mjx.envs import a1
+from iap_mjx.envs.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
+from iap_mjx.configs.env import QuadrupedConfig
+from iap_mjx.envs.dmc import DmControlEnv
+
+
+def roll_pitch(quat: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Roll and pitch (rad) of a ``(w, x, y, z)`` unit quaternion (z-y-x Euler angles)."""
+    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+    roll = jnp.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = jnp.arcsin(jnp.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    return roll, pitch
+
+
+
+
+class QuadrupedFlat(DmControlEnv):
+    """Walk forward (+x) on a flat floor. See the module docstring."""
+
+    name = "quadruped-flat"
+    domain = None
+    n_sub_steps = round(a1.CONTROL_DT / a1.PHYSICS_DT)
+    default_max_contacts = None  # four foot-floor contacts, every one kept
+    default_max_geom_pairs: int | None = None  # None: run every candidate pair
+    default_episode_steps = 500
+    config_class = QuadrupedConfig
+    #: ``CameraConfig`` settings of the first-person camera (``camera_id`` 0): the world only.
+    camera_options: dict[str, Any] = {"geom_groups": (a1.WORLD_GROUP,)}
+
+    def __init__(self, config: QuadrupedConfig | None = None, **overrides: Any):
+        super().__init__(config, **overrides)
+        if not isinstance(self.config, QuadrupedConfig):
+            raise ValueError(f"{self.name} needs a QuadrupedConfig, got {type(self.config).__name__}.")
+        model = self.mj_model
+        sensor = lambda name: int(model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, name)])  # noqa: E731
+        self._quat = sensor("trunk_quat")
+        self._gyro = sensor("gyro")
+        self._linvel = sensor("trunk_linvel")
+        self._joint_pos = sensor(f"{a1.JOINT_NAMES[0]}_pos")
+        self._trunk = self._id(mujoco.mjtObj.mjOBJ_BODY, "trunk")
+        self.video_camera_id = self._id(mujoco.mjtObj.mjOBJ_CAMERA, "track")
+        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+        self._trunk_corners = (corners * np.asarray(a1.TRUNK_HALF_SIZE)).astype(np.float32)  # (8, 3)
+        # The geom pairs of each collision-function group that MJX culls to max_geom_pairs.
+        self._culled_pairs = ()
+        if self.max_geom_pairs is not None:
+            groups = collision_driver._geom_groups(model)
+            self._culled_pairs = tuple(
+                np.asarray([(g1, g2) for g1, g2, _ in pairs], np.int32)
+                for key, pairs in groups.items()
+                if not set(key.types) & collision_driver._GEOM_NO_BROADPHASE
+                and len(pairs) > self.max_geom_pairs)
+
+    @property
+    def max_geom_pairs(self) -> int | None:
+        """MJX's ``max_geom_pairs`` in force (``None``: no culling)."""
+        setting = self.config.max_geom_pairs
+        if setting == "all":
+            return None
+        return self.default_max_geom_pairs if setting == "task" else setting
+
+    def _world_xml(self) -> str:
+        return a1.world_xml()
+
+    def _model_spec(self) -> mujoco.MjSpec:
+        spec = mujoco.MjSpec.from_string(self._world_xml())
+        if self.max_geom_pairs is not None:
+            # before DmControlEnv adds max_contact_points: MJX reads numeric_data[id]
+            spec.add_numeric(name="max_geom_pairs", data=[self.max_geom_pairs])
+        return spec
+
+    def _contacts_saturated(self, data: mjx.Data) -> jax.Array:
+        """Full contact slots, or a culled group with more pairs whose bounding spheres
+        overlap than MJX kept (so a touching pair may have been skipped)."""
+        saturated = super()._contacts_saturated(data)
+        rbound = jnp.asarray(self.mj_model.geom_rbound, jnp.float32)
+        for pairs in self._culled_pairs:
+            gap = (jnp.linalg.norm(data.geom_xpos[pairs[:, 1]] - data.geom_xpos[pairs[:, 0]], axis=1)
+                   - rbound[pairs[:, 0]] - rbound[pairs[:, 1]])
+            saturated = saturated | (jnp.sum(gap <= 0.0) > self.max_geom_pairs)
+        return saturated
+
+    # ---- task hooks ----------------------------------------------------------------------
+
+    def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
+        joint_key, task_key = jax.random.split(key)
+        noise = self.config.joint_noise
+        joints = jnp.asarray(a1.HOME_JOINTS) + jax.random.uniform(joint_key, (12,), minval=-noise, maxval=noise)
+        qpos = jnp.concatenate([jnp.array([0.0, 0.0, a1.HOME_HEIGHT, 1.0, 0.0, 0.0, 0.0]), joints])
+        data = mjx.make_data(self.mj_model).replace(qpos=qpos, ctrl=joints)
+        data = self._place_world(data, task_key)
+        return self.forward(data), {}
+
+    def _place_world(self, data: mjx.Data, key: jax.Array) -> mjx.Data:
+        """Per-episode placement of the world's movable parts (none on the flat)."""
+        del key
+        return data
+
+    def step(self, state, action):
+        return super().step(state, action_to_targets(self._checked_action(action)))
+
+    def state_observation(self, data: mjx.Data) -> jax.Array:
+        s = data.sensordata
+        roll, pitch = roll_pitch(s[self._quat: self._quat + 4])
+        return jnp.concatenate([jnp.stack([roll, pitch]), s[self._gyro: self._gyro + 3],
+                                s[self._joint_pos: self._joint_pos + 12]])
+
+    def forward_velocity(self, data: mjx.Data) -> jax.Array:
+        """The trunk's velocity along world x (m/s), ``()``."""
+        return data.sensordata[self._linvel]
+
+    def step_reward(self, before: mjx.Data, after: mjx.Data) -> jax.Array:
+        cap = self.config.v_cap * self.control_timestep
+        return jnp.clip(after.qpos[0] - before.qpos[0], -cap, cap)
+
+    def trunk_lowest(self, data: mjx.Data) -> jax.Array:
+        """Height (m) of the trunk box's lowest corner, ``()``."""
+        corners = data.xpos[self._trunk] + jnp.asarray(self._trunk_corners) @ data.xmat[self._trunk].T
+        return jnp.min(corners[:, 2])
+
+    def _terminated(self, data: mjx.Data) -> jax.Array:
+        return self.trunk_lowest(data) <= 0.0
+
+
+class QuadrupedWalls(QuadrupedFlat):
+    """The course: a raised platform with drop-offs, ``n_walls`` walls across the path.
+
+    The platform spans x in ``[-1, 10]`` m and ``|y| <= 1`` m, its top the ground at z = 0,
+    the floor 0.5 m below. Wall ``i`` (1.2 m long, 0.1 m thick, 0.5 m tall) stands at
+    ``x = 1.5 + 2.5 i + U(-0.3, 0.3)`` toward a random side of the platform, leaving a gap of
+    ``U(0.6, 1.0)`` m between its end and the platform's other edge; the robot starts at the origin facing +x, so it must turn to pass each wall. Positions are
+    drawn per episode (``mjx.Data.mocap_pos``); shapes never change.
+    """
+
+    name = "quadruped-walls"
+    default_max_contacts = 8  # wall contacts (condim 1); the four foot contacts are their own group
+    default_max_geom_pairs = 8  # per collision function: the near wall's pairs with the legs
+    default_episode_steps = 1000
+    PLATFORM = (-1.0, 10.0, 1.0, 0.5)  # x_min, x_max, half-width, drop
+    WALL_HALF_SIZE = (0.05, 0.6, 0.25)
+    WALL_START, WALL_SPACING, WALL_JITTER = 1.5, 2.5, 0.3
+    GAP_RANGE = (0.6, 1.0)
+
+    def _world_xml(self) -> str:
+        return a1.world_xml(platform=self.PLATFORM, n_walls=self.config.n_walls,
+                            wall_half_size=self.WALL_HALF_SIZE)
+
+    def _place_world(self, data: mjx.Data, key: jax.Array) -> mjx.Data:
+        n = self.config.n_walls
+        side_key, x_key, gap_key = jax.random.split(key, 3)
+        side = jnp.where(jax.random.bernoulli(side_key, 0.5, (n,)), 1.0, -1.0)
+        x = self.WALL_START + self.WALL_SPACING * jnp.arange(n) + jax.random.uniform(
+            x_key, (n,), minval=-self.WALL_JITTER, maxval=self.WALL_JITTER)
+        gap = jax.random.uniform(gap_key, (n,), minval=self.GAP_RANGE[0], maxval=self.GAP_RANGE[1])
+        half_width, half_length = self.PLATFORM[2], self.WALL_HALF_SIZE[1]
+        # the wall spans y +- half_length; `gap` metres remain between its end and the edge
+        # of the platform opposite `side`
+        y = side * (gap - half_width + half_length)
+        z = jnp.full((n,), self.WALL_HALF_SIZE[2])
+        return data.replace(mocap_pos=jnp.stack([x, y, z], axis=1))
+
+    def on_platform(self, data: mjx.Data) -> jax.Array:
+        """``()`` bool: the trunk's centre is over the platform."""
+        x, y = data.qpos[0], data.qpos[1]
+        x_min, x_max, half_width, _ = self.PLATFORM
+        return (x >= x_min) & (x <= x_max) & (jnp.abs(y) <= half_width)
+
+    def _terminated(self, data: mjx.Data) -> jax.Array:
+        return super()._terminated(data) | ~self.on_platform(data)
+
+    def walls(self, data: mjx.Data) -> jax.Array:
+        """``(n_walls, 3)`` the walls' centres."""
+        return data.mocap_pos

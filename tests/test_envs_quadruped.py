@@ -1,0 +1,163 @@
+"""The quadruped envs: our MJX model against native MuJoCo, the course, the episode's end,
+the reward, the first-person camera, and the registry's task configs.
+
+One compiled step of ``quadruped-walls`` serves every physics test (compiling it is the cost).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from iap_mjx import envs
+from iap_mjx.envs import a1
+from iap_mjx.envs.quadruped import QuadrupedConfig
+
+STEPS = 100
+
+
+@pytest.fixture(scope="module")
+def walls():
+    env = envs.make("quadruped-walls")
+    return env, jax.jit(env.reset), jax.jit(env.step)
+
+
+def test_the_robot_is_built_from_the_figures():
+    env = envs.make("quadruped-flat")
+    m = env.mj_model
+    assert (m.nq, m.nv, m.nu) == (19, 18, 12)
+    np.testing.assert_allclose(m.body_subtreemass[m.body("trunk").id], 12.453, atol=1e-6)
+    np.testing.assert_allclose(m.jnt_range[1:], a1.JOINT_RANGES, atol=1e-6)
+    np.testing.assert_allclose(m.actuator_forcerange, [[-33.5, 33.5]] * 12)
+    assert env.control_timestep == pytest.approx(0.02) and m.opt.timestep == pytest.approx(0.004)
+    # contacts: the feet with the floor only (no self-collision)
+    from mujoco.mjx._src import collision_driver
+
+    pairs = {(m.geom(g1).name, m.geom(g2).name) for g1, g2, _ in collision_driver.geom_pairs(m)}
+    assert pairs == {("floor", f"{leg}_foot") for leg in a1.LEGS}
+    # standing pose: feet just touching the floor
+    data = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, data, 0)
+    mujoco.mj_forward(m, data)
+    feet = [data.geom_xpos[m.geom(f"{leg}_foot").id] for leg in a1.LEGS]
+    np.testing.assert_allclose([f[2] for f in feet], a1.FOOT_RADIUS, atol=2e-3)
+    np.testing.assert_allclose([f[0] for f in feet], [0.183, 0.183, -0.183, -0.183], atol=1e-6)
+
+
+def test_mjx_agrees_with_native_mujoco_from_the_same_states(walls):
+    """From the env's first state, 100 control steps of the same PD targets (the standing pose
+    plus uniform +-0.3 rad) in MJX (float32) and ``mujoco.mj_step`` (float64) on the same
+    compiled model. Measured: max |qpos gap| 3e-5 (seed 0); native's own gap from a start
+    rounded to float32, 1e-6. The bound, 1e-3, is far below what a wrong contact, servo or
+    integrator gives (one of 5 physics steps skipped: 0.1)."""
+    env, reset, step = walls
+    state = reset(jax.random.key(0))
+    rng = np.random.default_rng(0)
+    targets = a1.HOME_JOINTS + rng.uniform(-0.3, 0.3, (STEPS, 12)).astype(np.float32)
+    actions = np.asarray(a1.targets_to_action(targets), np.float32)
+    m = env.mj_model
+    data = mujoco.MjData(m)
+    data.qpos[:], data.qvel[:] = np.asarray(state.data.qpos), np.asarray(state.data.qvel)
+    data.mocap_pos[:] = np.asarray(state.data.mocap_pos)
+    ours, theirs = [], []
+    for action in actions:
+        state = step(state, jnp.asarray(action))
+        data.ctrl[:] = np.asarray(a1.action_to_targets(action), np.float64)
+        for _ in range(env.n_sub_steps):
+            mujoco.mj_step(m, data)
+        ours.append(np.asarray(state.data.qpos))
+        theirs.append(data.qpos.copy())
+    ours, theirs = np.array(ours), np.array(theirs)
+    assert float(np.max(np.asarray(state.done))) == 0.0
+    assert theirs[-1, 0] != theirs[0, 0]  # the robot moved
+    np.testing.assert_allclose(ours, theirs, atol=1e-3)
+
+
+def test_walls_are_placed_per_episode_within_the_course(walls):
+    env, reset, _ = walls
+    states = [reset(jax.random.key(k)) for k in range(8)]
+    positions = np.array([np.asarray(s.data.mocap_pos) for s in states])  # (8, n_walls, 3)
+    assert positions.shape == (8, env.config.n_walls, 3)
+    assert len({tuple(p.round(4).ravel()) for p in positions}) == 8
+    half_width, half_length = env.PLATFORM[2], env.WALL_HALF_SIZE[1]
+    gap = half_width - (np.abs(positions[..., 1]) + half_length) + 2 * np.abs(positions[..., 1])
+    assert np.all((gap >= 0.6 - 1e-5) & (gap <= 1.0 + 1e-5))  # the free side's width
+    spots = env.WALL_START + env.WALL_SPACING * np.arange(env.config.n_walls)
+    assert np.all(np.abs(positions[..., 0] - spots) <= env.WALL_JITTER + 1e-6)
+
+
+def _placed(state, **qpos):
+    index = {"x": 0, "y": 1, "z": 2}
+    q = state.data.qpos
+    for name, value in qpos.items():
+        q = q.at[index[name]].set(value)
+    return state.replace(data=state.data.replace(qpos=q))
+
+
+def test_reward_is_the_capped_forward_displacement(walls):
+    env, reset, step = walls
+    state = reset(jax.random.key(1))
+    hold = a1.targets_to_action(state.data.qpos[7:])
+    slow = step(state, hold)
+    np.testing.assert_allclose(slow.reward, slow.data.qpos[0] - state.data.qpos[0], atol=1e-7)
+    assert abs(float(slow.reward)) < env.config.v_cap * 0.02
+    fast = state.replace(data=state.data.replace(qvel=state.data.qvel.at[0].set(3.0)))
+    after = step(fast, hold)
+    assert float(after.data.qpos[0] - state.data.qpos[0]) > 0.03  # 3 m/s for 0.02 s
+    np.testing.assert_allclose(after.reward, env.config.v_cap * 0.02, rtol=1e-6)
+    back = step(state.replace(data=state.data.replace(qvel=state.data.qvel.at[0].set(-3.0))), hold)
+    np.testing.assert_allclose(back.reward, -env.config.v_cap * 0.02, rtol=1e-6)
+
+
+def test_episode_ends_on_falling_off_or_touching_the_ground(walls):
+    env, reset, step = walls
+    state = reset(jax.random.key(2))
+    hold = a1.targets_to_action(state.data.qpos[7:])
+    standing = step(state, hold)
+    assert float(standing.done) == 0.0
+    off = step(_placed(state, y=1.05), hold)  # the trunk's centre beyond the platform's edge
+    assert float(off.done) == 1.0 and float(off.metrics["nan_terminations"]) == 0.0
+    down = step(_placed(state, z=0.0), hold)  # the trunk's bottom below the ground
+    assert float(down.done) == 1.0 and float(down.metrics["nan_terminations"]) == 0.0
+    frozen = step(down, hold)
+    np.testing.assert_array_equal(frozen.data.qpos, down.data.qpos)
+    assert float(frozen.reward) == 0.0
+    bad = step(state, jnp.full((12,), jnp.nan))
+    assert float(bad.done) == 1.0 and float(bad.metrics["nan_terminations"]) == 1.0
+
+
+def test_first_person_camera_sees_the_world_not_the_robot(walls):
+    env, reset, _ = walls
+    pixels = envs.make("quadruped-walls", obs_mode="pixels+state")
+    assert pixels.observation_shape == {"pixels": (24, 32, 3), "state": (17,)}
+    state = reset(jax.random.key(3))
+    wall = np.array([[0.8, 0.0, env.WALL_HALF_SIZE[2]]] + [[5.0 + i, 0.0, 0.25] for i in range(env.config.n_walls - 1)])
+    data = env.forward(state.data.replace(mocap_pos=jnp.asarray(wall, jnp.float32)))
+    depth, ids = jax.jit(pixels.camera.trace)(data)
+    ids = np.asarray(ids)
+    robot = {m for m in range(env.mj_model.ngeom) if env.mj_model.geom_group[m] == a1.ROBOT_GROUP}
+    assert not robot & set(ids.ravel().tolist())
+    assert ids[12, 16] == env.mj_model.geom("wall0").id  # straight ahead: the wall 0.8 m away
+    np.testing.assert_allclose(depth[12, 16], 0.8 - 0.05 - (a1.TRUNK_HALF_SIZE[0] + 0.01), atol=0.02)
+    assert env.mj_model.geom("platform").id in ids[-1]  # the bottom row: the platform
+    rgb = np.asarray(jax.jit(pixels.render)(data))
+    assert rgb.shape == (24, 32, 3) and np.all((rgb >= 0) & (rgb <= 1))
+
+
+def test_task_settings_are_validated_by_the_task_config():
+    with pytest.raises(ValueError, match="v_cap") as error:
+        envs.check("quadruped-flat", vcap=2.0)
+    assert "n_walls" in str(error.value) and "v_cap" in str(error.value)
+    with pytest.raises(ValueError, match="v_cap"):
+        envs.check("quadruped-walls", v_cap=0.0)
+    with pytest.raises(ValueError, match="max_geom_pairs"):
+        envs.check("quadruped-walls", max_geom_pairs=0)
+    with pytest.raises(ValueError, match="v_cap"):
+        envs.check("cheetah-run", v_cap=1.0)  # not a dm_control setting
+    with pytest.raises(ValueError, match="QuadrupedConfig"):
+        envs.check("quadruped-flat", envs.EnvConfig())
+    assert envs.check("quadruped-walls", n_walls=2) == QuadrupedConfig(n_walls=2)
+    assert envs.make("quadruped-walls").max_geom_pairs == 8

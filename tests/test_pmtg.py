@@ -1,0 +1,148 @@
+"""The PMTG trajectory generator against its equations (``iap_mjx.policies.pmtg``).
+
+The reference for the phase is an independent step-by-step integration written from the
+equations: the phase moves at ``2 pi f (k + 1) / (2 k)`` in stance (``phi < pi``) and
+``2 pi f (k + 1) / 2`` in swing, carrying what is left of a step across the boundaries.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from iap_mjx import policies
+from iap_mjx.envs import a1
+from iap_mjx.policies import pmtg
+
+
+def _reference_advance(phase: float, frequency: float, ratio: float, dt: float) -> float:
+    """Integrates the piecewise-constant phase speed over ``dt`` seconds, segment by segment."""
+    left = dt
+    while left > 0:
+        stance = phase < math.pi
+        speed = 2 * math.pi * frequency * ((ratio + 1) / (2 * ratio) if stance else (ratio + 1) / 2)
+        end = math.pi if stance else 2 * math.pi
+        if speed * left < end - phase:
+            return phase + speed * left
+        left -= (end - phase) / speed
+        phase = end % (2 * math.pi)
+    return phase
+
+
+def test_advance_matches_the_segment_integration():
+    rng = np.random.default_rng(0)
+    step = jax.jit(pmtg.advance, static_argnums=3)
+    for _ in range(200):
+        phase, f, k = rng.uniform(0, 2 * math.pi), rng.uniform(0, 3), math.exp(rng.uniform(-1.6, 1.6))
+        dt = rng.choice([0.02, 0.1, 0.3])
+        ours = float(step(jnp.float32(phase), jnp.float32(f), jnp.float32(k), float(dt)))
+        ref = _reference_advance(phase, f, k, dt)
+        gap = abs(ours - ref)
+        assert min(gap, 2 * math.pi - gap) < 1e-4, (phase, f, k, dt, ours, ref)
+
+
+@pytest.mark.parametrize("ratio", [0.25, 1.0, 3.0])
+def test_period_and_stance_split_at_constant_frequency(ratio):
+    """f = 2.5 Hz, dt = 0.02 s: the phase returns to its start after exactly 20 steps (not
+    before), and k / (k + 1) of those steps are in stance."""
+    config = pmtg.TGConfig(dt=0.02)
+    f, steps = 2.5, 20
+    phase = jnp.float32(0.3)
+    phases = []
+    for _ in range(2 * steps):
+        phase = pmtg.advance(phase, f, ratio, config.dt)
+        phases.append(float(phase))
+    phases = np.array(phases)
+    start = float(pmtg.phase_to_time(jnp.float32(0.3), ratio))
+    np.testing.assert_allclose(phases[steps - 1], 0.3, atol=1e-4)  # one period: back at the start
+    np.testing.assert_allclose(phases[steps:], phases[:steps], atol=1e-4)  # and it repeats
+    assert np.all(np.abs(phases[: steps - 1] - 0.3) > 1e-2)  # no earlier return
+    # stance steps: the period fractions start + n / 20 below k / (k + 1)
+    in_stance = np.sum(phases[:steps] < math.pi)
+    expected = np.sum(((start + np.arange(1, steps + 1) / steps) % 1.0) < ratio / (ratio + 1))
+    assert in_stance == expected
+    np.testing.assert_allclose(in_stance / steps, ratio / (ratio + 1), atol=1.0 / steps)
+
+
+@pytest.mark.parametrize("gait", sorted(pmtg.GAITS))
+def test_gait_offsets_between_legs(gait):
+    """Each leg is ahead of the TG by its gait offset, as a fraction of the period."""
+    offsets = np.asarray(pmtg.GAITS[gait])
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        phase, ratio = rng.uniform(0, 2 * math.pi), math.exp(rng.uniform(-1.6, 1.6))
+        legs = pmtg.leg_phases(jnp.float32(phase), ratio, offsets)
+        tau = np.asarray(pmtg.phase_to_time(legs, ratio))
+        base = float(pmtg.phase_to_time(jnp.float32(phase), ratio))
+        gap = (tau - base - offsets) % 1.0
+        np.testing.assert_allclose(np.minimum(gap, 1 - gap), 0, atol=1e-5)
+    # at k = 1 the warp is the identity: phase differences are 2 pi times the offsets
+    legs = np.asarray(pmtg.leg_phases(jnp.float32(0.0), 1.0, offsets))
+    np.testing.assert_allclose(legs, 2 * math.pi * offsets, atol=1e-5)
+
+
+def test_trot_moves_diagonal_legs_together():
+    offsets = pmtg.GAITS["trot"]  # legs FR, FL, RR, RL
+    legs = np.asarray(pmtg.leg_phases(jnp.float32(1.0), 2.0, offsets))
+    assert legs[0] == legs[3] and legs[1] == legs[2] and legs[0] != legs[1]
+
+
+def test_swing_extend_and_joint_targets_follow_the_equations():
+    config = pmtg.TGConfig()
+    phases = jnp.asarray([0.3, 2.0, 3.5, 5.5])
+    intensity, height = 0.6, 0.2
+    residuals = jnp.linspace(-0.1, 0.1, 12)
+    targets = np.asarray(pmtg.joint_targets(config, phases, intensity, height, residuals)).reshape(4, 3)
+    p = np.asarray(phases)
+    lift = np.where(p < math.pi, -0.02, 0.9)
+    swing = intensity * 0.5 * np.cos(p)
+    extend = height + intensity * lift * np.sin(p)
+    expected = np.stack([np.zeros(4), 0.9 - swing - extend / 2, -1.8 + extend], axis=1)
+    np.testing.assert_allclose(targets, expected + np.asarray(residuals).reshape(4, 3), atol=1e-6)
+
+
+def test_joint_targets_stay_in_the_joint_ranges_for_all_bounded_inputs():
+    """Random outputs in [-1, 1]^16 and every corner of the TG parameters' box, at phases all
+    round the cycle: the targets never leave the joint ranges (no clipping anywhere)."""
+    config = pmtg.TGConfig()
+    step = jax.jit(jax.vmap(lambda phase, u: pmtg.tg_step(config, phase, u).targets))
+    rng = np.random.default_rng(2)
+    random_u = rng.uniform(-1, 1, (4096, 16))
+    corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 4)).reshape(4, -1).T  # (16, 4)
+    residual_signs = np.array([[1.0] * 12, [-1.0] * 12, [1, -1, 1] * 4, [-1, 1, -1] * 4])
+    corner_u = np.concatenate([np.repeat(residual_signs, len(corners), 0),
+                               np.tile(corners, (len(residual_signs), 1))], axis=1)
+    u = np.concatenate([random_u, np.repeat(corner_u, 64, 0)])
+    phases = rng.uniform(0, 2 * math.pi, len(u)).astype(np.float32)
+    targets = np.asarray(step(jnp.asarray(phases), jnp.asarray(u, jnp.float32)))
+    lo, hi = a1.JOINT_RANGES[:, 0], a1.JOINT_RANGES[:, 1]
+    assert np.all(targets >= lo) and np.all(targets <= hi)
+    # the bounds are used: the extreme knee targets come within 0.05 rad of the stated bounds
+    low, high = config.target_bounds()
+    assert targets.reshape(-1, 4, 3)[..., 2].min() < low[2] + 0.05
+
+
+def test_config_refuses_bounds_that_leave_the_joint_ranges():
+    with pytest.raises(ValueError, match="intensity_range"):
+        pmtg.TGConfig(intensity_range=(0.0, 1.5))
+    with pytest.raises(ValueError, match="gait"):
+        pmtg.TGConfig(gait="gallop")
+
+
+def test_policy_state_is_the_phase_and_zero_params_give_the_mid_range_gait():
+    policy = policies.make("pmtg", (17,), 12)
+    params = policy.init(jax.random.key(0))
+    state = policy.initial_state(jax.random.key(1))
+    assert float(state["phase"]) == 0.0 and state["latent"].shape == (4,)
+    action, state = policy.apply(params, jnp.zeros(17), state)
+    # zero outputs: f = 1.5 Hz, k = 1, so one 0.02 s step advances 2 pi * 0.03
+    np.testing.assert_allclose(float(state["phase"]), 2 * math.pi * 1.5 * 0.02, rtol=1e-5)
+    step = pmtg.tg_step(policy.tg, jnp.float32(0.0), jnp.zeros(16))
+    np.testing.assert_allclose(action, a1.targets_to_action(step.targets), atol=1e-6)
+    assert np.all(np.abs(np.asarray(action)) <= 1.0)
+    with pytest.raises(ValueError, match="12"):
+        policies.make("pmtg", (17,), 6)
