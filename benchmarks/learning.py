@@ -124,7 +124,10 @@ def section(args, summaries: list[dict], png: Path, when: str) -> str:
                         f"--seeds {args.seeds}", f"--minutes {args.minutes:g}"]
                        + (["--parallel"] if args.parallel else [])
                        + ([f"--section {args.section}"] if args.section != "learning" else [])
-                       + ([f"--out {args.out}"] if args.out != DEFAULT_OUT else []) + args.overrides)
+                       + ([f"--out {args.out}"] if args.out != DEFAULT_OUT else [])
+                       + ([f"--threshold {args.threshold:g}"] if args.threshold != 200.0 else [])
+                       + ([f"--return-per-second {args.return_per_second:g}"] if args.return_per_second else [])
+                       + args.overrides)
     sharing = (f"the {args.seeds} seeds ran at the same time, one process each, sharing the 2 cores"
                if args.parallel else "one seed at a time, each with the whole machine")
     lines = [
@@ -146,6 +149,12 @@ def section(args, summaries: list[dict], png: Path, when: str) -> str:
     finals = [s["final"] for s in summaries]
     lines += ["", f"Mean final evaluation return over seeds: **{sum(finals) / len(finals):.1f}**. "
               f"Curves: `{png.relative_to(ROOT)}`."]
+    if args.return_per_second:
+        speeds = [final / args.return_per_second for final in finals]
+        lines += ["", f"The return is a distance over {args.return_per_second:g} s episodes, so the mean forward "
+                  "speed over an evaluation episode (falls count as standing still) is final return / "
+                  f"{args.return_per_second:g} s: " + " / ".join(f"{v:.2f}" for v in speeds)
+                  + f" m/s, mean **{sum(speeds) / len(speeds):.2f} m/s**."]
     return "\n".join(lines) + "\n"
 
 
@@ -159,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=DEFAULT_OUT)
     parser.add_argument("--section", default="learning",
                         help="the RESULTS.md section to write; also names the PNG")
+    parser.add_argument("--return-per-second", type=float, default=0.0,
+                        help="seconds per episode when the return is a distance: report return / it as a speed")
     parser.add_argument("--summarise-only", action="store_true",
                         help="do not train; summarise the run directories already in --out")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. env.action_repeat=4")

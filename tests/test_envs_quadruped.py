@@ -135,7 +135,7 @@ def test_first_person_camera_sees_the_world_not_the_robot(walls):
     assert pixels.observation_shape == {"pixels": (24, 32, 3), "state": (17,)}
     state = reset(jax.random.key(3))
     wall = np.array([[0.8, 0.0, env.WALL_HALF_SIZE[2]]] + [[5.0 + i, 0.0, 0.25] for i in range(env.config.n_walls - 1)])
-    data = env.forward(state.data.replace(mocap_pos=jnp.asarray(wall, jnp.float32)))
+    data = jax.jit(env.forward)(state.data.replace(mocap_pos=jnp.asarray(wall, jnp.float32)))
     depth, ids = jax.jit(pixels.camera.trace)(data)
     ids = np.asarray(ids)
     robot = {m for m in range(env.mj_model.ngeom) if env.mj_model.geom_group[m] == a1.ROBOT_GROUP}
