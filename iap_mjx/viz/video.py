@@ -147,8 +147,8 @@ def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: 
     scale = 3 if has_pixels(env) else 1
     frames = [annotate(frame, None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
               for t, frame in enumerate(record["frames"])]
-    if fps is None:  # real time where the control step is known (the quadruped's 0.02 s: 50 fps)
-        timestep = getattr(env, "control_timestep", None)
+    if fps is None:  # a state env's video in real time (the quadruped's 0.02 s steps: 50 fps)
+        timestep = None if has_pixels(env) else getattr(env, "control_timestep", None)
         repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
         fps = max(1, round(1.0 / (timestep * repeat))) if timestep else 30
     return write_video(path, frames, fps=fps), float(returns[-1])
