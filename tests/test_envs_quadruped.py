@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from iap_mjx import envs
-from iap_mjx.envs import a1
+from iap_mjx.robots import a1
 from iap_mjx.envs.quadruped import QuadrupedConfig
 
 STEPS = 100

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from iap_mjx import policies
-from iap_mjx.envs import a1
+from iap_mjx.robots import a1
 from iap_mjx.policies import pmtg
 
 

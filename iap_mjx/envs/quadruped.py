@@ -3,7 +3,7 @@
 
 Both share the machinery of :class:`iap_mjx.envs.dmc.DmControlEnv` (stepping, done mask, bad
 states counted in ``metrics["nan_terminations"]``, contact slots and
-``metrics["contact_saturated"]``); the model is ours (:mod:`iap_mjx.envs.a1`).
+``metrics["contact_saturated"]``); the model is ours (:mod:`iap_mjx.robots.a1`).
 
 - Action ``(12,)`` in ``[-1, 1]``: each joint's position target, mapped linearly onto the
   joint's range (the servos' ``ctrlrange``); :func:`targets_to_action` inverts it.
@@ -31,8 +31,8 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver
 
-from iap_mjx.envs import a1
-from iap_mjx.envs.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
+from iap_mjx.robots import a1
+from iap_mjx.robots.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
 from iap_mjx.configs.env import QuadrupedConfig
 from iap_mjx.envs.dmc import DmControlEnv
 
