@@ -108,7 +108,7 @@ def native_model(name: str, env) -> mujoco.MjModel:
 def native_controls(name: str, actions) -> np.ndarray:
     """``data.ctrl`` for env actions: the quadruped's are joint targets mapped from [-1, 1]."""
     if name in QUADRUPED_TASKS:
-        from iap_mjx.envs import a1
+        from iap_mjx.robots import a1
 
         return np.asarray(a1.action_to_targets(np.asarray(actions, np.float64)))
     return np.asarray(actions, np.float64)
@@ -369,7 +369,7 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]
 
     Three episodes from the env's own first states; PD targets the standing pose plus
     uniform +-0.3 rad (a walking-like load: the robot stays up, feet on the ground)."""
-    from iap_mjx.envs import a1
+    from iap_mjx.robots import a1
 
     rng = np.random.default_rng(0)
     targets = a1.HOME_JOINTS + rng.uniform(-0.3, 0.3, (3, steps, 12))
