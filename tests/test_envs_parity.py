@@ -35,12 +35,19 @@ class Case:
     smooth_steps: int
     obs_atol: float
     reward_atol: float
+    # Leading observation entries checked at identical states (None: all). finger's touch
+    # sensors come from the contact forces at the last physics step's start, not from the
+    # state after it: tests/test_envs_finger.py checks them at those states.
+    same_state_obs: int | None = None
 
 
 # Windows and tolerances: measured errors (seed 3, default solver settings) times ~10-100;
 # walker falls from its random pose onto the floor at ~step 10, where float32 contact
 # resolution departs from float64 at the 1e-3 level and the fall amplifies it.
 # cartpole and reacher have no contacts: float32 round-off only, over all 200 steps.
+# finger: this rollout never touches the spinner (tests/test_envs_finger.py has one that
+# does); the hinge's frictionloss row is solved in 8 float32 iterations vs dm_control's 200
+# (measured <= 2.2e-4).
 # cheetah, walker, ball_in_cup: contacts; saturated actions (and walker's fall from its
 # random pose) make float32/float64 trajectories part after the window given.
 CASES = [
@@ -49,6 +56,7 @@ CASES = [
     Case("cartpole-swingup", smooth_steps=200, obs_atol=1e-4, reward_atol=1e-5),
     Case("ball_in_cup-catch", smooth_steps=100, obs_atol=1e-2, reward_atol=0.0),
     Case("reacher-easy", smooth_steps=200, obs_atol=1e-5, reward_atol=0.0),
+    Case("finger-spin", smooth_steps=200, obs_atol=2e-3, reward_atol=0.0, same_state_obs=7),
 ]
 
 
@@ -154,7 +162,8 @@ def test_parity_with_dm_control(case):
 
     # Identical states: float32 evaluation of float64 states, so a relative error of a few
     # float32 ulps, amplified by a few chained operations (kinematics, subtree momentum).
-    np.testing.assert_allclose(ours["same_obs"], reference["obs"], rtol=1e-5, atol=1e-5)
+    compared = slice(0, case.same_state_obs)
+    np.testing.assert_allclose(ours["same_obs"][:, compared], reference["obs"][:, compared], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(ours["same_reward"], reference["reward"], rtol=1e-5, atol=1e-5)
 
 

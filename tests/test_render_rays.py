@@ -1,6 +1,6 @@
 """The camera's geometry against MuJoCo's own ray caster (``mujoco.mj_ray``).
 
-For random poses of the five dm_control tasks (and a synthetic scene holding every supported
+For random poses of the six dm_control tasks (and a synthetic scene holding every supported
 primitive), each pixel's ray is cast by ``mj_ray`` from the camera position along the same
 direction; the hit geom must agree and the depth be within 1e-4 relative on at least 99.5% of
 the pixels (the issue's bar).
@@ -24,6 +24,7 @@ TASKS = [
     ("cartpole", "swingup"),
     ("ball_in_cup", "catch"),
     ("reacher", "easy"),
+    ("finger", "spin"),
 ]
 VISIBLE_GROUPS = np.array([1, 1, 1, 0, 0, 0], np.uint8)
 DEPTH_RTOL = 1e-4

@@ -24,7 +24,7 @@ from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, T
 Options = tuple[tuple[str, Any], ...]
 
 ACTION_REPEAT = {"cheetah-run": 4, "walker-walk": 2, "cartpole-swingup": 8,
-                 "ball_in_cup-catch": 4, "reacher-easy": 4}
+                 "ball_in_cup-catch": 4, "reacher-easy": 4, "finger-spin": 2}
 """Control steps per frame from pixels, per task (PlaNet/DrQ's settings)."""
 
 KERNELS: dict[str, Options] = {

@@ -96,6 +96,7 @@ class DmControlEnv:
         self.config = dataclasses.replace(config, **overrides) if overrides else config
         spec = self._model_spec()
         spec.add_numeric(name="max_contact_points", data=[-1])  # -1: MJX keeps every candidate
+        self._edit_spec(spec)
         # MuJoCo 3.17 deprecates the compiler's settotalmass (cheetah sets it): compile without
         # it and scale the masses as it would have (the same model, to the last bit).
         total_mass = float(spec.compiler.settotalmass)
@@ -245,6 +246,10 @@ class DmControlEnv:
         """Randomised first physics state (stage computed) and task variables."""
         raise NotImplementedError
 
+    def _edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Task edits of the model before it is compiled (default: none); collision filters
+        go here, so that the contact slots are counted after them."""
+
     def _edit_model(self, mj_model: mujoco.MjModel) -> None:
         """Task edits of the compiled model before ``mjx.put_model`` (default: none)."""
 
@@ -326,7 +331,7 @@ def randomize_limited_and_rotational_joints(
 
     Limited hinges and slides uniform in their range, unlimited hinges uniform in
     ``[-pi, pi]``; other joints keep ``qpos`` ``(nq,)``. (Ball and free joints are not used by
-    the five tasks and are rejected.)
+    the six tasks and are rejected.)
     """
     lows, highs, addresses = [], [], []
     for joint in range(mj_model.njnt):

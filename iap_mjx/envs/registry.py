@@ -18,11 +18,12 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
     from iap_mjx.envs.ball_in_cup import BallInCupCatch
     from iap_mjx.envs.cartpole import CartpoleSwingup
     from iap_mjx.envs.cheetah import CheetahRun
+    from iap_mjx.envs.finger import FingerSpin
     from iap_mjx.envs.quadruped import QuadrupedFlat, QuadrupedWalls
     from iap_mjx.envs.reacher import ReacherEasy
     from iap_mjx.envs.walker import WalkerWalk
 
-    classes = [BallInCupCatch, CartpoleSwingup, CheetahRun, QuadrupedFlat, QuadrupedWalls,
+    classes = [BallInCupCatch, CartpoleSwingup, CheetahRun, FingerSpin, QuadrupedFlat, QuadrupedWalls,
                ReacherEasy, WalkerWalk]
     return {cls.name: cls for cls in classes}
 

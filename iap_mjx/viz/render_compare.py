@@ -31,6 +31,7 @@ TASKS = (
     ("cartpole", "swingup"),
     ("ball_in_cup", "catch"),
     ("reacher", "easy"),
+    ("finger", "spin"),
 )
 GL_BACKEND = os.environ.get("IAP_MJX_REFERENCE_GL", "osmesa")
 
@@ -52,9 +53,11 @@ def _render_reference(request: dict) -> dict:
     renderer = mujoco.Renderer(model, height, width)
     data = mujoco.MjData(model)
     out = {"rgb": [], "depth": [], "segmentation": []}
-    for qpos, geom_pos, geom_size in zip(request["qpos"], request["geom_pos"], request["geom_size"]):
+    for qpos, geom_pos, geom_size, site_rgba in zip(request["qpos"], request["geom_pos"], request["geom_size"],
+                                                    request["site_rgba"]):
         model.geom_pos[:] = geom_pos
         model.geom_size[:] = geom_size
+        model.site_rgba[:] = site_rgba
         data.qpos[:] = qpos
         mujoco.mj_forward(model, data)
         for key in out:
@@ -79,8 +82,8 @@ def _render_reference(request: dict) -> dict:
 def reference_frames(domain: str, states, camera_ids, height: int,
                      width: int) -> dict[str, np.ndarray]:
     """MuJoCo's own frames of ``states`` (``(model, data)`` pairs of dm_control's ``domain``;
-    each model's geom positions and sizes are applied, as tasks such as reacher edit them at
-    reset) from each of ``camera_ids``.
+    each model's geom positions and sizes and site colours are applied, as tasks edit them at
+    reset: reacher moves its target, finger hides two sites) from each of ``camera_ids``.
 
     Returns ``rgb`` ``(N, C, H, W, 3)`` uint8, ``depth`` ``(N, C, H, W)`` metres and
     ``segmentation`` ``(N, C, H, W)`` geom id (-1 for none), for N states and C cameras.
@@ -93,6 +96,7 @@ def reference_frames(domain: str, states, camera_ids, height: int,
         np.savez(request, domain=domain,
                  geom_pos=np.stack([np.asarray(m.geom_pos) for m, _ in states]),
                  geom_size=np.stack([np.asarray(m.geom_size) for m, _ in states]),
+                 site_rgba=np.stack([np.asarray(m.site_rgba) for m, _ in states]),
                  qpos=np.stack([np.asarray(d.qpos, np.float64) for _, d in states]),
                  camera_ids=np.asarray(camera_ids, np.int32), height=height, width=width)
         env = dict(os.environ, MUJOCO_GL=GL_BACKEND, PYOPENGL_PLATFORM=GL_BACKEND)
