@@ -81,11 +81,15 @@ class EnvConfig:
 
 @dataclasses.dataclass(frozen=True)
 class QuadrupedConfig(EnvConfig):
-    """``EnvConfig`` plus the quadruped's settings (camera size defaults to the first-person
-    camera's 32x24).
+    """``EnvConfig`` plus the quadruped's settings (``iap_mjx.envs.quadruped``). The camera
+    size defaults to the first-person camera's 32x24 (``camera_id`` 0 is that camera);
+    ``episode_length=None`` means the task's own (500 control steps on the flat, 1000 on the
+    course).
 
     Attributes:
-      v_cap: the reward's speed cap in m/s (per control step: ``v_cap * 0.02`` m).
+      v_cap: the reward's speed cap in m/s (per control step: ``v_cap * 0.02`` m). 1 m/s by
+        default: twice the walking speed aimed for, so walking well is paid in full and
+        lunges or falls forward (many times that per 0.02 s step) are not.
       joint_noise: the first joint angles are the standing pose plus uniform noise of this
         half-width (rad).
       n_walls: walls on the course (``quadruped-walls`` only; a static shape).
