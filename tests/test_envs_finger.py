@@ -162,9 +162,8 @@ def test_the_geoms_left_without_collisions_never_touch():
     On dm_control's own model (every pair MuJoCo would test), over 1000 random poses of all
     three joints on the full circle (beyond the joint limits), each pair with a dropped geom
     stays more than 2 cm apart by ``mj_geomDistance`` (the closest, fingertip to ground, is
-    0.4 - 0.371 = 0.029 m); and in dm_control's simulation (9
-    episodes of 1000 steps: uniform, square-wave and bang-bang actions) every contact is one
-    of the pairs we keep.
+    0.4 - 0.371 = 0.029 m); and in dm_control's simulation (9 episodes of 1000 steps:
+    uniform, square-wave and bang-bang actions) every contact is one of the pairs we keep.
     """
     from mujoco.mjx._src import collision_driver
 
