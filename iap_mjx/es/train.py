@@ -409,7 +409,11 @@ def train(
     def compiled_call(count: int):
         nonlocal compile_s
         if count not in calls:
+            logger.info("compiling the ES iteration (%s members x %s env steps; a program "
+                        "compiled once is loaded from the compilation cache afterwards)",
+                        config.es.population_size * config.es.n_episodes, parts.env.episode_length)
             calls[count], seconds = _compile(make_train_call(parts, count), state, parts.mesh)
+            logger.info("compiled in %.0f s", seconds)
             compile_s += seconds
         return calls[count]
 

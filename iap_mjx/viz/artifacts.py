@@ -34,6 +34,7 @@ def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | No
         raise ValueError(f"steps = {steps!r} must be None (the episode) or an int >= 1")
     env, policy = env_and_policy(result.config)
     steps = env.episode_length if steps is None else steps
+    logger.info("rendering a %d-step episode of the trained policy to %s", steps, path)
     return video.episode_video(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
                                steps=steps, policy_fn=result.policy_fn)
 
