@@ -102,10 +102,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     import jax
 
     from iap_mjx import es
+    from iap_mjx.viz import artifacts
 
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(args.preset)
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:
+        primary = jax.process_index() == 0  # several processes share one run directory: one writes
+        video_program = artifacts.compile_video_in_background(config) if primary else None
         result = es.train(config, run_dir=run_dir, progress=not args.no_progress)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
@@ -118,11 +121,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"\ninterrupted; {saved}. Resume with: iap-mjx train {args.preset} "
               f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(), file=sys.stderr)
         return 130
-    if jax.process_index() != 0:  # several processes share one run directory: one writes
+    if not primary:
         return 0
-    from iap_mjx.viz import artifacts
-
-    written = artifacts.write_run_artifacts(result, run_dir)
+    written = artifacts.write_run_artifacts(result, run_dir, video_program)
     last = next((row for row in reversed(result.history) if "eval_return" in row), None)
     summary = {"run_dir": str(run_dir), "iterations": config.run.iterations,
                "artifacts": [str(path) for path in written]}

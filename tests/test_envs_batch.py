@@ -27,6 +27,7 @@ def test_chunked_vmap_equals_vmap():
         batch.chunked_vmap(fn, 5)(x, y)
 
 
+@pytest.mark.slow
 def test_population_of_1024_envs_in_chunks_over_two_devices():
     """The size at which one plain vmap hung XLA CPU: 1024 envs, here chunked and sharded.
 

@@ -104,6 +104,7 @@ def _square_wave_rollout(seed: int, steps: int = 200) -> dict:
     return dict(start=start, actions=actions, **{key: np.array(value) for key, value in record.items()})
 
 
+@pytest.mark.slow
 def test_touch_and_spin_reward_match_dm_control(finger):
     """Seed 5's square waves touch the spinner on 16 control steps and spin it past
     15 rad/s on 8.

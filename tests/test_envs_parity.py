@@ -142,6 +142,7 @@ def _our_rollouts(case: Case, reference: dict) -> dict:
     return ours
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES, ids=lambda case: case.name)
 def test_parity_with_dm_control(case):
     """One test per task (so parallel workers do not build the same rollouts twice)."""
@@ -167,6 +168,7 @@ def test_parity_with_dm_control(case):
     np.testing.assert_allclose(ours["same_reward"], reference["reward"], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [case.name for case in CASES])
 def test_reset_distribution_matches_dm_control(name):
     """First observations of 64 of our resets vs 64 of dm_control's (initialize_episode).

@@ -47,6 +47,7 @@ def test_the_robot_is_built_from_the_figures():
     np.testing.assert_allclose([f[0] for f in feet], [0.183, 0.183, -0.183, -0.183], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_mjx_agrees_with_native_mujoco_from_the_same_states(walls):
     """From the env's first state, 100 control steps of the same PD targets (the standing pose
     plus uniform +-0.3 rad) in MJX (float32) and ``mujoco.mj_step`` (float64) on the same
@@ -115,6 +116,7 @@ def test_reward_is_the_capped_forward_displacement(walls):
     np.testing.assert_allclose(back.reward, -env.config.v_cap * 0.02, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_episode_ends_on_falling_off_or_touching_the_ground(walls):
     env, reset, step = walls
     state = reset(jax.random.key(2))

@@ -46,7 +46,8 @@ def test_main_command_prints_no_warnings_and_leaves_every_artifact(tmp_path):
     args = readme_main_command()
     env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
     env.pop("MUJOCO_GL", None)  # as on a newcomer's machine (the tests' conftest sets it)
-    done = subprocess.run([sys.executable, "-m", "iap_mjx.cli", *args, *BUDGET], cwd=tmp_path, env=env,
+    command = [*args[:2], *BUDGET, *args[2:]]  # overrides follow the preset's name
+    done = subprocess.run([sys.executable, "-m", "iap_mjx.cli", *command], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=1500)
     assert done.returncode == 0, done.stderr
     noisy = [line for line in done.stderr.splitlines() if NOISE.search(line)]

@@ -3,12 +3,16 @@
 from pathlib import Path
 
 import nbformat
+import pytest
 from nbclient import NotebookClient
 
 NOTEBOOK = Path(__file__).resolve().parent.parent / "notebooks" / "quickstart.ipynb"
 
 
-def test_quickstart_notebook_executes(tmp_path):
+@pytest.mark.slow
+def test_quickstart_notebook_executes(tmp_path, monkeypatch):
+    # the kernel inherits this: it compiles into the tests' cache, not the user's
+    monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(NOTEBOOK.parent.parent / ".jax_cache"))
     notebook = nbformat.read(NOTEBOOK, as_version=4)
     NotebookClient(notebook, timeout=1200, kernel_name="python3",
                    resources={"metadata": {"path": str(tmp_path)}}).execute()

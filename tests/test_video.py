@@ -1,15 +1,18 @@
 """Videos: an IAP policy's episode on a pixel env, with the selected patches outlined in red."""
 
 import imageio.v2 as imageio
+import imageio.v3 as iio
 import jax
 import numpy as np
+import pytest
 
 from iap_mjx import envs, policies
 from iap_mjx.viz import video
 
 
+@pytest.mark.slow
 def test_episode_video_outlines_the_selected_patches(tmp_path):
-    env = envs.make("cheetah-run", obs_mode="pixels", height=24, width=24, episode_length=6)
+    env = envs.make("cartpole-swingup", obs_mode="pixels", height=24, width=24, episode_length=6)
     policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=4, top_l=3)
     params = policy.init(jax.random.PRNGKey(0))
     record = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=4)
@@ -28,13 +31,21 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
         top, left = 16 + (index // cols) * 12, (index % cols) * 12
         assert tuple(frame[top, left]) == video.RED  # the outline's corner
 
-    path, episode_return = video.episode_video(env, policy, params, tmp_path / "episode.gif",
-                                               key=jax.random.PRNGKey(1), steps=4)
-    frames = imageio.mimread(path)
-    assert len(frames) == 4 and frames[0].shape[:2] == (88, 72)
+    # The program compiled ahead (before any params exist, as a run's video is) records the same.
+    program = video.compile_episode_program(env, policy, steps=4)
+    ahead = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=4, program=program)
+    for name in record:
+        np.testing.assert_array_equal(ahead[name], record[name])
+
+    # MP4, the run's artifact (a GIF merges identical frames: a still cartpole is one).
+    path, episode_return = video.episode_video(env, policy, params, tmp_path / "episode.mp4",
+                                               key=jax.random.PRNGKey(1), steps=4, program=program)
+    frames = iio.imread(path, plugin="pyav")
+    assert frames.shape == (4, 88, 72, 3)
     np.testing.assert_allclose(episode_return, record["rewards"].sum(), rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
     """A state env has no image to show: the frames are its model camera, ray-cast."""
     env = envs.make("cartpole-swingup", episode_length=4)
@@ -42,7 +53,7 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
     params = policy.init(jax.random.PRNGKey(0))
     record = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=3)
     assert record["frames"].shape == (3, *video.STATE_VIDEO_SIZE, 3) and "indices" not in record
-    first = env.reset(jax.random.split(jax.random.PRNGKey(1))[0])
+    first = jax.jit(env.reset)(jax.random.split(jax.random.PRNGKey(1))[0])
     expected, _ = video.state_camera(env).render(first.data)
     # the same picture (a vmapped render rounds a few edge pixels differently)
     gap = np.abs(record["frames"][0] - np.asarray(expected))

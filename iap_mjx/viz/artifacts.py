@@ -4,7 +4,9 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import logging
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -27,26 +29,54 @@ def env_and_policy(config: Any) -> tuple[Any, Any]:
 has_pixels = video.has_pixels
 
 
-def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None) -> tuple[Path, float]:
+def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None,
+                program: Any = None) -> tuple[Path, float]:
     """An episode of ``result``'s centre params on its env: a pixel env's frames with the
-    patches outlined, or a state env rendered from its video camera."""
+    patches outlined, or a state env rendered from its video camera. ``program``: the episode
+    compiled ahead (:func:`compile_video_in_background`) for these ``steps``."""
     if steps is not None and (not isinstance(steps, int) or steps < 1):
         raise ValueError(f"steps = {steps!r} must be None (the episode) or an int >= 1")
     env, policy = env_and_policy(result.config)
     steps = env.episode_length if steps is None else steps
     logger.info("rendering a %d-step episode of the trained policy to %s", steps, path)
     return video.episode_video(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
-                               steps=steps, policy_fn=result.policy_fn)
+                               steps=steps, obs_stats=result.obs_stats, program=program)
 
 
-def write_run_artifacts(result: Any, run_dir: str | Path) -> list[Path]:
-    """Writes ``reward_curve.png`` and, for pixel envs, ``episode.mp4`` into ``run_dir``."""
+def compile_video_in_background(config: Any) -> concurrent.futures.Future | None:
+    """Starts compiling the episode video :func:`write_run_artifacts` will render, in a daemon
+    thread, and returns its future (``None`` for a state env: a run writes no video of one).
+
+    Called before training, the video's compile runs beside the ES iteration's (XLA compiles
+    on one core; this machine class has two), so the video at the end of a run costs its
+    rollout and encoding only. A daemon thread: an interrupted run does not wait for it.
+    """
+    env, policy = env_and_policy(config)
+    if not has_pixels(env):
+        return None
+    future: concurrent.futures.Future = concurrent.futures.Future()
+
+    def work() -> None:
+        try:
+            future.set_result(video.compile_episode_program(env, policy, steps=env.episode_length))
+        except Exception as error:  # handed to whoever waits for the program
+            future.set_exception(error)
+
+    threading.Thread(target=work, name="compile-video", daemon=True).start()
+    return future
+
+
+def write_run_artifacts(result: Any, run_dir: str | Path,
+                        video_program: concurrent.futures.Future | None = None) -> list[Path]:
+    """Writes ``reward_curve.png`` and, for pixel envs, ``episode.mp4`` into ``run_dir``;
+    ``video_program`` is :func:`compile_video_in_background`'s future for this config."""
     run_dir = Path(run_dir)
     paths = [curves.plot_reward_curve(result.history, run_dir / "reward_curve.png",
                                       title=f"{result.config.env.name}: {result.config.policy.kind} policy")]
     env, _ = env_and_policy(result.config)
     if has_pixels(env):
-        path, episode_return = write_video(result, run_dir / "episode.mp4")
+        program = video_program.result() if video_program is not None else None
+        path, episode_return = write_video(result, run_dir / "episode.mp4", program=program)
         logger.info("episode video: return %.1f", episode_return)
         paths.append(path)
     return paths

@@ -47,27 +47,26 @@ def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
                   width=size[1])
 
 
-def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
-                policy_fn: Any = None) -> dict[str, np.ndarray]:
-    """Rolls one episode of ``steps`` control steps and records what a video needs.
+def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
+    """The jitted episode ``(params, obs_stats, key) -> record`` that :func:`run_episode` runs.
+
+    Params, observation statistics (``None``: raw observations) and the key are arguments, not
+    constants, so the program can be compiled before the params it will run exist
+    (:func:`compile_episode_program`) and is compiled once for every checkpoint.
 
     Args:
       env: an env following the Env protocol: a pixel env (its newest frame is recorded) or a
         state env (frames from :func:`state_camera`).
       policy: the policy; if it has ``select`` (IAP) and the env has pixels, the selected
         patches are recorded.
-      params: the policy's params.
-      key: PRNG key for the env reset and the policy's per-episode state.
       steps: control steps to record.
-      policy_fn: ``(params, obs, policy_state) -> (action, policy_state)`` to act with
-        (default ``policy.apply``; pass a run's ``policy_fn`` to apply its normalisation).
 
-    Returns:
-      ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "rewards": (T,)}``.
+    Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
+    (T, l) int or absent, "rewards": (T,)}``.
     """
-    act = policy_fn if policy_fn is not None else policy.apply
+    from iap_mjx.es.normalizer import normalize
+
     channels = 4 if getattr(env, "obs_mode", "pixels") == "pixels_depth" else 3
-    reset_key, policy_key = jax.random.split(key)
     pixels = has_pixels(env)
     selects = pixels and hasattr(policy, "select")
     camera = None if pixels else state_camera(env)
@@ -75,22 +74,53 @@ def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: in
     def frame(state):
         return newest_rgb(state.obs, channels) if pixels else camera.render(state.data)[0]
 
-    def step(carry, _):
-        state, policy_state = carry
-        record = {"frames": frame(state)}
-        if selects:
-            record["indices"] = policy.select(params, state.obs, policy_state).indices
-        action, policy_state = act(params, state.obs, policy_state)
-        state = env.step(state, action)
-        record["rewards"] = state.reward
-        return (state, policy_state), record
-
     @jax.jit
-    def rollout(reset_key, policy_key):
+    def program(params, obs_stats, key):
+        def step(carry, _):
+            state, policy_state = carry
+            seen = state.obs if obs_stats is None else normalize(obs_stats, state.obs)
+            record = {"frames": frame(state)}
+            if selects:
+                record["indices"] = policy.select(params, seen, policy_state).indices
+            action, policy_state = policy.apply(params, seen, policy_state)
+            state = env.step(state, action)
+            record["rewards"] = state.reward
+            return (state, policy_state), record
+
+        reset_key, policy_key = jax.random.split(key)
         carry = (env.reset(reset_key), policy.initial_state(policy_key))
         return jax.lax.scan(step, carry, None, length=steps)[1]
 
-    return jax.tree_util.tree_map(np.asarray, rollout(reset_key, policy_key))
+    return program
+
+
+def compile_episode_program(env: Any, policy: Any, *, steps: int, obs_stats: Any = None) -> Any:
+    """:func:`episode_program` compiled ahead of time for ``policy``'s params shapes (and
+    ``obs_stats``'s, if given): pass it to :func:`run_episode` as ``program``. Safe to call
+    from a background thread while something else compiles or trains."""
+    params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
+    stats = None if obs_stats is None else jax.eval_shape(lambda: obs_stats)
+    return episode_program(env, policy, steps=steps).lower(params, stats, jax.random.PRNGKey(0)).compile()
+
+
+def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
+                obs_stats: Any = None, program: Any = None) -> dict[str, np.ndarray]:
+    """Rolls one episode of ``steps`` control steps and records what a video needs.
+
+    Args:
+      env, policy, steps: as :func:`episode_program`.
+      params: the policy's params.
+      key: PRNG key for the env reset and the policy's per-episode state.
+      obs_stats: the run's observation statistics (``None``: observations as they are).
+      program: a compiled program from :func:`compile_episode_program` for the same env,
+        policy and steps (default: compiled here).
+
+    Returns:
+      ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "rewards": (T,)}``.
+    """
+    if program is None:
+        program = episode_program(env, policy, steps=steps)
+    return jax.tree_util.tree_map(np.asarray, program(params, obs_stats, key))
 
 
 def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_return: float,
@@ -138,9 +168,11 @@ def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) ->
 
 
 def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array,
-                  steps: int, policy_fn: Any = None, fps: int | None = None) -> tuple[Path, float]:
-    """Runs one episode and writes its annotated video. Returns ``(path, episode return)``."""
-    record = run_episode(env, policy, params, key, steps=steps, policy_fn=policy_fn)
+                  steps: int, obs_stats: Any = None, program: Any = None,
+                  fps: int | None = None) -> tuple[Path, float]:
+    """Runs one episode (:func:`run_episode`) and writes its annotated video. Returns
+    ``(path, episode return)``."""
+    record = run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = np.cumsum(record["rewards"])
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
