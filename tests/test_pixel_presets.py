@@ -52,11 +52,23 @@ def test_paper_feature_settings():
     assert dict(configs.get("cheetah-run-pixels-brute").policy.options)["row_normalize"] is True
 
 
+def test_the_first_run_preset_is_cheetah_run_pixels_on_a_smaller_budget():
+    """``cheetah-run-pixels-quick`` (the README's main job) differs from ``cheetah-run-pixels``
+    only in the ES population and step size and the loop's budget: its env, camera and policy
+    are the preset's, so the main command's test (``test_first_run``, one iteration through
+    the CLI) is cheetah-run-pixels' one-iteration test."""
+    quick, full = configs.get("cheetah-run-pixels-quick"), configs.get("cheetah-run-pixels")
+    assert (quick.env, quick.policy) == (full.env, full.policy)
+    assert dataclasses.replace(quick.es, population_size=full.es.population_size,
+                               learning_rate=full.es.learning_rate) == full.es
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("task", sorted(ACTION_REPEAT))
+@pytest.mark.parametrize("task", sorted(set(ACTION_REPEAT) - {"cheetah-run"}))
 def test_task_pixel_preset_trains_one_iteration(task):
     """The preset as named, shrunk only in its budget (2 frames per episode, 4 members, one
-    iteration): the env, camera, policy and ES update compile and give finite numbers."""
+    iteration): the env, camera, policy and ES update compile and give finite numbers.
+    (cheetah-run: ``test_first_run`` trains its preset through the README's command.)"""
     config = configs.apply_overrides(configs.get(f"{task}-pixels"), [
         "env.episode_length=2", "es.population_size=4", "run.iterations=1",
         "run.eval_episodes=2", "run.checkpoint_every=0", "run.tensorboard=false"])
