@@ -1,5 +1,6 @@
 """Every pixel preset builds its env and policy (no compile) and its policy is the one named;
-every task's ``<task>-pixels`` preset trains one iteration."""
+every task's ``<task>-pixels`` preset builds its whole ES iteration, and two of them (reacher
+here, cheetah through the README's command in ``test_first_run``) train one."""
 
 import dataclasses
 
@@ -63,18 +64,39 @@ def test_the_first_run_preset_is_cheetah_run_pixels_on_a_smaller_budget():
                                learning_rate=full.es.learning_rate) == full.es
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("task", sorted(set(ACTION_REPEAT) - {"cheetah-run"}))
-def test_task_pixel_preset_trains_one_iteration(task):
-    """The preset as named, shrunk only in its budget (2 frames per episode, 4 members, one
-    iteration): the env, camera, policy and ES update compile and give finite numbers.
-    (cheetah-run: ``test_first_run`` trains its preset through the README's command.)"""
+def _shrunk(task: str):
+    """The task's preset as named, shrunk only in its budget (2 frames per episode, 4 members,
+    one iteration)."""
     config = configs.apply_overrides(configs.get(f"{task}-pixels"), [
         "env.episode_length=2", "es.population_size=4", "run.iterations=1",
         "run.eval_episodes=2", "run.checkpoint_every=0", "run.tensorboard=false"])
-    result = train(config, progress=False)
+    start = configs.get(f"{task}-pixels")
+    assert dataclasses.replace(config, env=start.env, es=start.es, run=start.run) == start
+    return config
+
+
+@pytest.mark.slow
+def test_a_pixel_preset_trains_one_iteration():
+    """reacher-easy's preset (the cheapest physics; cheetah-run's runs through the README's
+    command in ``test_first_run``): the env, camera, policy and ES update compile and give
+    finite numbers."""
+    result = train(_shrunk("reacher-easy"), progress=False)
     (row,) = result.history
     assert np.isfinite(row["return_mean"]) and np.isfinite(row["eval_return"])
     assert row["nan_episodes"] == 0
-    start = configs.get(f"{task}-pixels")
-    assert dataclasses.replace(config, env=start.env, es=start.es, run=start.run) == start
+
+
+@pytest.mark.parametrize("task", sorted(set(ACTION_REPEAT) - {"cheetah-run", "reacher-easy"}))
+def test_task_pixel_preset_builds_its_whole_es_iteration(task):
+    """Every other task's preset, traced and lowered to XLA as ``train`` would run it (env
+    reset and steps, camera, attention, LSTM, the ES update): every shape and dtype on the way
+    is checked; only XLA's compile, a minute or more per task on two cores, is left out."""
+    from iap_mjx.es.train import build, init_state, make_train_call
+
+    parts = build(_shrunk(task))
+    state = init_state(parts)
+    lowered = jax.jit(make_train_call(parts, 1)).lower(state)
+    new_state, metrics = lowered.out_info
+    assert jax.tree_util.tree_structure(new_state) == jax.tree_util.tree_structure(state)
+    assert {"return_mean", "eval_return", "nan_episodes"} <= set(metrics)
+    assert all(leaf.shape == (1,) for leaf in metrics.values())
