@@ -14,7 +14,7 @@ import pytest
 
 from iap_mjx import envs
 from iap_mjx.robots import a1
-from iap_mjx.envs.quadruped import QuadrupedConfig
+from iap_mjx.envs.quadruped import QuadrupedConfig, QuadrupedWallsConfig
 
 STEPS = 100
 
@@ -154,8 +154,13 @@ def test_first_person_camera_sees_the_world_not_the_robot(walls):
 
 def test_task_settings_are_validated_by_the_task_config():
     with pytest.raises(ValueError, match="v_cap") as error:
-        envs.check("quadruped-flat", vcap=2.0)
+        envs.check("quadruped-walls", vcap=2.0)
     assert "n_walls" in str(error.value) and "v_cap" in str(error.value)
+    with pytest.raises(ValueError, match="n_walls") as error:  # the flat has no walls
+        envs.check("quadruped-flat", n_walls=2)
+    assert "v_cap" in str(error.value) and "max_geom_pairs" in str(error.value)
+    with pytest.raises(ValueError, match="QuadrupedWallsConfig"):
+        envs.check("quadruped-walls", QuadrupedConfig())
     with pytest.raises(ValueError, match="v_cap"):
         envs.check("quadruped-walls", v_cap=0.0)
     with pytest.raises(ValueError, match="max_geom_pairs"):
@@ -164,5 +169,7 @@ def test_task_settings_are_validated_by_the_task_config():
         envs.check("cheetah-run", v_cap=1.0)  # not a dm_control setting
     with pytest.raises(ValueError, match="QuadrupedConfig"):
         envs.check("quadruped-flat", envs.EnvConfig())
-    assert envs.check("quadruped-walls", n_walls=2) == QuadrupedConfig(n_walls=2)
+    assert envs.check("quadruped-walls", n_walls=2) == QuadrupedWallsConfig(n_walls=2)
+    with pytest.raises(ValueError, match="n_walls"):
+        QuadrupedWallsConfig(n_walls=0)
     assert envs.make("quadruped-walls").max_geom_pairs == 8

@@ -92,7 +92,6 @@ class QuadrupedConfig(EnvConfig):
         lunges or falls forward (many times that per 0.02 s step) are not.
       joint_noise: the first joint angles are the standing pose plus uniform noise of this
         half-width (rad).
-      n_walls: walls on the course (``quadruped-walls`` only; a static shape).
       max_geom_pairs: candidate geom pairs MJX runs each collision function on per step (its
         ``max_geom_pairs``: the pairs whose bounding spheres are nearest win; plane pairs are
         never culled). ``"task"`` is the task's default (the course: 8, so the one wall near
@@ -105,7 +104,6 @@ class QuadrupedConfig(EnvConfig):
     width: int = 32
     v_cap: float = 1.0
     joint_noise: float = 0.05
-    n_walls: int = 3
     max_geom_pairs: int | str = "task"
 
     def __post_init__(self):
@@ -114,10 +112,25 @@ class QuadrupedConfig(EnvConfig):
             raise ValueError(f"QuadrupedConfig.v_cap must be a number > 0 (m/s), got {self.v_cap!r}.")
         if not isinstance(self.joint_noise, (int, float)) or not 0 <= self.joint_noise <= 0.5:
             raise ValueError(f"QuadrupedConfig.joint_noise must be in [0, 0.5] rad, got {self.joint_noise!r}.")
-        if not isinstance(self.n_walls, int) or isinstance(self.n_walls, bool) or self.n_walls < 1:
-            raise ValueError(f"QuadrupedConfig.n_walls must be an int >= 1, got {self.n_walls!r}.")
         if self.max_geom_pairs not in ("task", "all") and (
                 not isinstance(self.max_geom_pairs, int) or isinstance(self.max_geom_pairs, bool)
                 or self.max_geom_pairs < 1):
             raise ValueError('QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got '
                              f"{self.max_geom_pairs!r}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class QuadrupedWallsConfig(QuadrupedConfig):
+    """``QuadrupedConfig`` plus the course's settings (``quadruped-walls`` only; the flat has
+    no walls, so ``quadruped-flat`` refuses ``n_walls``).
+
+    Attributes:
+      n_walls: walls on the course (a static shape).
+    """
+
+    n_walls: int = 3
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not isinstance(self.n_walls, int) or isinstance(self.n_walls, bool) or self.n_walls < 1:
+            raise ValueError(f"QuadrupedWallsConfig.n_walls must be an int >= 1, got {self.n_walls!r}.")

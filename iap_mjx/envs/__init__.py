@@ -3,14 +3,14 @@
 
 ``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
 arguments without building); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
-quadruped's); ``batch`` runs large populations in chunks.
+quadruped's, ``QuadrupedWallsConfig`` the course's); ``batch`` runs large populations in chunks.
 """
 
 from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)
 from iap_mjx.envs.base import Env, State
 from iap_mjx.configs.env import EnvConfig
 from iap_mjx.envs import batch
-from iap_mjx.configs.env import QuadrupedConfig
+from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
 from iap_mjx.envs.registry import check, make, names
 
-__all__ = ["Env", "EnvConfig", "QuadrupedConfig", "State", "batch", "check", "make", "names"]
+__all__ = ["Env", "EnvConfig", "QuadrupedConfig", "QuadrupedWallsConfig", "State", "batch", "check", "make", "names"]

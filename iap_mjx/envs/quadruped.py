@@ -33,7 +33,7 @@ from mujoco.mjx._src import collision_driver
 
 from iap_mjx.robots import a1
 from iap_mjx.robots.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
-from iap_mjx.configs.env import QuadrupedConfig
+from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
 from iap_mjx.envs.dmc import DmControlEnv
 
 
@@ -61,9 +61,9 @@ class QuadrupedFlat(DmControlEnv):
     camera_options: dict[str, Any] = {"geom_groups": (a1.WORLD_GROUP,)}
 
     def __init__(self, config: QuadrupedConfig | None = None, **overrides: Any):
+        if config is not None and type(config) is not self.config_class:
+            raise ValueError(f"{self.name} needs a {self.config_class.__name__}, got {type(config).__name__}.")
         super().__init__(config, **overrides)
-        if not isinstance(self.config, QuadrupedConfig):
-            raise ValueError(f"{self.name} needs a QuadrupedConfig, got {type(self.config).__name__}.")
         model = self.mj_model
         sensor = lambda name: int(model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, name)])  # noqa: E731
         self._quat = sensor("trunk_quat")
@@ -169,6 +169,7 @@ class QuadrupedWalls(QuadrupedFlat):
     default_max_contacts = 8  # wall contacts (condim 1); the four foot contacts are their own group
     default_max_geom_pairs = 8  # per collision function: the near wall's pairs with the legs
     default_episode_steps = 1000
+    config_class = QuadrupedWallsConfig
     PLATFORM = (-1.0, 10.0, 1.0, 0.5)  # x_min, x_max, half-width, drop
     WALL_HALF_SIZE = (0.05, 0.6, 0.25)
     WALL_START, WALL_SPACING, WALL_JITTER = 1.5, 2.5, 0.3
