@@ -287,6 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: sets up devices and the compilation cache, then runs the command."""
+    runtime.hoist_large_constants()
     runtime.set_host_device_count()
     runtime.enable_compilation_cache()
     runtime.disable_dm_control_rendering()

@@ -1,10 +1,10 @@
-"""Process-level set-up: the persistent compilation cache, the number of CPU devices, and
-dm_control's OpenGL backend.
+"""Process-level set-up: the persistent compilation cache, the number of CPU devices,
+dm_control's OpenGL backend, and large constants passed as arguments.
 
 Each must be decided before the library it concerns starts (the device count before JAX
-initialises its backend, the GL backend before dm_control is imported), so entry points (the
-CLI, benchmarks, ``tests/conftest.py``, the notebook) call these first. Library code never
-calls them: importing ``iap_mjx`` changes no global state.
+initialises its backend, large constants and the GL backend before JAX and dm_control are
+imported), so entry points (the CLI, benchmarks, ``tests/conftest.py``, the notebook) call
+these first. Library code never calls them: importing ``iap_mjx`` changes no global state.
 """
 
 from __future__ import annotations
@@ -38,6 +38,31 @@ def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     logger.debug("JAX persistent compilation cache at %s", path)
     return path
+
+
+LARGE_CONSTANT_BYTES = 1 << 20
+
+
+def hoist_large_constants(max_embedded_bytes: int = LARGE_CONSTANT_BYTES) -> bool:
+    """Arrays larger than ``max_embedded_bytes`` that jitted code closes over become arguments
+    of the compiled program instead of constants embedded in it (JAX's
+    ``jax_use_simplified_jaxpr_constants``). The Distracting Control Suite's background videos
+    (tens to hundreds of MB, closed over by the env) would otherwise be copied into every
+    program, which then takes minutes to compile and fills the compilation cache; smaller
+    constants stay embedded as before.
+
+    Takes effect only if JAX is not imported yet (the flag is read at import). Returns whether
+    it is in force.
+    """
+    import sys
+
+    if "jax" in sys.modules:
+        import jax
+
+        return bool(jax.config.jax_use_simplified_jaxpr_constants)
+    os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")
+    os.environ.setdefault("JAX_EMBEDDED_CONSTANTS_MAX_BYTES", str(int(max_embedded_bytes)))
+    return os.environ["JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS"].lower() in ("1", "true")
 
 
 def set_host_device_count(count: int | None = None) -> int:

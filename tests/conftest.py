@@ -22,6 +22,7 @@ from iap_mjx import runtime
 _FAST_COMPILE = "--xla_backend_optimization_level=0"
 if "--xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE}".strip()
+runtime.hoist_large_constants()  # as the CLI: large closed-over arrays are arguments
 runtime.set_host_device_count(2)
 runtime.disable_dm_control_rendering()  # reference renders run in child processes
 runtime.enable_compilation_cache(

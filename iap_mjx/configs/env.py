@@ -35,6 +35,16 @@ class EnvConfig:
         is ended as a bad state.
       obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
       camera_id, height, width, frame_stack: the camera settings for pixel modes.
+      distraction: the Distracting Control Suite's difficulty, ``"easy"``, ``"medium"`` or
+        ``"hard"`` (``None`` or ``"none"``: no distraction; pixel modes only); see
+        ``iap_mjx.envs.distraction``.
+      dynamic: distractions move every control step (else one draw per episode).
+      distraction_kinds: which are on: a subset of ``background``, ``camera``, ``colour``
+        (a tuple or a comma-separated string).
+      background_dir: a DAVIS-2017 directory for the backgrounds (``None``: the photographs
+        that ship in scikit-image, ``iap_mjx.envs.backgrounds``).
+      background_size, background_frames: the square sky texture's side in texels, and the
+        frames per built-in video.
     """
 
     action_repeat: int = 1
@@ -48,6 +58,12 @@ class EnvConfig:
     height: int = 100
     width: int = 100
     frame_stack: int = 1
+    distraction: str | None = None
+    dynamic: bool = False
+    distraction_kinds: tuple[str, ...] | str = ("background", "camera", "colour")
+    background_dir: str | None = None
+    background_size: int = 256
+    background_frames: int = 32
 
     def __post_init__(self):
         positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height",
@@ -77,6 +93,28 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
         if not isinstance(self.camera_id, int) or self.camera_id < 0:
             raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
+        from iap_mjx.envs import distraction
+
+        object.__setattr__(self, "distraction_kinds", distraction.parse_kinds(self.distraction_kinds))
+        if self.distraction == "none":
+            object.__setattr__(self, "distraction", None)
+        if self.distraction is not None:
+            if self.obs_mode == "state":
+                raise ValueError(f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
+                                 f"(one of {OBS_MODES[1:]}), got obs_mode='state'.")
+            self.distraction_config()
+
+    def distraction_config(self):
+        """The ``distraction.DistractionConfig`` of these settings (``None`` without one);
+        validates them, background directory included, without decoding an image."""
+        from iap_mjx.envs import distraction
+
+        if self.distraction is None:
+            return None
+        return distraction.DistractionConfig(
+            difficulty=self.distraction, dynamic=self.dynamic, kinds=self.distraction_kinds,
+            background_dir=self.background_dir, background_size=self.background_size,
+            background_frames=self.background_frames)
 
 
 @dataclasses.dataclass(frozen=True)

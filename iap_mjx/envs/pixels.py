@@ -10,6 +10,11 @@ is an image rendered from ``State.data`` by ``iap_mjx.render.Camera``:
 
 Frames are stacked along channels, oldest first (the newest frame is the last ``C``
 channels); at ``reset`` the first frame fills the whole stack.
+
+With ``distraction`` (an ``iap_mjx.envs.distraction.DistractionConfig``) the frames are the
+Distracting Control Suite's: the episode's perturbation is drawn at reset, kept in
+``State.info["distraction"]``, advanced once per control step, and handed to the camera
+(pose, colours, sky) without touching the physics.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.envs import distraction as distraction_lib
 from iap_mjx.envs.base import State
 from iap_mjx.render import Camera
 
@@ -34,11 +40,14 @@ class PixelEnv:
     Attributes:
       env: the wrapped (state-observation) env.
       camera: the ``iap_mjx.render.Camera`` used.
+      distraction: the ``distraction.Distraction`` applied before rendering, or ``None``.
       obs_mode, frame_stack: as given.
     """
 
     def __init__(self, env: Any, obs_mode: str = "pixels", camera_id: int = 0,
-                 height: int = 100, width: int = 100, frame_stack: int = 1, **camera_config: Any):
+                 height: int = 100, width: int = 100, frame_stack: int = 1,
+                 distraction: distraction_lib.DistractionConfig | None = None,
+                 videos: Any = None, **camera_config: Any):
         if obs_mode not in PIXEL_MODES:
             raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
         if not isinstance(frame_stack, int) or isinstance(frame_stack, bool) or frame_stack < 1:
@@ -46,8 +55,10 @@ class PixelEnv:
         self.env = env
         self.obs_mode = obs_mode
         self.frame_stack = frame_stack
-        self.camera = Camera(env.mj_model, camera_id=camera_id, height=height, width=width,
-                             **camera_config)
+        model = env.mj_model if distraction is None else distraction_lib.camera_model(env, distraction)
+        self.camera = Camera(model, camera_id=camera_id, height=height, width=width, **camera_config)
+        self.distraction = (None if distraction is None
+                            else distraction_lib.Distraction(env, self.camera, distraction, videos))
 
     def __getattr__(self, name: str) -> Any:
         if name == "env":  # not set yet (e.g. during unpickling): avoid recursion
@@ -67,29 +78,46 @@ class PixelEnv:
             return {"pixels": pixels, "state": tuple(self.env.observation_shape)}
         return pixels
 
-    def render(self, data: Any) -> jax.Array:
-        """One frame ``(H, W, C)`` float32 of ``data`` (RGB, or RGB-D for ``"pixels_depth"``)."""
-        rgb, depth = self.camera.render(data)
+    def render(self, data: Any, perturbation: Any = None) -> jax.Array:
+        """One frame ``(H, W, C)`` float32 of ``data`` (RGB, or RGB-D for ``"pixels_depth"``);
+        a distracted env needs the episode's ``perturbation`` (``state.info["distraction"]``)."""
+        inputs = {}
+        if self.distraction is not None:
+            if perturbation is None:
+                raise ValueError("a distracted env renders with the episode's perturbation: "
+                                 "render(state.data, state.info['distraction'])")
+            data, inputs = self.distraction.scene(data, perturbation)
+        rgb, depth = self.camera.render(data, **inputs)
         if self.obs_mode == "pixels_depth":
             return jnp.concatenate([rgb, depth[..., None]], axis=-1)
         return rgb
 
     def reset(self, key: jax.Array) -> State:
-        return self._first(self.env.reset(key))
+        return self._first(self.env.reset(key), key)
 
-    def reset_to(self, *args: Any, **kwargs: Any) -> State:
-        """The wrapped env's ``reset_to`` with pixel observations."""
-        return self._first(self.env.reset_to(*args, **kwargs))
+    def reset_to(self, *args: Any, key: jax.Array | None = None, **kwargs: Any) -> State:
+        """The wrapped env's ``reset_to`` with pixel observations (``key``: the distraction's
+        draw, default ``PRNGKey(0)``)."""
+        key = jax.random.PRNGKey(0) if key is None else key
+        return self._first(self.env.reset_to(*args, **kwargs), key)
 
     def step(self, state: State, action: jax.Array) -> State:
         stack = self._pixels(state.obs)
         next_state = self.env.step(state, action)
-        frame = self.render(next_state.data)
+        perturbation = None
+        if self.distraction is not None:
+            perturbation = self.distraction.advance(state.info["distraction"])
+            next_state = next_state.replace(info={**next_state.info, "distraction": perturbation})
+        frame = self.render(next_state.data, perturbation)
         stack = jnp.concatenate([stack[..., self.channels:], frame], axis=-1)
         return next_state.replace(obs=self._observation(stack, next_state.obs))
 
-    def _first(self, state: State) -> State:
-        frame = self.render(state.data)
+    def _first(self, state: State, key: jax.Array) -> State:
+        perturbation = None
+        if self.distraction is not None:
+            perturbation = self.distraction.reset(key, state.data)
+            state = state.replace(info={**state.info, "distraction": perturbation})
+        frame = self.render(state.data, perturbation)
         stack = jnp.concatenate([frame] * self.frame_stack, axis=-1)
         return state.replace(obs=self._observation(stack, state.obs))
 
@@ -103,7 +131,9 @@ class PixelEnv:
 
 
 def with_pixels(env: Any, obs_mode: str = "pixels", camera_id: int = 0, height: int = 100,
-                width: int = 100, frame_stack: int = 1, **camera_config: Any) -> PixelEnv:
+                width: int = 100, frame_stack: int = 1,
+                distraction: distraction_lib.DistractionConfig | None = None,
+                videos: Any = None, **camera_config: Any) -> PixelEnv:
     """Wraps ``env`` (which must expose ``mj_model``) so its observations are camera images.
 
     Args:
@@ -112,7 +142,9 @@ def with_pixels(env: Any, obs_mode: str = "pixels", camera_id: int = 0, height: 
       camera_id, height, width: the model camera and image size (default 100x100, camera 0,
         as the IAP paper's Cheetah-Run experiment).
       frame_stack: frames stacked along channels, oldest first.
+      distraction: Distracting Control Suite perturbations (``None``: none); ``videos``
+        the background videos they need (``iap_mjx.envs.backgrounds.load``).
       camera_config: further ``iap_mjx.render.CameraConfig`` fields (shading, sky, ...).
     """
     return PixelEnv(env, obs_mode=obs_mode, camera_id=camera_id, height=height, width=width,
-                    frame_stack=frame_stack, **camera_config)
+                    frame_stack=frame_stack, distraction=distraction, videos=videos, **camera_config)

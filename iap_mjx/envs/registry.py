@@ -61,7 +61,9 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
 
     For ``obs_mode`` other than ``"state"`` the env is wrapped by
     ``iap_mjx.envs.pixels.with_pixels`` with the config's camera settings (and the task's
-    ``camera_options``, e.g. the quadruped's first-person camera drawing the world only).
+    ``camera_options``, e.g. the quadruped's first-person camera drawing the world only) and,
+    with ``distraction`` set (``"easy"``/``"medium"``/``"hard"``), the Distracting Control
+    Suite's perturbations (their background videos loaded here, before anything compiles).
 
     Raises:
       ValueError: as :func:`check`.
@@ -73,6 +75,13 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
     from iap_mjx.envs.pixels import with_pixels
 
     cfg = env.config
+    distraction = cfg.distraction_config()
+    videos = None
+    if distraction is not None and "background" in distraction.kinds:
+        from iap_mjx.envs import backgrounds
+
+        videos = backgrounds.load(distraction.difficulty, distraction.background_dir,
+                                  distraction.background_size, distraction.background_frames)
     return with_pixels(
         env,
         obs_mode=cfg.obs_mode,
@@ -80,5 +89,7 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
         height=cfg.height,
         width=cfg.width,
         frame_stack=cfg.frame_stack,
+        distraction=distraction,
+        videos=videos,
         **getattr(env, "camera_options", {}),
     )

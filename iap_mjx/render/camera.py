@@ -15,7 +15,8 @@ How it works (and why, on a CPU):
   instead, so the result never depends on the culling.
 - Shading needs no per-geom work per pixel: colour by geom index, Lambert normals from the
   hit points of neighbouring pixels on the same geom, the floor checker from the plane's hit
-  coordinates, the sky from the ray's elevation.
+  coordinates, the sky from the ray's elevation (or a skybox texture by ray direction,
+  ``sky.py``), partly transparent geoms blended over it.
 - Under ``vmap`` the batch is rendered in chunks (``batch_chunk`` images per step of a loop)
   so intermediates stay in cache; see ``Camera._batchable``.
 """
@@ -33,6 +34,7 @@ from mujoco import mjx
 
 from iap_mjx.render import intersect
 from iap_mjx.render import scene as scene_lib
+from iap_mjx.render import sky as sky_lib
 
 SHADINGS = ("lambert", "flat")
 SKIES = ("skybox", "color")
@@ -190,7 +192,8 @@ class Camera:
         return np.stack([x, y, -np.ones((h, w), np.float32)], axis=-1)
 
     def render(self, data: mjx.Data, background: Optional[jax.Array] = None,
-               geom_rgb: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array]:
+               geom_rgb: Optional[jax.Array] = None,
+               sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array]:
         """Renders one state (``vmap`` it for a batch).
 
         Args:
@@ -199,7 +202,11 @@ class Camera:
           background: optional ``(H, W, 3)`` image in [0, 1] shown where nothing is hit
             (e.g. a Distracting Control Suite frame); replaces the sky.
           geom_rgb: optional ``(G, 3)`` colours replacing the model's (colour perturbations),
-            one row per ``self.geom_ids`` entry; textured floors then draw flat.
+            one row per ``self.geom_ids`` entry; a checker floor's texture is multiplied by
+            its row, as MuJoCo tints a texture by the material colour.
+          sky_texture: optional ``(S, S, 3)`` uint8 skybox face (a Distracting Control Suite
+            video frame), seen by ray direction on every face of the cube as MuJoCo draws a
+            square skybox texture (``sky.py``); replaces the sky (``background`` wins).
 
         Returns:
           rgb ``(H, W, 3)`` float32 in [0, 1] and depth ``(H, W)`` float32 in metres.
@@ -215,14 +222,19 @@ class Camera:
         elif tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
             raise ValueError(
                 f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
-        rgb, depth, _ = self._batchable(True)(self._poses(data), background, geom_rgb)
+        if sky_texture is None:
+            sky_texture = jnp.zeros((0,), jnp.uint8)
+        elif (sky_texture.ndim != 3 or sky_texture.shape[0] != sky_texture.shape[1]
+              or sky_texture.shape[2] != 3 or sky_texture.dtype != jnp.uint8):
+            raise ValueError(f"sky_texture must be (S, S, 3) uint8, got {sky_texture.dtype} {sky_texture.shape}")
+        rgb, depth, _ = self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture)
         return rgb, depth
 
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
         empty = jnp.zeros((0,), jnp.float32)
-        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty)
+        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty, jnp.zeros((0,), jnp.uint8))
         return depth, ids
 
     # -- implementation ---------------------------------------------------------------------
@@ -252,16 +264,16 @@ class Camera:
         if cached is not None:
             return cached
 
-        def single(poses, background, geom_rgb):
-            return self._program(poses, background, geom_rgb, colour, batched=False)
+        def single(poses, background, geom_rgb, sky_texture):
+            return self._program(poses, background, geom_rgb, sky_texture, colour, batched=False)
 
         batched = jax.custom_batching.custom_vmap(single)
 
         @batched.def_vmap
-        def _rule(axis_size, in_batched, poses, background, geom_rgb):
+        def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture):
             args = jax.tree.map(
                 lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
-                (poses, background, geom_rgb), tuple(in_batched))
+                (poses, background, geom_rgb, sky_texture), tuple(in_batched))
             chunk = min(self.config.batch_chunk, axis_size)
             n_chunks = -(-axis_size // chunk)
             padded = n_chunks * chunk
@@ -279,7 +291,7 @@ class Camera:
         self._kernels[colour] = batched
         return batched
 
-    def _program(self, poses, background, geom_rgb, colour: bool, batched: bool):
+    def _program(self, poses, background, geom_rgb, sky_texture, colour: bool, batched: bool):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
         depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
         more (tile, geom) pairs than the budget, dense tracing.
@@ -317,6 +329,8 @@ class Camera:
         padded = self._barrier(lift(_pad_one)((depth, best)), finite)
         surface, light = self._barrier(
             lift(self._surface_terms)(poses, frames, padded, geom_rgb), finite)
+        if background.size == 0 and sky_texture.size != 0:
+            background = self._skybox(poses["cam_mat"], sky_texture)
         planes = self._barrier(
             lift(self._compose)(poses, surface, light, padded[1], background), finite)
         return jnp.stack(planes, axis=-1), depth, ids
@@ -485,14 +499,32 @@ class Camera:
         """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background
         (``best_p``: the padded float geom index of ``_pad_one``)."""
         best = best_p[1:-1, 1:-1]
-        if background.size == 0:
+        if isinstance(background, (tuple, list)):  # the skybox planes of ``_skybox``
+            background = list(background)
+        elif background.size == 0:
             background = self._sky(poses["cam_mat"])
         else:
             background = [background[..., c].astype(jnp.float32) for c in range(3)]
         hit = best < len(self.scene.geom_ids)
         light = [light[min(c, len(light) - 1)] for c in range(3)]
-        return tuple(jnp.where(hit, jnp.clip(surface[c] * light[c], 0.0, 1.0), background[c])
-                     for c in range(3))
+        lit = [jnp.clip(surface[c] * light[c], 0.0, 1.0) for c in range(3)]
+        transparent = np.flatnonzero(self.scene.geom_alpha < 1.0)
+        if transparent.size:
+            alpha = jnp.ones_like(best)
+            for k in transparent:
+                alpha = jnp.where(best == k, float(self.scene.geom_alpha[k]), alpha)
+            lit = [sky_lib.over(alpha, lit[c], background[c]) for c in range(3)]
+        return tuple(jnp.where(hit, lit[c], background[c]) for c in range(3))
+
+    def _skybox(self, cam_mat, sky_texture) -> tuple[jax.Array, ...]:
+        """``3 x ([C,] H, W)`` the skybox texture ``([C,] S, S, 3)`` uint8 by world ray
+        direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk of images."""
+        x = jnp.asarray(self._x)
+        y = jnp.asarray(self._y)
+        m = cam_mat[..., None, None]  # (..., 3, 3, 1, 1) against (H, 1) and (1, W)
+        dx, dy, dz = (x * m[..., i, 0, :, :] + y * m[..., i, 1, :, :] - m[..., i, 2, :, :] for i in range(3))
+        size = int(sky_texture.shape[-2])
+        return tuple(sky_lib.skybox_planes(sky_lib.pack_rgb(sky_texture), size, dx, dy, dz))
 
     def _surface_terms(self, poses, frames, padded, geom_rgb):
         """Surface colour ``3 x (H, W)`` of each pixel's nearest geom and the light falling on
@@ -505,7 +537,7 @@ class Camera:
         which needs no per-geom work per pixel.
         """
         rgb_table = self.scene.geom_rgb if geom_rgb.size == 0 else geom_rgb.astype(jnp.float32)
-        checker = geom_rgb.size == 0 and self.config.checker_floor
+        checker = self.config.checker_floor
         sc, cfg = self.scene, self.config
         depth_p, best_p = padded
         depth, best = depth_p[1:-1, 1:-1], best_p[1:-1, 1:-1]
@@ -523,8 +555,12 @@ class Camera:
                 odd = ((_floor_int(u * sc.checker_scale[k, 0])
                         + _floor_int(v * sc.checker_scale[k, 1])) & 1) == 1
                 mine = best == k
-                colour = [jnp.where(mine, jnp.where(odd, sc.checker_rgb[k, 1, c], sc.checker_rgb[k, 0, c]),
-                                    colour[c]) for c in range(3)]
+                if geom_rgb.size == 0:
+                    tints = [sc.checker_rgb[k, :, c] for c in range(3)]
+                else:  # MuJoCo multiplies the texture by the (changed) colour
+                    tints = [sc.checker_texture[k, :, c] * rgb_table[k, c] for c in range(3)]
+                colour = [jnp.where(mine, jnp.where(odd, tints[c][1], tints[c][0]), colour[c])
+                          for c in range(3)]
         if cfg.shading == "flat":
             return tuple(colour), (jnp.ones_like(depth),)
         tangent_x = _surface_step(depth_p, best_p, x, y, self._pixel_pitch[0], axis=1)

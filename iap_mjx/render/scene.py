@@ -40,9 +40,14 @@ class Scene:
       geom_size: ``(G, 3)`` float32, MuJoCo sizes (plane size 0 = infinite in that direction).
       geom_rgb: ``(G, 3)`` float32, the colour MuJoCo's renderer uses (material colour when the
         geom keeps the default rgba, as ``mjv`` does).
+      geom_alpha: ``(G,)`` float32 in (0, 1], the opacity from the same rgba (geoms of alpha 0
+        are not drawn at all, as ``mj_ray`` skips them); a partly transparent geom is drawn
+        over the sky behind it.
       checker: ``(G,)`` bool, geom is a plane with a 2-D texture drawn as a 2x2 checker.
       checker_rgb: ``(G, 2, 3)`` float32, the two checker colours (texture quadrant centres,
         times the material colour).
+      checker_texture: ``(G, 2, 3)`` float32, the texture's two colours alone (MuJoCo
+        multiplies them by the geom's colour, so a changed colour tints the checker).
       checker_scale: ``(G, 2)`` float32, texture repeats per unit length along local x, y.
       light_mode: ``(L,)`` int, mjtCamLight: 0 fixed to ``light_bodyid`` (position and
         direction in the body frame), 1 tracking the body's position, 2 tracking its subtree's
@@ -67,8 +72,10 @@ class Scene:
     geom_type: np.ndarray
     geom_size: np.ndarray
     geom_rgb: np.ndarray
+    geom_alpha: np.ndarray
     checker: np.ndarray
     checker_rgb: np.ndarray
+    checker_texture: np.ndarray
     checker_scale: np.ndarray
     light_mode: np.ndarray
     light_bodyid: np.ndarray
@@ -148,7 +155,8 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
 
     Geoms of unsupported types (meshes, heightfields, SDFs) are skipped.
     """
-    ids, types, sizes, rgbs, checker, checker_rgb, checker_scale = [], [], [], [], [], [], []
+    ids, types, sizes, rgbs, alphas = [], [], [], [], []
+    checker, checker_rgb, checker_texture, checker_scale = [], [], [], []
     for g in range(m.ngeom):
         gtype = int(m.geom_type[g])
         if int(m.geom_group[g]) not in geom_groups or not _geom_alpha_visible(m, g):
@@ -160,6 +168,7 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         types.append(gtype)
         sizes.append(np.asarray(m.geom_size[g], np.float32))
         rgbs.append(rgba[:3])
+        alphas.append(min(float(rgba[3]), 1.0))
         matid = int(m.geom_matid[g])
         tex = _material_rgb_texture(m, matid) if matid >= 0 else -1
         is_checker = (
@@ -170,7 +179,8 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         if is_checker:
             img = _texture_rgb(m, tex)
             h, w = img.shape[:2]
-            colours = np.stack([img[h // 4, w // 4], img[h // 4, 3 * w // 4]]) * rgba[None, :3]
+            texture = np.stack([img[h // 4, w // 4], img[h // 4, 3 * w // 4]])
+            colours = texture * rgba[None, :3]
             repeat = np.asarray(m.mat_texrepeat[matid], np.float32)
             if bool(m.mat_texuniform[matid]):
                 scale = repeat
@@ -178,9 +188,11 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
                 extent = np.where(m.geom_size[g, :2] > 0, 2 * m.geom_size[g, :2], 1.0)
                 scale = repeat / extent.astype(np.float32)
             checker_rgb.append(colours.astype(np.float32))
+            checker_texture.append(texture.astype(np.float32))
             checker_scale.append(scale.astype(np.float32))
         else:
             checker_rgb.append(np.zeros((2, 3), np.float32))
+            checker_texture.append(np.zeros((2, 3), np.float32))
             checker_scale.append(np.ones(2, np.float32))
 
     light_active = np.asarray(m.light_active, bool) if m.nlight else np.zeros(0, bool)
@@ -199,8 +211,10 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         geom_type=np.asarray(types, np.int32),
         geom_size=np.asarray(sizes, np.float32).reshape(-1, 3),
         geom_rgb=np.asarray(rgbs, np.float32).reshape(-1, 3),
+        geom_alpha=np.asarray(alphas, np.float32).reshape(-1),
         checker=np.asarray(checker, bool),
         checker_rgb=np.asarray(checker_rgb, np.float32).reshape(-1, 2, 3),
+        checker_texture=np.asarray(checker_texture, np.float32).reshape(-1, 2, 3),
         checker_scale=np.asarray(checker_scale, np.float32).reshape(-1, 2),
         light_mode=light_mode,
         light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),

@@ -44,8 +44,28 @@ def _suite_model(domain: str):
     return mujoco.MjModel.from_xml_string(xml, assets)
 
 
+def _set_skybox(model, renderer, frame: np.ndarray) -> None:
+    """Uploads ``frame`` ``(S, S, 3)`` uint8 as the skybox texture, as the Distracting Control
+    Suite does (one square face, which MuJoCo repeats on all six)."""
+    import mujoco
+
+    sky = next(t for t in range(model.ntex)
+               if int(model.tex_type[t]) == int(mujoco.mjtTexture.mjTEXTURE_SKYBOX))
+    size = frame.shape[0]
+    if size * size * 3 > model.tex_width[sky] * model.tex_height[sky] * model.tex_nchannel[sky]:
+        raise ValueError(f"a {size}x{size} sky does not fit the model's skybox texture")
+    model.tex_width[sky] = size
+    model.tex_height[sky] = size
+    adr = int(model.tex_adr[sky])
+    model.tex_data[adr: adr + frame.size] = frame.reshape(-1)
+    renderer._gl_context.make_current()
+    mujoco.mjr_uploadTexture(model, renderer._mjr_context, sky)
+
+
 def _render_reference(request: dict) -> dict:
-    """In the child: MuJoCo's RGB, depth and geom segmentation of each state."""
+    """In the child: MuJoCo's RGB, depth and geom segmentation of each state (after the
+    request's optional distractions: ``mat_rgba`` per state, a ``sky`` texture per state, and
+    ``cam_xpos``/``cam_xmat`` per state written into the data of every requested camera)."""
     import mujoco
 
     model = _suite_model(str(request["domain"]))
@@ -53,13 +73,21 @@ def _render_reference(request: dict) -> dict:
     renderer = mujoco.Renderer(model, height, width)
     data = mujoco.MjData(model)
     out = {"rgb": [], "depth": [], "segmentation": []}
-    for qpos, geom_pos, geom_size, site_rgba in zip(request["qpos"], request["geom_pos"], request["geom_size"],
-                                                    request["site_rgba"]):
+    for i, (qpos, geom_pos, geom_size, site_rgba) in enumerate(zip(
+            request["qpos"], request["geom_pos"], request["geom_size"], request["site_rgba"])):
         model.geom_pos[:] = geom_pos
         model.geom_size[:] = geom_size
         model.site_rgba[:] = site_rgba
+        if "mat_rgba" in request:
+            model.mat_rgba[:] = request["mat_rgba"][i]
+        if "sky" in request:
+            _set_skybox(model, renderer, np.asarray(request["sky"][i], np.uint8))
         data.qpos[:] = qpos
         mujoco.mj_forward(model, data)
+        for camera in request["camera_ids"]:
+            if "cam_xpos" in request:
+                data.cam_xpos[int(camera)] = request["cam_xpos"][i]
+                data.cam_xmat[int(camera)] = request["cam_xmat"][i].reshape(-1)
         for key in out:
             out[key].append([])
         for camera in request["camera_ids"]:
@@ -80,10 +108,15 @@ def _render_reference(request: dict) -> dict:
 
 
 def reference_frames(domain: str, states, camera_ids, height: int,
-                     width: int) -> dict[str, np.ndarray]:
+                     width: int, distractions: dict | None = None) -> dict[str, np.ndarray]:
     """MuJoCo's own frames of ``states`` (``(model, data)`` pairs of dm_control's ``domain``;
     each model's geom positions and sizes and site colours are applied, as tasks edit them at
     reset: reacher moves its target, finger hides two sites) from each of ``camera_ids``.
+
+    ``distractions`` (optional) holds per-state arrays applied as the Distracting Control
+    Suite applies them before rendering: ``mat_rgba`` ``(N, nmat, 4)``, ``sky`` ``(N, S, S,
+    3)`` uint8 (the skybox texture) and ``cam_xpos`` ``(N, 3)`` / ``cam_xmat`` ``(N, 3, 3)``
+    (written into the data after ``mj_forward``).
 
     Returns ``rgb`` ``(N, C, H, W, 3)`` uint8, ``depth`` ``(N, C, H, W)`` metres and
     ``segmentation`` ``(N, C, H, W)`` geom id (-1 for none), for N states and C cameras.
@@ -98,7 +131,8 @@ def reference_frames(domain: str, states, camera_ids, height: int,
                  geom_size=np.stack([np.asarray(m.geom_size) for m, _ in states]),
                  site_rgba=np.stack([np.asarray(m.site_rgba) for m, _ in states]),
                  qpos=np.stack([np.asarray(d.qpos, np.float64) for _, d in states]),
-                 camera_ids=np.asarray(camera_ids, np.int32), height=height, width=width)
+                 camera_ids=np.asarray(camera_ids, np.int32), height=height, width=width,
+                 **{k: np.asarray(v) for k, v in (distractions or {}).items()})
         env = dict(os.environ, MUJOCO_GL=GL_BACKEND, PYOPENGL_PLATFORM=GL_BACKEND)
         proc = subprocess.run(
             [sys.executable, "-m", "iap_mjx.viz.render_compare", "--reference", str(request),

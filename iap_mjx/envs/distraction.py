@@ -1,0 +1,286 @@
+"""The Distracting Control Suite (Stone et al. 2021) inside the compiled program.
+
+The reference is google-research ``distracting_control/`` (``suite.py``, ``suite_utils.py``,
+``camera.py``, ``color.py``, ``background.py``). Three kinds of perturbation, each on or off:
+
+- ``camera``: the camera's pose in a spherical box around its own (``camera_walk.py``);
+- ``colour``: every material's RGB uniform within ``+- b`` of its own value (clipped to
+  [0, 1]; geoms without a material and the skybox keep theirs); dynamic: a Gaussian step of
+  ``0.03 b`` per channel per control step, clipped to the same box;
+- ``background``: a video frame as the skybox texture (``iap_mjx.render.sky``), the floor
+  (``grid`` material) partly transparent with the domain's alpha (reacher 0, cheetah and
+  walker 1, the others 0.3). Each episode draws a video; static: one frame for the whole
+  episode; dynamic: a random start frame and direction, one frame per control step,
+  turning back at either end as the reference does.
+
+Difficulty ``easy``/``medium``/``hard`` sets the scale ``b`` = 0.1/0.2/0.3 (and the number of
+videos, in ``backgrounds``). ``static``: each episode draws one perturbation and holds it;
+``dynamic``: it moves once per control step, so ``action_repeat`` times per env step,
+drawing its noise from a key kept with it. The perturbation lives in
+``State.info["distraction"]`` (a :class:`Perturbation`), drawn at reset from the episode's
+key (folded with a constant, so the physics' own draws are the undistracted env's); it
+never touches the physics: :meth:`Distraction.scene` hands the camera a copy of the data
+with ``cam_xpos``/``cam_xmat`` replaced, the geoms' colours and the sky texture.
+
+Reference details kept: the camera walks once at reset (its first ``_apply``), colour and
+background do not; the upper-quadrant limit and roll-free look-at for every domain but
+reacher (axis-angle look-at there); the reference always reads the mode of camera 0, here
+the mode of the camera rendered (the same camera in every suite task).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from iap_mjx.envs import backgrounds as backgrounds_lib
+from iap_mjx.envs import camera_walk
+
+DIFFICULTY_SCALE = {"easy": 0.1, "medium": 0.2, "hard": 0.3}
+KINDS = ("background", "camera", "colour")
+# distracting_control/suite_utils.get_background_kwargs: ground_plane_alpha
+FLOOR_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
+DEFAULT_FLOOR_ALPHA = 0.3
+FLOOR_MATERIAL = "grid"
+COLOUR_STEP = 0.03  # dynamic colour std per control step, times the scale
+_FOLD = 0x0D15C  # folded into the episode key for the perturbation's own draws
+logger = logging.getLogger(__name__)
+_DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
+_FIXED = int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
+_TRACKCOM = int(mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)
+
+
+@dataclasses.dataclass(frozen=True)
+class DistractionConfig:
+    """Which distractions (hashable; validated on construction, before anything compiles).
+
+    Attributes:
+      difficulty: ``"easy"``, ``"medium"`` or ``"hard"``.
+      dynamic: perturbations move every control step (else one draw per episode).
+      kinds: the perturbations on, a subset of ``("background", "camera", "colour")``.
+      background_dir: a DAVIS-2017 directory, or ``None`` for the photographs that ship in
+        scikit-image (``iap_mjx.envs.backgrounds``).
+      background_size: side of the square frames (the sky texture), in texels.
+      background_frames: frames per built-in video.
+    """
+
+    difficulty: str = "medium"
+    dynamic: bool = False
+    kinds: tuple[str, ...] = KINDS
+    background_dir: str | None = None
+    background_size: int = backgrounds_lib.DEFAULT_SIZE
+    background_frames: int = backgrounds_lib.DEFAULT_NUM_FRAMES
+
+    def __post_init__(self):
+        if self.difficulty not in DIFFICULTY_SCALE:
+            raise ValueError(f"distraction = {self.difficulty!r} is not a difficulty; valid: "
+                             f"{', '.join(DIFFICULTY_SCALE)} (or None for no distraction).")
+        if not isinstance(self.dynamic, bool):
+            raise ValueError(f"distraction dynamic = {self.dynamic!r} must be True or False.")
+        kinds = parse_kinds(self.kinds)
+        object.__setattr__(self, "kinds", kinds)
+        if "background" in kinds:
+            backgrounds_lib.check(self.difficulty, self.background_dir, self.background_size,
+                                  self.background_frames)
+
+    @property
+    def scale(self) -> float:
+        return DIFFICULTY_SCALE[self.difficulty]
+
+
+def parse_kinds(kinds: Any) -> tuple[str, ...]:
+    """``kinds`` (a tuple, or a comma-separated string as typed on a command line) as a
+    tuple in canonical order; unknown, repeated or no kinds raise ``ValueError``."""
+    items = tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else tuple(kinds)
+    unknown = [k for k in items if k not in KINDS]
+    if unknown or not items or len(set(items)) != len(items):
+        raise ValueError(f"distraction_kinds {kinds!r}: give one or more of {', '.join(KINDS)}, "
+                         "each at most once.")
+    return tuple(k for k in KINDS if k in items)
+
+
+def domain_name(env: Any) -> str:
+    """The dm_control domain of a suite env (``cheetah``, ``ball_in_cup``, ...)."""
+    return env.domain.__name__.rsplit(".", 1)[-1]
+
+
+def floor_alpha(domain: str) -> float:
+    """The reference's ground-plane alpha for ``domain``."""
+    return FLOOR_ALPHA.get(domain, DEFAULT_FLOOR_ALPHA)
+
+
+def camera_model(env: Any, config: DistractionConfig) -> mujoco.MjModel:
+    """The model the camera is built from: ``env.mj_model``, with the floor material's alpha
+    set as the reference's background wrapper sets it (a copy; the physics' model is
+    untouched)."""
+    model = env.mj_model
+    if "background" not in config.kinds:
+        return model
+    grid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_MATERIAL, FLOOR_MATERIAL)
+    if grid < 0:
+        return model
+    import copy
+
+    model = copy.copy(model)
+    model.mat_rgba[grid, 3] = floor_alpha(domain_name(env))
+    return model
+
+
+@struct.dataclass
+class Perturbation:
+    """One episode's distraction state (``State.info["distraction"]``; a leading axis under
+    ``vmap``). Fields of kinds that are off are ``None``.
+
+    Attributes:
+      key: the key of the dynamic walks' noise.
+      camera: the ``camera_walk.CameraWalk``.
+      colour: ``(M, 3)`` every material's RGB.
+      video, frame, direction: ``()`` int32: the background video, its frame, and the
+        dynamic step (+1 / -1; 0 when static).
+    """
+
+    key: jax.Array
+    camera: Any = None
+    colour: Any = None
+    video: Any = None
+    frame: Any = None
+    direction: Any = None
+
+
+class Distraction:
+    """The perturbations of one pixel env: ``reset`` draws, ``advance`` walks, ``scene`` turns
+    the state into what the camera draws.
+
+    Args:
+      env: the suite env (``mj_model``, ``domain``, ``config.action_repeat``).
+      camera: the ``iap_mjx.render.Camera`` that renders (built from :func:`camera_model`).
+      config: the ``DistractionConfig``.
+      videos: the background videos (``backgrounds.BackgroundVideos``) when the background
+        kind is on.
+    """
+
+    def __init__(self, env: Any, camera: Any, config: DistractionConfig,
+                 videos: backgrounds_lib.BackgroundVideos | None = None):
+        self.config = config
+        self.domain = domain_name(env)
+        model = env.mj_model
+        self.camera_id = camera.config.camera_id
+        self.control_steps = int(getattr(env.config, "action_repeat", 1))
+        self.kinds = config.kinds
+        if "camera" in self.kinds:
+            mode = int(model.cam_mode[self.camera_id])
+            if mode not in (_FIXED, _TRACKCOM):
+                raise ValueError(f"{self.domain}: camera {self.camera_id} has mode {mode}; the camera "
+                                 "distraction supports fixed and trackcom cameras (as the reference).")
+            self.tracking = mode == _TRACKCOM
+            self.walk_settings = camera_walk.WalkSettings.make(
+                config.scale, config.dynamic, upper_quadrant=self.domain != "reacher")
+        if "colour" in self.kinds:
+            original = np.asarray(model.mat_rgba[:, :3], np.float32)
+            self.colour_low = np.clip(original - config.scale, 0.0, 1.0)
+            self.colour_high = np.clip(original + config.scale, 0.0, 1.0)
+            # scene geoms whose colour is their material's (default rgba, as mjv draws them)
+            materials = np.asarray(model.geom_matid[camera.geom_ids], np.int32)
+            own = ~np.all(np.isclose(model.geom_rgba[camera.geom_ids], _DEFAULT_RGBA), axis=1)
+            self.geom_material = np.where((materials >= 0) & ~own, materials, -1)
+            self.geom_rgb = np.asarray(camera.scene.geom_rgb, np.float32)
+        if "background" in self.kinds:
+            if videos is None:
+                raise ValueError("the background distraction needs its videos (backgrounds.load).")
+            if videos.nbytes > (1 << 24) and not jax.config.jax_use_simplified_jaxpr_constants:
+                logger.warning(
+                    "the background videos (%.0f MB) will be embedded in every compiled program "
+                    "(slow to compile); call iap_mjx.runtime.hoist_large_constants() before "
+                    "importing jax", videos.nbytes / 1e6)
+            self.frames = jnp.asarray(videos.frames)
+            self.lengths = jnp.asarray(videos.lengths)
+            self.num_videos = videos.num_videos
+
+    # ---- per episode --------------------------------------------------------------------
+
+    def reset(self, key: jax.Array, data: Any) -> Perturbation:
+        """The episode's draw from ``key`` and the reset state's ``data`` (an ``mjx.Data``
+        after kinematics): the reference's resets, with the camera's first walk."""
+        key = jax.random.fold_in(key, _FOLD)
+        key, k_camera, k_colour, k_video, k_frame, k_direction, k_walk = jax.random.split(key, 7)
+        fields = {}
+        if "camera" in self.kinds:
+            cam_pos, cam_mat, com = self._camera_now(data)
+            start = camera_walk.start(k_camera, self.walk_settings, cam_pos, cam_mat, com, self.tracking)
+            fields["camera"] = self._walk_camera(start, k_walk)
+        if "colour" in self.kinds:
+            fields["colour"] = jax.random.uniform(
+                k_colour, self.colour_low.shape, minval=self.colour_low, maxval=self.colour_high)
+        if "background" in self.kinds:
+            video = jax.random.randint(k_video, (), 0, self.num_videos)
+            fields["video"] = video
+            fields["frame"] = jax.random.randint(k_frame, (), 0, self.lengths[video])
+            fields["direction"] = (jnp.where(jax.random.bernoulli(k_direction), 1, -1).astype(jnp.int32)
+                                   if self.config.dynamic else jnp.zeros((), jnp.int32))
+        return Perturbation(key=key, **fields)
+
+    def advance(self, perturbation: Perturbation, control_steps: int | None = None) -> Perturbation:
+        """``control_steps`` control steps (default: the env's action repeat) of the dynamic
+        walks; static perturbations are returned as they are."""
+        if not self.config.dynamic:
+            return perturbation
+        count = self.control_steps if control_steps is None else control_steps
+
+        def one(p: Perturbation, _: Any) -> tuple[Perturbation, None]:
+            key, k_camera, k_colour = jax.random.split(p.key, 3)
+            p = p.replace(key=key)
+            if "camera" in self.kinds:
+                p = p.replace(camera=self._walk_camera(p.camera, k_camera))
+            if "colour" in self.kinds:
+                step = jax.random.normal(k_colour, self.colour_low.shape) * (COLOUR_STEP * self.config.scale)
+                p = p.replace(colour=jnp.clip(p.colour + step, self.colour_low, self.colour_high))
+            if "background" in self.kinds:
+                frame, direction = p.frame + p.direction, p.direction
+                direction = jnp.where(frame <= 0, jnp.abs(direction), direction)
+                frame = jnp.maximum(frame, 0)
+                length = self.lengths[p.video]
+                past_end = frame >= length
+                direction = jnp.where(past_end, -jnp.abs(direction), direction)
+                frame = jnp.where(past_end, length - 1, frame)
+                p = p.replace(frame=frame, direction=direction)
+            return p, None
+
+        return jax.lax.scan(one, perturbation, length=count)[0]
+
+    def scene(self, data: Any, perturbation: Perturbation) -> tuple[Any, dict[str, jax.Array]]:
+        """What the camera draws: ``data`` with the perturbed camera pose written into
+        ``cam_xpos``/``cam_xmat`` (a copy for rendering only), and the keyword arguments of
+        ``Camera.render`` (``geom_rgb``, ``sky_texture``)."""
+        inputs = {}
+        if "camera" in self.kinds:
+            cam_pos, cam_mat, com = self._camera_now(data)
+            position, rotation = camera_walk.pose(perturbation.camera, self.walk_settings, cam_pos,
+                                                  cam_mat, com, self.tracking)
+            cam = self.camera_id
+            data = data.replace(cam_xpos=data.cam_xpos.at[cam].set(position),
+                                cam_xmat=data.cam_xmat.at[cam].set(rotation))
+        if "colour" in self.kinds:
+            picked = perturbation.colour[jnp.asarray(np.maximum(self.geom_material, 0))]
+            inputs["geom_rgb"] = jnp.where(jnp.asarray(self.geom_material >= 0)[:, None], picked,
+                                           jnp.asarray(self.geom_rgb))
+        if "background" in self.kinds:
+            inputs["sky_texture"] = self.frames[perturbation.video, perturbation.frame]
+        return data, inputs
+
+    # ---- helpers ------------------------------------------------------------------------
+
+    def _camera_now(self, data: Any) -> tuple[jax.Array, jax.Array, jax.Array]:
+        cam = self.camera_id
+        return data.cam_xpos[cam], data.cam_xmat[cam], data.subtree_com[1]
+
+    def _walk_camera(self, state: camera_walk.CameraWalk, key: jax.Array) -> camera_walk.CameraWalk:
+        k_move, k_roll = jax.random.split(key)
+        return camera_walk.walk(state, self.walk_settings, jax.random.normal(k_move, (3,)),
+                                jax.random.normal(k_roll, ()))
