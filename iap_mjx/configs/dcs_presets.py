@@ -12,14 +12,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from iap_mjx.configs.presets import PIXEL_ES, PIXEL_RUN, Options, Preset, register
+from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, register
 from iap_mjx.configs.training import RunConfig
 
-ACTION_REPEAT = {
-    "cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reacher-easy": 4,
-    "walker-walk": 2, "finger-spin": 2,
-}
-"""Control steps per frame, per task (the suite's six; PlaNet/DrQ's settings)."""
+TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
+"""The suite's six tasks (``iap_mjx.envs.distraction.TASKS``; not imported here: configs load first)."""
 
 IAP_NATIVE: Options = (("patch_size", 2), ("top_l", 10), ("d_qk", 4), ("kernel", "hybrid"), ("m", 10),
                        ("r", 5), ("controller", "lstm"), ("hidden_sizes", (16,)))
@@ -34,13 +31,7 @@ def native(task: str, *, quick: bool = False) -> Options:
     return options
 
 
-def _tasks() -> list[str]:
-    from iap_mjx.envs.registry import names
-
-    return [task for task in ACTION_REPEAT if task in names()]  # finger-spin: once it is ported
-
-
-for _task in _tasks():
+for _task in TASKS:
     register(Preset(f"dcs-{_task}",
                     f"{_task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
                     f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[_task]}",

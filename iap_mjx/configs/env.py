@@ -8,6 +8,7 @@ field and its valid values before any model is built.
 from __future__ import annotations
 
 import dataclasses
+import os
 
 OBS_MODES = ("state", "pixels", "pixels_depth", "pixels+state")
 
@@ -36,15 +37,17 @@ class EnvConfig:
       obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
       camera_id, height, width, frame_stack: the camera settings for pixel modes.
       distraction: the Distracting Control Suite's difficulty, ``"easy"``, ``"medium"`` or
-        ``"hard"`` (``None`` or ``"none"``: no distraction; pixel modes only); see
-        ``iap_mjx.envs.distraction``.
+        ``"hard"`` (``None`` or ``"none"``: no distraction); pixel modes of the suite's six
+        tasks, camera 0 only; see ``iap_mjx.envs.distraction``. The settings below belong to
+        it: setting one without ``distraction`` is an error, not silently ignored.
       dynamic: distractions move every control step (else one draw per episode).
       distraction_kinds: which are on: a subset of ``background``, ``camera``, ``colour``
-        (a tuple or a comma-separated string).
+        (a tuple or a comma-separated string; ``None``: all three).
       background_dir: a DAVIS-2017 directory for the backgrounds (``None``: the photographs
-        that ship in scikit-image, ``iap_mjx.envs.backgrounds``).
+        that ship in scikit-image, ``iap_mjx.envs.backgrounds``); needs the background kind.
       background_size, background_frames: the square sky texture's side in texels, and the
-        frames per built-in video.
+        frames per built-in video (``None``: ``backgrounds.DEFAULT_SIZE`` /
+        ``DEFAULT_NUM_FRAMES``).
     """
 
     action_repeat: int = 1
@@ -60,10 +63,10 @@ class EnvConfig:
     frame_stack: int = 1
     distraction: str | None = None
     dynamic: bool = False
-    distraction_kinds: tuple[str, ...] | str = ("background", "camera", "colour")
+    distraction_kinds: tuple[str, ...] | str | None = None
     background_dir: str | None = None
-    background_size: int = 256
-    background_frames: int = 32
+    background_size: int | None = None
+    background_frames: int | None = None
 
     def __post_init__(self):
         positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height",
@@ -93,16 +96,35 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
         if not isinstance(self.camera_id, int) or self.camera_id < 0:
             raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
+        self._check_distraction()
+
+    def _check_distraction(self):
         from iap_mjx.envs import distraction
 
-        object.__setattr__(self, "distraction_kinds", distraction.parse_kinds(self.distraction_kinds))
         if self.distraction == "none":
             object.__setattr__(self, "distraction", None)
-        if self.distraction is not None:
-            if self.obs_mode == "state":
-                raise ValueError(f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
-                                 f"(one of {OBS_MODES[1:]}), got obs_mode='state'.")
-            self.distraction_config()
+        if self.distraction is None:
+            given = [f"{name}={getattr(self, name)!r}" for name in
+                     ("distraction_kinds", "background_dir", "background_size", "background_frames")
+                     if getattr(self, name) is not None] + (["dynamic=True"] if self.dynamic is True else [])
+            if given:
+                raise ValueError(f"EnvConfig: {', '.join(given)} set without a distraction; set "
+                                 f"distraction to one of {', '.join(distraction.DIFFICULTY_SCALE)}.")
+            return
+        if self.obs_mode == "state":
+            raise ValueError(f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
+                             f"(one of {OBS_MODES[1:]}), got obs_mode='state'.")
+        if self.distraction_kinds is not None:
+            object.__setattr__(self, "distraction_kinds", distraction.parse_kinds(self.distraction_kinds))
+        if isinstance(self.background_dir, os.PathLike):
+            object.__setattr__(self, "background_dir", os.fspath(self.background_dir))
+        if self.background_dir is not None and not isinstance(self.background_dir, str):
+            raise ValueError(f"EnvConfig.background_dir must be a path (str), got {self.background_dir!r}.")
+        config = self.distraction_config()
+        if "camera" in config.kinds and self.camera_id != 0:
+            raise ValueError(f"EnvConfig.camera_id = {self.camera_id}: the camera distraction perturbs the "
+                             "suite's camera 0 (valid camera_id: 0), or leave 'camera' out of "
+                             "distraction_kinds.")
 
     def distraction_config(self):
         """The ``distraction.DistractionConfig`` of these settings (``None`` without one);
@@ -111,10 +133,11 @@ class EnvConfig:
 
         if self.distraction is None:
             return None
+        given = {"kinds": self.distraction_kinds, "background_size": self.background_size,
+                 "background_frames": self.background_frames}
         return distraction.DistractionConfig(
-            difficulty=self.distraction, dynamic=self.dynamic, kinds=self.distraction_kinds,
-            background_dir=self.background_dir, background_size=self.background_size,
-            background_frames=self.background_frames)
+            difficulty=self.distraction, dynamic=self.dynamic, background_dir=self.background_dir,
+            **{name: value for name, value in given.items() if value is not None})
 
 
 @dataclasses.dataclass(frozen=True)

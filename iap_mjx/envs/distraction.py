@@ -30,6 +30,7 @@ the mode of the camera rendered (the same camera in every suite task).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 from typing import Any
@@ -42,9 +43,15 @@ from flax import struct
 
 from iap_mjx.envs import backgrounds as backgrounds_lib
 from iap_mjx.envs import camera_walk
+from iap_mjx.render import sky as sky_lib
 
 DIFFICULTY_SCALE = {"easy": 0.1, "medium": 0.2, "hard": 0.3}
 KINDS = ("background", "camera", "colour")
+TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
+"""The suite's tasks (the reference's six domains; each renders camera 0, fixed or trackcom)."""
+MAX_BACKGROUND_SIZE = 1024
+MAX_BACKGROUND_BYTES = 2 << 30
+"""Limits on the device array of background frames (packed int32: 4 bytes a texel)."""
 # distracting_control/suite_utils.get_background_kwargs: ground_plane_alpha
 FLOOR_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
 DEFAULT_FLOOR_ALPHA = 0.3
@@ -79,16 +86,39 @@ class DistractionConfig:
     background_frames: int = backgrounds_lib.DEFAULT_NUM_FRAMES
 
     def __post_init__(self):
-        if self.difficulty not in DIFFICULTY_SCALE:
+        if not isinstance(self.difficulty, str) or self.difficulty not in DIFFICULTY_SCALE:
             raise ValueError(f"distraction = {self.difficulty!r} is not a difficulty; valid: "
                              f"{', '.join(DIFFICULTY_SCALE)} (or None for no distraction).")
         if not isinstance(self.dynamic, bool):
             raise ValueError(f"distraction dynamic = {self.dynamic!r} must be True or False.")
         kinds = parse_kinds(self.kinds)
         object.__setattr__(self, "kinds", kinds)
-        if "background" in kinds:
-            backgrounds_lib.check(self.difficulty, self.background_dir, self.background_size,
-                                  self.background_frames)
+        for name in ("background_size", "background_frames"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {value!r}.")
+        if self.background_size > MAX_BACKGROUND_SIZE:
+            raise ValueError(f"background_size = {self.background_size} texels: valid 1 to "
+                             f"{MAX_BACKGROUND_SIZE} (the reference's sky is 800).")
+        if "background" not in kinds:
+            if self.background_dir is not None:
+                raise ValueError(f"background_dir = {self.background_dir!r} is set but the background "
+                                 f"distraction is off (distraction_kinds = {','.join(kinds)}); add "
+                                 "'background' to distraction_kinds or drop background_dir.")
+            return
+        backgrounds_lib.check(self.difficulty, self.background_dir, self.background_size,
+                              self.background_frames)
+        if self.background_dir is None:
+            frames = backgrounds_lib.num_videos(self.difficulty) or len(backgrounds_lib.PHOTOGRAPHS)
+            frames *= self.background_frames
+        else:
+            paths = backgrounds_lib.davis_frame_paths(self.background_dir, self.difficulty)
+            frames = len(paths) * max(len(p) for p in paths.values())
+        nbytes = frames * self.background_size ** 2 * 4
+        if nbytes > MAX_BACKGROUND_BYTES:
+            raise ValueError(f"background_size = {self.background_size}: {frames} background frames "
+                             f"would take {nbytes / 2**30:.1f} GiB (limit {MAX_BACKGROUND_BYTES / 2**30:.0f} "
+                             "GiB); lower background_size (or background_frames, or the difficulty).")
 
     @property
     def scale(self) -> float:
@@ -106,9 +136,17 @@ def parse_kinds(kinds: Any) -> tuple[str, ...]:
     return tuple(k for k in KINDS if k in items)
 
 
+def check_task(name: str) -> None:
+    """Raises ``ValueError`` unless ``name`` is one of the suite's :data:`TASKS`."""
+    if name not in TASKS:
+        raise ValueError(f"distraction: {name!r} is not a Distracting Control Suite task; valid: "
+                         f"{', '.join(TASKS)}.")
+
+
 def domain_name(env: Any) -> str:
     """The dm_control domain of a suite env (``cheetah``, ``ball_in_cup``, ...)."""
-    return env.domain.__name__.rsplit(".", 1)[-1]
+    check_task(getattr(env, "name", None))
+    return env.name.split("-")[0]
 
 
 def floor_alpha(domain: str) -> float:
@@ -126,8 +164,6 @@ def camera_model(env: Any, config: DistractionConfig) -> mujoco.MjModel:
     grid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_MATERIAL, FLOOR_MATERIAL)
     if grid < 0:
         return model
-    import copy
-
     model = copy.copy(model)
     model.mat_rgba[grid, 3] = floor_alpha(domain_name(env))
     return model
@@ -199,7 +235,8 @@ class Distraction:
                     "the background videos (%.0f MB) will be embedded in every compiled program "
                     "(slow to compile); call iap_mjx.runtime.hoist_large_constants() before "
                     "importing jax", videos.nbytes / 1e6)
-            self.frames = jnp.asarray(videos.frames)
+            # packed once (``sky.pack_rgb``): a frame is then one gather per pixel, no repacking
+            self.frames = sky_lib.pack_rgb(jnp.asarray(videos.frames))  # (V, F, S * S) int32
             self.lengths = jnp.asarray(videos.lengths)
             self.num_videos = videos.num_videos
 

@@ -96,9 +96,12 @@ class PixelEnv:
         return self._first(self.env.reset(key), key)
 
     def reset_to(self, *args: Any, key: jax.Array | None = None, **kwargs: Any) -> State:
-        """The wrapped env's ``reset_to`` with pixel observations (``key``: the distraction's
-        draw, default ``PRNGKey(0)``)."""
-        key = jax.random.PRNGKey(0) if key is None else key
+        """The wrapped env's ``reset_to`` with pixel observations (``key``: the episode's
+        distraction draw, required when the env is distracted, so that episodes differ)."""
+        if key is None:
+            if self.distraction is not None:
+                raise ValueError("a distracted env's reset_to needs key= (the episode's distraction draw).")
+            key = jax.random.PRNGKey(0)
         return self._first(self.env.reset_to(*args, **kwargs), key)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -106,7 +109,11 @@ class PixelEnv:
         next_state = self.env.step(state, action)
         perturbation = None
         if self.distraction is not None:
-            perturbation = self.distraction.advance(state.info["distraction"])
+            before = state.info["distraction"]
+            after = self.distraction.advance(before)
+            # an ended episode's frame holds still, as its physics does (done is sticky)
+            perturbation = after if after is before else jax.tree.map(
+                lambda old, new: jnp.where(state.done > 0, old, new), before, after)
             next_state = next_state.replace(info={**next_state.info, "distraction": perturbation})
         frame = self.render(next_state.data, perturbation)
         stack = jnp.concatenate([stack[..., self.channels:], frame], axis=-1)

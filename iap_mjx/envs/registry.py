@@ -40,7 +40,8 @@ def check(name: str, config: EnvConfig | None = None, **overrides: Any) -> EnvCo
 
     Raises:
       ValueError: unknown ``name`` or override name (the message lists the task's valid ones),
-        a ``config`` of another task's class, or a bad override value.
+        a ``config`` of another task's class, a bad override value, or a distraction on a
+        task outside the Distracting Control Suite's six.
     """
     classes = _task_classes()
     if name not in classes:
@@ -53,7 +54,12 @@ def check(name: str, config: EnvConfig | None = None, **overrides: Any) -> EnvCo
     config = config if config is not None else config_class()
     if type(config) is not config_class:
         raise ValueError(f"{name!r} takes a {config_class.__name__}, got a {type(config).__name__}.")
-    return dataclasses.replace(config, **overrides) if overrides else config
+    config = dataclasses.replace(config, **overrides) if overrides else config
+    if config.distraction is not None:
+        from iap_mjx.envs import distraction
+
+        distraction.check_task(name)
+    return config
 
 
 def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:

@@ -24,6 +24,7 @@ How it works (and why, on a CPU):
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Optional
 
 import jax
@@ -194,7 +195,8 @@ class Camera:
     def render(self, data: mjx.Data, background: Optional[jax.Array] = None,
                geom_rgb: Optional[jax.Array] = None,
                sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array]:
-        """Renders one state (``vmap`` it for a batch).
+        """Renders one state (``vmap`` it for a batch); :meth:`render_ids` also returns the
+        geom seen at each pixel.
 
         Args:
           data: an ``mjx.Data`` after kinematics (``geom_xpos``, ``geom_xmat``, ``cam_xpos``,
@@ -204,13 +206,23 @@ class Camera:
           geom_rgb: optional ``(G, 3)`` colours replacing the model's (colour perturbations),
             one row per ``self.geom_ids`` entry; a checker floor's texture is multiplied by
             its row, as MuJoCo tints a texture by the material colour.
-          sky_texture: optional ``(S, S, 3)`` uint8 skybox face (a Distracting Control Suite
-            video frame), seen by ray direction on every face of the cube as MuJoCo draws a
-            square skybox texture (``sky.py``); replaces the sky (``background`` wins).
+          sky_texture: optional skybox face (a Distracting Control Suite video frame),
+            ``(S, S, 3)`` uint8 or already packed by ``sky.pack_rgb`` (``(S * S,)`` int32, as
+            the distraction layer keeps its frames), seen by ray direction on every face of
+            the cube as MuJoCo draws a square skybox texture (``sky.py``); replaces the sky
+            (``background`` wins).
 
         Returns:
           rgb ``(H, W, 3)`` float32 in [0, 1] and depth ``(H, W)`` float32 in metres.
         """
+        rgb, depth, _ = self.render_ids(data, background, geom_rgb, sky_texture)
+        return rgb, depth
+
+    def render_ids(self, data: mjx.Data, background: Optional[jax.Array] = None,
+                   geom_rgb: Optional[jax.Array] = None,
+                   sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """:meth:`render`'s rgb and depth, and the hit geom's MuJoCo id ``(H, W)`` int32
+        (``-1`` where nothing is hit) from the same trace (one program, not two)."""
         cfg = self.config
         if background is None:
             background = jnp.zeros((0,), jnp.float32)
@@ -223,18 +235,21 @@ class Camera:
             raise ValueError(
                 f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
         if sky_texture is None:
-            sky_texture = jnp.zeros((0,), jnp.uint8)
-        elif (sky_texture.ndim != 3 or sky_texture.shape[0] != sky_texture.shape[1]
-              or sky_texture.shape[2] != 3 or sky_texture.dtype != jnp.uint8):
-            raise ValueError(f"sky_texture must be (S, S, 3) uint8, got {sky_texture.dtype} {sky_texture.shape}")
-        rgb, depth, _ = self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture)
-        return rgb, depth
+            sky_texture = jnp.zeros((0,), jnp.int32)
+        elif (sky_texture.ndim == 3 and sky_texture.shape[0] == sky_texture.shape[1]
+              and sky_texture.shape[2] == 3 and sky_texture.dtype == jnp.uint8):
+            sky_texture = sky_lib.pack_rgb(sky_texture)
+        elif not (sky_texture.ndim == 1 and sky_texture.dtype == jnp.int32
+                  and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0):
+            raise ValueError("sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32, got "
+                             f"{sky_texture.dtype} {sky_texture.shape}")
+        return self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture)
 
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
         empty = jnp.zeros((0,), jnp.float32)
-        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty, jnp.zeros((0,), jnp.uint8))
+        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty, jnp.zeros((0,), jnp.int32))
         return depth, ids
 
     # -- implementation ---------------------------------------------------------------------
@@ -517,14 +532,14 @@ class Camera:
         return tuple(jnp.where(hit, lit[c], background[c]) for c in range(3))
 
     def _skybox(self, cam_mat, sky_texture) -> tuple[jax.Array, ...]:
-        """``3 x ([C,] H, W)`` the skybox texture ``([C,] S, S, 3)`` uint8 by world ray
+        """``3 x ([C,] H, W)`` the packed skybox texture ``([C,] S * S)`` int32 by world ray
         direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk of images."""
         x = jnp.asarray(self._x)
         y = jnp.asarray(self._y)
         m = cam_mat[..., None, None]  # (..., 3, 3, 1, 1) against (H, 1) and (1, W)
         dx, dy, dz = (x * m[..., i, 0, :, :] + y * m[..., i, 1, :, :] - m[..., i, 2, :, :] for i in range(3))
-        size = int(sky_texture.shape[-2])
-        return tuple(sky_lib.skybox_planes(sky_lib.pack_rgb(sky_texture), size, dx, dy, dz))
+        size = math.isqrt(int(sky_texture.shape[-1]))
+        return tuple(sky_lib.skybox_planes(sky_texture, size, dx, dy, dz))
 
     def _surface_terms(self, poses, frames, padded, geom_rgb):
         """Surface colour ``3 x (H, W)`` of each pixel's nearest geom and the light falling on
