@@ -220,8 +220,11 @@ class Distraction:
                 config.scale, config.dynamic, upper_quadrant=self.domain != "reacher")
         if "colour" in self.kinds:
             original = np.asarray(model.mat_rgba[:, :3], np.float32)
-            self.colour_low = np.clip(original - config.scale, 0.0, 1.0)
-            self.colour_high = np.clip(original + config.scale, 0.0, 1.0)
+            # distracting_control/suite_utils.get_color_kwargs: max_delta, step_std
+            self.colour_delta = config.scale
+            self.colour_step = COLOUR_STEP * config.scale if config.dynamic else 0.0
+            self.colour_low = np.clip(original - self.colour_delta, 0.0, 1.0)
+            self.colour_high = np.clip(original + self.colour_delta, 0.0, 1.0)
             # scene geoms whose colour is their material's (default rgba, as mjv draws them)
             materials = np.asarray(model.geom_matid[camera.geom_ids], np.int32)
             own = ~np.all(np.isclose(model.geom_rgba[camera.geom_ids], _DEFAULT_RGBA), axis=1)
@@ -276,7 +279,7 @@ class Distraction:
             if "camera" in self.kinds:
                 p = p.replace(camera=self._walk_camera(p.camera, k_camera))
             if "colour" in self.kinds:
-                step = jax.random.normal(k_colour, self.colour_low.shape) * (COLOUR_STEP * self.config.scale)
+                step = jax.random.normal(k_colour, self.colour_low.shape) * self.colour_step
                 p = p.replace(colour=jnp.clip(p.colour + step, self.colour_low, self.colour_high))
             if "background" in self.kinds:
                 frame, direction = p.frame + p.direction, p.direction
