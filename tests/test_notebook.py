@@ -19,5 +19,6 @@ def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     images = [output for cell in notebook.cells if cell.cell_type == "code"
               for output in cell.get("outputs", []) if "image/png" in output.get("data", {})
               or "image/gif" in output.get("data", {})]
-    assert len(images) == 2  # the reward curve and the episode
+    assert len(images) == 3  # the reward curve, the episode, distracted first frames
     assert (tmp_path / "runs" / "notebook" / "episode.gif").stat().st_size > 1000
+    assert (tmp_path / "runs" / "notebook" / "distracted.png").stat().st_size > 1000
