@@ -11,7 +11,8 @@ Run (heavy; serialise with the other benchmarks; needs ``libosmesa6`` for the Mu
 
     flock /work/bench.lock python benchmarks/camera.py
 
-``--distraction`` instead writes the ``camera-distraction`` section: per task, the 240x320
+``--distraction`` (``/work/coord/cpu exclusive python benchmarks/camera.py --distraction``)
+instead writes the ``camera-distraction`` section: per task, the 240x320
 camera's frames/s with the Distracting Control Suite's three distractions on (static,
 medium: perturbed pose, material colours, a background frame as the sky, the floor's alpha)
 next to the same camera undistracted, measured in the same run (the bar: >= 90%).
@@ -221,7 +222,7 @@ def _distraction(args) -> None:
     for row in rows:
         lines.append(f"| {row['task']} | {_fmt(row['plain'])} | {_fmt(row['dcs'])} | "
                      f"{row['dcs'] / row['plain']:.1%} | {row['compile_plain']:.1f} | {row['compile_dcs']:.1f} |")
-    lines += ["", "Reproduce: `flock -x /work/coord/cpu.lock python benchmarks/camera.py --distraction`."]
+    lines += ["", "Reproduce: `/work/coord/cpu exclusive python benchmarks/camera.py --distraction`."]
     report.write_section(args.out, DISTRACTION_SECTION, "\n".join(lines))
 
 

@@ -1,7 +1,7 @@
 """Camera-pose perturbations of the Distracting Control Suite, in JAX.
 
 The reference is google-research ``distracting_control/camera.py``; this module computes
-the same quantities (``tests/test_distraction_camera.py`` holds them against that code's own
+the same quantities (``tests/test_distraction_reference.py`` holds them against that code's own
 functions). Per episode, the camera's offset ``p`` (a fixed camera's world position, a
 ``trackcom`` camera's position relative to body 1's subtree centre of mass) is written in
 spherical coordinates ``(r, h, v)``: ``r = |p|``, azimuth ``h = atan2(p_y, p_x)``, polar
