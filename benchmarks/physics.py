@@ -24,15 +24,21 @@ Run (heavy; serialise with the other benchmarks):
 ``--quadruped`` measures our A1-class quadruped instead (``quadruped-flat``,
 ``quadruped-walls``) and writes the ``physics-quadruped`` section: the same three parts with
 native MuJoCo (``mujoco.mj_step``/``mujoco.rollout``, float64) on the env's own compiled model
-as the reference (there is no dm_control task), plus the first-person camera's frames/s:
+as the reference (there is no dm_control task), plus the first-person camera's frames/s.
+Its parts (``--parts sweep throughput camera long``) can be measured one per command, each
+saving its rows to ``--rows-dir`` (``benchmarks/physics-quadruped/<part>.json``, with its
+command, time and load); the section is written from every part saved there:
 
-    flock -x /work/coord/cpu.lock python benchmarks/physics.py --quadruped
+    /work/coord/cpu exclusive python benchmarks/physics.py --quadruped --parts sweep --no-write
+    ...
+    python benchmarks/physics.py --quadruped --parts   # no measuring: writes the section
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import json
 import os
 import platform
 import statistics
@@ -454,10 +460,12 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
     lines = [
         "## Physics: the A1-class quadruped (MJX vs native MuJoCo on the same model)",
         "",
-        f"Command: `flock -x /work/coord/cpu.lock python benchmarks/physics.py {args.argv}`".rstrip() + "  ",
         f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
-        f"jax {jax.__version__}, mujoco {mujoco.__version__}; 1-min load average at the start "
-        f"{args.load_before:.1f}, at the end {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.",
+        f"jax {jax.__version__}, mujoco {mujoco.__version__}, {os.cpu_count()} cores. Each part measured "
+        "by its own command under the exclusive CPU lock (`/work/coord/cpu exclusive ...`):",
+        "",
+        *[f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; 1-min load average "
+          f"{run['load_before']:.1f} before, {run['load_after']:.1f} after)" for part, run in args.runs.items()],
         "",
         "Bars (issue 15), from this run:",
     ]
@@ -534,14 +542,35 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
     return "\n".join(lines) + "\n"
 
 
+QUADRUPED_PARTS = ("sweep", "throughput", "camera", "long")
+
+
 def main_quadruped(args) -> None:
-    args.load_before = os.getloadavg()[0]
-    sweep_rows = [row for name in args.sweep_tasks for row in quadruped_sweep(name, args.sweep, args.sweep_steps, args.repeats)]
-    rows = [row for name in args.tasks for row in throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)]
-    camera_rows = camera_rate("quadruped-walls", args.camera_batch, args.repeats) if args.camera_batch else []
-    long_rows = [long_run(name, args.long_batch, envs.make(name).episode_length, args.chunk_size)
-                 for name in args.long_tasks]
-    text = _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args)
+    """Measures ``args.parts`` and writes the section from every part's rows saved so far in
+    ``--rows-dir`` (one JSON file per part, with the command and load that produced it), so the
+    parts can be measured in separate, shorter holds of the exclusive CPU lock."""
+    rows_dir = Path(args.rows_dir)
+    rows_dir.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()[0]
+    measure = {
+        "sweep": lambda: [row for name in args.sweep_tasks
+                          for row in quadruped_sweep(name, args.sweep, args.sweep_steps, args.repeats)],
+        "throughput": lambda: [row for name in args.tasks
+                               for row in throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)],
+        "camera": lambda: camera_rate("quadruped-walls", args.camera_batch, args.repeats),
+        "long": lambda: [long_run(name, args.long_batch, envs.make(name).episode_length, args.chunk_size)
+                         for name in args.long_tasks],
+    }
+    for part in args.parts:
+        rows = measure[part]()
+        record = dict(argv=args.argv, load_before=load_before, load_after=os.getloadavg()[0],
+                      when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), rows=rows)
+        (rows_dir / f"{part}.json").write_text(json.dumps(record, indent=1, default=float))
+    saved = {part: json.loads((rows_dir / f"{part}.json").read_text())
+             for part in QUADRUPED_PARTS if (rows_dir / f"{part}.json").exists()}
+    args.runs = {part: {k: v for k, v in record.items() if k != "rows"} for part, record in saved.items()}
+    get = lambda part: saved[part]["rows"] if part in saved else []  # noqa: E731
+    text = _quadruped_markdown(get("sweep"), get("throughput"), get("long"), get("camera"), args)
     print(text)
     if not args.no_write:
         report.write_section(ROOT / "BENCHMARKS.md", "physics-quadruped", text)
@@ -567,6 +596,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--long-batch", type=int, default=1024)
     parser.add_argument("--sweep-steps", type=int, default=100)
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--parts", nargs="*", default=list(QUADRUPED_PARTS), choices=QUADRUPED_PARTS,
+                        help="quadruped: the parts to measure now (the section shows every part saved)")
+    parser.add_argument("--rows-dir", default=str(ROOT / "benchmarks" / "physics-quadruped"),
+                        help="quadruped: where each part's rows are saved as <part>.json")
     args = parser.parse_args(argv)
     args.argv = " ".join(argv) if argv else ""
     if args.quadruped:

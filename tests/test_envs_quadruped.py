@@ -1,7 +1,9 @@
 """The quadruped envs: our MJX model against native MuJoCo, the course, the episode's end,
 the reward, the first-person camera, and the registry's task configs.
 
-One compiled step of ``quadruped-walls`` serves every physics test (compiling it is the cost).
+One compiled step of ``quadruped-walls`` serves every physics check (compiling it is the cost,
+about a minute): the parity, reward and episode-end checks run in one test so that xdist's
+workers do not each compile it.
 """
 
 from __future__ import annotations
@@ -48,7 +50,15 @@ def test_the_robot_is_built_from_the_figures():
 
 
 @pytest.mark.slow
-def test_mjx_agrees_with_native_mujoco_from_the_same_states(walls):
+def test_walls_step_native_parity_reward_and_episode_end(walls):
+    """The compiled step, checked three ways (one compile): parity with native MuJoCo, the
+    capped-displacement reward, the episode's end."""
+    _check_parity_with_native_mujoco(*walls)
+    _check_reward_is_the_capped_forward_displacement(*walls)
+    _check_episode_ends_on_falling_off_or_touching_the_ground(*walls)
+
+
+def _check_parity_with_native_mujoco(env, reset, step):
     """From the env's first state, 100 control steps of the same PD targets (the standing pose
     plus uniform +-0.3 rad) in MJX (float32) and ``mujoco.mj_step`` (float64) on the same
     compiled model. Measured (seed 0): max |qpos gap| 8.5e-5; native's own gap when its start
@@ -57,7 +67,6 @@ def test_mjx_agrees_with_native_mujoco_from_the_same_states(walls):
     can end the episode (a fall) or, at a hard foot impact, amplify float32-size differences
     into ~1e-2 in native MuJoCo itself (a 5e-6 rad joint perturbation does it):
     ``benchmarks/physics.py --quadruped`` reports the spread."""
-    env, reset, step = walls
     state = reset(jax.random.key(0))
     rng = np.random.default_rng(0)
     targets = a1.HOME_JOINTS + rng.uniform(-0.3, 0.3, (STEPS, 12)).astype(np.float32)
@@ -101,8 +110,7 @@ def _placed(state, **qpos):
     return state.replace(data=state.data.replace(qpos=q))
 
 
-def test_reward_is_the_capped_forward_displacement(walls):
-    env, reset, step = walls
+def _check_reward_is_the_capped_forward_displacement(env, reset, step):
     state = reset(jax.random.key(1))
     hold = a1.targets_to_action(state.data.qpos[7:])
     slow = step(state, hold)
@@ -116,9 +124,7 @@ def test_reward_is_the_capped_forward_displacement(walls):
     np.testing.assert_allclose(back.reward, -env.config.v_cap * 0.02, rtol=1e-6)
 
 
-@pytest.mark.slow
-def test_episode_ends_on_falling_off_or_touching_the_ground(walls):
-    env, reset, step = walls
+def _check_episode_ends_on_falling_off_or_touching_the_ground(env, reset, step):
     state = reset(jax.random.key(2))
     hold = a1.targets_to_action(state.data.qpos[7:])
     standing = step(state, hold)

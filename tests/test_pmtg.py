@@ -133,9 +133,25 @@ def test_config_refuses_bounds_that_leave_the_joint_ranges():
         pmtg.TGConfig(gait="gallop")
 
 
-def test_policy_state_is_the_phase_and_zero_params_give_the_mid_range_gait():
-    policy = policies.make("pmtg", (17,), 12)
+def test_initial_params_give_the_initial_tg_setting():
+    """No weights and no residuals; the TG's outputs give ``initial_tg`` in its own units."""
+    policy = policies.make("pmtg", (17,), 12, initial_tg=(2.2, 0.5, 0.15, 2.0))
     params = policy.init(jax.random.key(0))
+    assert not np.any(np.asarray(params["w"])) and not np.any(np.asarray(params["b"][:12]))
+    u = policy.outputs(params, jnp.ones(17), policy.initial_state(jax.random.key(1)))
+    tg = {k: float(v) for k, v in policy.tg.parameters(u[12:]).items()}
+    np.testing.assert_allclose([tg[k] for k in pmtg.TG_PARAMETERS], [2.2, 0.5, 0.15, 2.0], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(u[:12]), 0.0)
+    with pytest.raises(ValueError, match="initial_tg"):
+        policies.make("pmtg", (17,), 12, initial_tg=(3.0, 0.5, 0.15, 2.0))  # tanh cannot reach 3 Hz
+    with pytest.raises(ValueError, match="frequency"):
+        policies.make("pmtg", (17,), 12, initial_tg=(3.5, 0.5, 0.15, 2.0))
+
+
+def test_policy_state_is_the_phase_and_zero_params_give_the_mid_range_gait():
+    policy = policies.make("pmtg", (17,), 12, initial_tg=None)
+    params = policy.init(jax.random.key(0))
+    assert not np.any(np.asarray(params["b"]))
     state = policy.initial_state(jax.random.key(1))
     assert float(state["phase"]) == 0.0 and state["latent"].shape == (4,)
     action, state = policy.apply(params, jnp.zeros(17), state)

@@ -2,7 +2,8 @@
 
 ``quadruped-flat-pmtg``: ES trains the linear PMTG policy (``iap_mjx.policies.pmtg``) from the
 state (IMU and joint angles; the TG phase is the policy's own) with a constant latent command,
-on ``quadruped-flat``'s 10 s episodes; the return is the capped distance walked in metres, so
+on ``quadruped-flat``'s 10 s episodes, starting from the policy's default ``initial_tg`` (a trot
+at 2.5 Hz that walks about 0.8 m/s with no residuals); the return is the capped distance walked in metres, so
 the mean forward speed is ``return / 10 s``. ``RESULTS.md`` (section ``quadruped-walking``)
 has its three seeds.
 """

@@ -171,6 +171,20 @@ class TGConfig:
             "ratio": jnp.exp(linear(u[3], (math.log(lo), math.log(hi)))),
         }
 
+    def outputs_for(self, frequency: float, intensity: float, height: float, ratio: float) -> np.ndarray:
+        """The inverse of :meth:`parameters`: ``(4,)`` outputs in ``[-1, 1]`` giving these TG
+        parameters (each must lie inside its range)."""
+        values = {"frequency": frequency, "intensity": intensity, "height": height, "ratio": ratio}
+        out = []
+        for name, value in values.items():
+            lo, hi = getattr(self, f"{name}_range")
+            if not lo <= value <= hi:
+                raise ValueError(f"TG {name} = {value!r} is outside TGConfig.{name}_range = {(lo, hi)}")
+            if name == "ratio":
+                value, lo, hi = math.log(value), math.log(lo), math.log(hi)
+            out.append(0.0 if hi == lo else 2.0 * (value - lo) / (hi - lo) - 1.0)
+        return np.asarray(out, np.float64)
+
 
 def swing_extend(config: TGConfig, phases: jax.Array, intensity: jax.Array,
                  height: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -222,12 +236,20 @@ class PMTGPolicy:
       latent: the constant latent command, one float per latent input (a high level would
         replace it through the policy state; with a constant latent its weights act as a bias).
       tg: the trajectory generator's settings.
+      initial_tg: the TG's ``(frequency Hz, intensity, height, ratio)`` that the initial
+        params give (through the output bias; all weights zero, no residuals): where ES
+        starts. The default is a trot measured to walk about 0.8 m/s on ``quadruped-flat``
+        with no residuals (``benchmarks/quadruped_tg.py``); ``None``: all-zero params, the
+        TG's mid-range (1.5 Hz, 0.4, 0.225, 1: about 0.26 m/s). The speed grows towards the
+        high frequency and low height bounds, which ``tanh`` outputs reach only with large
+        weights, so ES from the mid-range spends most of its iterations travelling there.
     """
 
     obs_size: int
     action_size: int = 12
     latent: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
     tg: TGConfig = TGConfig()
+    initial_tg: tuple[float, float, float, float] | None = (2.5, 0.6, 0.1, 1.0)
 
     def __post_init__(self):
         check_positive("PMTGPolicy", "obs_size", self.obs_size)
@@ -235,6 +257,17 @@ class PMTGPolicy:
             raise ValueError(f"PMTGPolicy.action_size = {self.action_size!r}: PMTG drives the quadruped's "
                              f"{len(a1.JOINT_NAMES)} joints (use env quadruped-flat or quadruped-walls)")
         object.__setattr__(self, "latent", tuple(float(v) for v in self.latent))
+        if self.initial_tg is not None:
+            initial = tuple(float(v) for v in self.initial_tg)
+            if len(initial) != len(TG_PARAMETERS):
+                raise ValueError(f"PMTGPolicy.initial_tg = {self.initial_tg!r} must be {TG_PARAMETERS} or None")
+            units = self.tg.outputs_for(*initial)
+            if np.any(np.abs(units) >= 1.0 - 1e-3):
+                raise ValueError(f"PMTGPolicy.initial_tg = {initial}: each value must lie strictly inside its "
+                                 f"TGConfig range (frequency {self.tg.frequency_range}, intensity "
+                                 f"{self.tg.intensity_range}, height {self.tg.height_range}, ratio "
+                                 f"{self.tg.ratio_range}): tanh outputs cannot reach the bounds")
+            object.__setattr__(self, "initial_tg", initial)
 
     @property
     def input_size(self) -> int:
@@ -245,10 +278,14 @@ class PMTGPolicy:
         return self.action_size + len(TG_PARAMETERS)
 
     def init(self, key: jax.Array) -> dict[str, jax.Array]:
-        """``{"w": (input_size, 16), "b": (16,)}``, zero: the TG's mid-range gait, no residuals."""
+        """``{"w": (input_size, 16), "b": (16,)}``: zero weights and residuals; the TG's bias
+        gives ``initial_tg`` (zero with ``initial_tg=None``: the TG's mid-range gait)."""
         del key
+        bias = np.zeros(self.output_size, np.float32)
+        if self.initial_tg is not None:
+            bias[self.action_size:] = np.arctanh(self.tg.outputs_for(*self.initial_tg))
         return {"w": jnp.zeros((self.input_size, self.output_size), jnp.float32),
-                "b": jnp.zeros((self.output_size,), jnp.float32)}
+                "b": jnp.asarray(bias)}
 
     def initial_state(self, key: jax.Array) -> dict[str, jax.Array]:
         """``{"phase": () 0, "latent": (len(latent),)}``."""
