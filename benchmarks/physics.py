@@ -345,14 +345,17 @@ def _default_setting(name: str) -> str:
 
 
 def _native_run(model: mujoco.MjModel, data0, controls: np.ndarray, n_sub_steps: int,
-                joint_noise: float = 0.0) -> np.ndarray:
-    """qpos after every control step of ``mujoco.mj_step`` (float64) from an env state
-    (its joint angles moved by ``joint_noise`` times a fixed normal draw)."""
+                ulp: bool = False) -> np.ndarray:
+    """qpos after every control step of ``mujoco.mj_step`` (float64) from an env state; with
+    ``ulp``, its joint angles and velocities moved 1 float32 ulp up first (native's own
+    sensitivity, as the physics section measures it for dm_control)."""
     data = mujoco.MjData(model)
-    qpos, qvel = np.asarray(data0.qpos, np.float64), np.asarray(data0.qvel, np.float64)
-    data.qpos[:] = qpos
-    data.qpos[7:] += joint_noise * np.random.default_rng(0).standard_normal(model.nq - 7)
-    data.qvel[:] = qvel
+    qpos = np.asarray(data0.qpos, np.float32)
+    qvel = np.asarray(data0.qvel, np.float32)
+    if ulp:
+        qpos = np.concatenate([qpos[:7], np.nextafter(qpos[7:], np.float32(np.inf))])
+        qvel = np.nextafter(qvel, np.float32(np.inf))
+    data.qpos[:], data.qvel[:] = qpos, qvel
     if model.nmocap:
         data.mocap_pos[:] = np.asarray(data0.mocap_pos)
     out = []
@@ -385,12 +388,11 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]
     rows = []
     devices = jax.devices()
     mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
-    native_own = None
     for setting in settings:
         env = envs.make(name, episode_length=10 * steps, **parse_setting(setting))
         run = jax.jit(lambda s, a: jax.lax.scan(lambda s, a: (env.step(s, a),) * 2, s, a)[1])
         reset = jax.jit(env.reset)
-        same, converged, done = [], [], 0
+        same, converged, own, done = [], [], [], 0
         for seed in range(3):
             first = reset(jax.random.key(seed))
             visited = run(first, jnp.asarray(actions[seed]))
@@ -401,17 +403,10 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]
             controls = native_controls(name, actions[seed])
             theirs = _native_run(env.mj_model, first.data, controls, env.n_sub_steps)
             same.append(np.abs(ours - theirs)[live].max())
+            moved = _native_run(env.mj_model, first.data, controls, env.n_sub_steps, ulp=True)
+            own.append(np.abs(moved - theirs)[live].max())
             reference = _native_run(_accurate(env.mj_model), first.data, controls, env.n_sub_steps)
             converged.append(np.abs(ours - reference)[live].max())
-        if native_own is None:
-            own = []
-            for seed in range(3):
-                first = reset(jax.random.key(seed))
-                controls = native_controls(name, actions[seed])
-                model = _accurate(env.mj_model)
-                own.append(np.abs(_native_run(model, first.data, controls, env.n_sub_steps)
-                                  - _native_run(model, first.data, controls, env.n_sub_steps, joint_noise=1e-5)).max())
-            native_own = statistics.median(own)
         size = 256
         states = jax.jit(batch.chunked_vmap(env.reset, 128))(jax.random.split(jax.random.key(0), size))
         random_actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
@@ -420,7 +415,7 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]
                          contacts="all" if env.max_contacts is None else env.max_contacts,
                          pairs="all" if env.max_geom_pairs is None else env.max_geom_pairs,
                          same=statistics.median(same), converged=statistics.median(converged),
-                         native_error=native_own, ended=done, rate=rate))
+                         native_error=statistics.median(own), ended=done, rate=rate))
         print(rows[-1], flush=True)
     return rows
 
@@ -486,8 +481,8 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         f"qpos error = max |qpos gap| over {args.sweep_steps} control steps from the env's first state, median of 3 "
         "episodes, PD targets = standing pose + uniform +-0.3 rad. same = native `mujoco.mj_step` (float64) on the "
         "same compiled model (same solver settings): float32 noise is what should remain. converged = native "
-        "with 100 / 50 solver iterations. native's own = native (converged) restarted with its joint angles "
-        "moved by 1e-5 rad (normal draw; the size of the float32 gaps before a foot impact). Episodes the env "
+        "with 100 / 50 solver iterations. native's own = native on the same model restarted with its joint "
+        "angles and velocities 1 float32 ulp up (as the physics section measures dm_control's). Episodes the env "
         "ended early (a fall; ended, of 3) are compared up to that step. Rate: env-steps/s at B=256, "
         "uniform random actions, all devices.",
         "",
