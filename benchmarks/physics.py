@@ -48,6 +48,13 @@ from pathlib import Path
 
 from iap_mjx import runtime
 
+# XLA:CPU's multithreaded Eigen pool wedges on the quadruped's big vmapped programs: the first
+# execution after compiling never returns, every thread parked (seen in 4 of 5 runs here; the
+# same as PyAutoLabs/PyAutoFit#1528-1530). Single-threaded Eigen inside each XLA device avoids it;
+# the two devices still run on the two cores.
+if "--quadruped" in sys.argv:
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
+
 DEVICE_COUNT = runtime.set_host_device_count(2)
 
 import jax  # noqa: E402

@@ -16,8 +16,15 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
+import os
 
 from iap_mjx import runtime
+
+# XLA:CPU's multithreaded Eigen pool wedges on the quadruped's big vmapped programs: the first
+# execution after compiling never returns, every thread parked (seen in 4 of 5 runs here; the
+# same as PyAutoLabs/PyAutoFit#1528-1530). Single-threaded Eigen inside each XLA device avoids it;
+# the two devices still run on the two cores.
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 
 runtime.set_host_device_count(2)
 
