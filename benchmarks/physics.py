@@ -175,7 +175,7 @@ def throughput(name: str, batches, steps: int, chunk_size: int, repeats: int) ->
             for t in (1, 2)
         ]
         rows.append(
-            dict(task=name, batch=size, compile_1=one[0], mjx_1=one[1], compile_n=many[0],
+            dict(task=name, batch=size, steps=steps, compile_1=one[0], mjx_1=one[1], compile_n=many[0],
                  mjx_n=many[1], native_1=native[0], native_2=native[1])
         )
         print(rows[-1], flush=True)
@@ -464,7 +464,8 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         "",
         f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
         f"jax {jax.__version__}, mujoco {mujoco.__version__}, {os.cpu_count()} cores. Each part measured "
-        "by its own command under the exclusive CPU lock (`/work/coord/cpu exclusive ...`):",
+        "by its own command under the exclusive CPU lock (`/work/coord/cpu exclusive ...`), with "
+        f"`XLA_FLAGS={os.environ.get('XLA_FLAGS', '')}` (single-threaded Eigen: see the script's header):",
         "",
         *[f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; 1-min load average "
           f"{run['load_before']:.1f} before, {run['load_after']:.1f} after)" for part, run in args.runs.items()],
@@ -481,38 +482,40 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
     for r in long_rows:
         lines.append(f"- {r['batch']} random-action episodes of `{r['task']}`, full length ({r['steps']} control steps): "
                      f"**{r['nan']}** ended by NaN or a bad state; qpos finite: {r['finite']}.")
-    lines += [
-        "",
-        "### Solver settings (iterations / line-search iterations / contact slots / geom pairs)",
-        "",
-        f"qpos error = max |qpos gap| over {args.sweep_steps} control steps from the env's first state, median of 3 "
-        "episodes, PD targets = standing pose + uniform +-0.3 rad. same = native `mujoco.mj_step` (float64) on the "
-        "same compiled model (same solver settings): float32 noise is what should remain. converged = native "
-        "with 100 / 50 solver iterations. native's own = native on the same model restarted with its joint "
-        "angles and velocities 1 float32 ulp up (as the physics section measures dm_control's). Episodes the env "
-        "ended early (a fall; ended, of 3) are compared up to that step. Rate: env-steps/s at B=256, "
-        "uniform random actions, all devices.",
-        "",
-        "| task | iterations / ls / contacts / pairs | vs native, same model | vs native, converged | native's own | ended | env-steps/s |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for r in sweep_rows:
-        lines.append(f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} / {r['pairs']} | "
-                     f"{r['same']:.1e} | {r['converged']:.1e} | {r['native_error']:.1e} | {r['ended']} | {r['rate']:,.0f} |")
-    lines += [
-        "",
-        f"### Throughput ({args.steps} control steps per call, uniform random actions)",
-        "",
-        "env-steps/s = envs x control steps / s (one control step = 5 physics steps). MJX on 1 device "
-        f"and on {jax.device_count()} (`shard_map`); native = `mujoco.rollout` on the env's own model (float64, "
-        "same solver settings), same states and controls, 1 and 2 threads. ratio = MJX all devices / native 2 threads.",
-        "",
-        "| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        lines.append(f"| {r['task']} | {r['batch']} | {r['mjx_1']:,.0f} | {r['mjx_n']:,.0f} | {r['native_1']:,.0f} | "
-                     f"{r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | {r['compile_1']:.0f} / {r['compile_n']:.0f} |")
+    if sweep_rows:
+        lines += [
+            "",
+            "### Solver settings (iterations / line-search iterations / contact slots / geom pairs)",
+            "",
+            f"qpos error = max |qpos gap| over {args.sweep_steps} control steps from the env's first state, median of 3 "
+            "episodes, PD targets = standing pose + uniform +-0.3 rad. same = native `mujoco.mj_step` (float64) on the "
+            "same compiled model (same solver settings): float32 noise is what should remain. converged = native "
+            "with 100 / 50 solver iterations. native's own = native on the same model restarted with its joint "
+            "angles and velocities 1 float32 ulp up (as the physics section measures dm_control's). Episodes the env "
+            "ended early (a fall; ended, of 3) are compared up to that step. Rate: env-steps/s at B=256, "
+            "uniform random actions, all devices.",
+            "",
+            "| task | iterations / ls / contacts / pairs | vs native, same model | vs native, converged | native's own | ended | env-steps/s |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for r in sweep_rows:
+            lines.append(f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} / {r['pairs']} | "
+                         f"{r['same']:.1e} | {r['converged']:.1e} | {r['native_error']:.1e} | {r['ended']} | {r['rate']:,.0f} |")
+    if rows:
+        lines += [
+            "",
+            f"### Throughput ({rows[0].get('steps', args.steps)} control steps per call, uniform random actions)",
+            "",
+            "env-steps/s = envs x control steps / s (one control step = 5 physics steps). MJX on 1 device "
+            f"and on {jax.device_count()} (`shard_map`); native = `mujoco.rollout` on the env's own model (float64, "
+            "same solver settings), same states and controls, 1 and 2 threads. ratio = MJX all devices / native 2 threads.",
+            "",
+            "| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for r in rows:
+            lines.append(f"| {r['task']} | {r['batch']} | {r['mjx_1']:,.0f} | {r['mjx_n']:,.0f} | {r['native_1']:,.0f} | "
+                         f"{r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | {r['compile_1']:.0f} / {r['compile_n']:.0f} |")
     if camera_rows:
         lines += [
             "",
