@@ -20,10 +20,10 @@ import os
 
 from iap_mjx import runtime
 
-# XLA:CPU's multithreaded Eigen pool wedges on the quadruped's big vmapped programs: the first
-# execution after compiling never returns, every thread parked (seen in 4 of 5 runs here; the
-# same as PyAutoLabs/PyAutoFit#1528-1530). Single-threaded Eigen inside each XLA device avoids it;
-# the two devices still run on the two cores.
+# XLA:CPU wedged at the first execution of the quadruped's big (B >= 256) programs in most runs
+# here: every thread parked, no CPU progress (like PyAutoLabs/PyAutoFit#1528-1530, where
+# single-threaded Eigen avoided it). Here the flag below did NOT avoid it (2 of 2 runs still hung);
+# it stays so that the camera rows in BENCHMARKS.md keep the flags they were measured with.
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 
 runtime.set_host_device_count(2)
