@@ -30,14 +30,6 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import report  # noqa: E402
 
 
-def readme_main_command() -> list[str]:
-    """The arguments after ``iap-mjx`` of the README's install-and-train line."""
-    for line in (ROOT / "README.md").read_text().splitlines():
-        if "iap-mjx train" in line and "pip install" in line:
-            return shlex.split(line.split("&& iap-mjx ", 1)[1])
-    raise SystemExit("README.md has no install-and-train command")
-
-
 def run_once(args: list[str], seed: int) -> dict:
     """One cold run in a fresh directory: wall seconds, history rows, stage times."""
     with tempfile.TemporaryDirectory() as work:
@@ -83,7 +75,7 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--output", type=Path, default=ROOT / "RESULTS.md")
     options = parser.parse_args()
-    args = readme_main_command()
+    args = report.readme_main_command()
     load_before = os.getloadavg()[0]
     started = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     results = [run_once(args, seed) for seed in range(options.seeds)]

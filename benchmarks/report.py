@@ -4,12 +4,24 @@ from __future__ import annotations
 
 import platform
 import re
+import shlex
 import statistics
 import time
 from pathlib import Path
 from typing import Any, Callable
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def readme_main_command() -> list[str]:
+    """The arguments after ``iap-mjx`` of the README's install-and-train line (the main job).
+
+    Shared by ``first_run.py`` and ``tests/test_first_run.py``, so both run what the README says.
+    """
+    for line in (ROOT / "README.md").read_text().splitlines():
+        if "iap-mjx train" in line and "pip install" in line:
+            return shlex.split(line.split("&& iap-mjx ", 1)[1])
+    raise ValueError("README.md has no install-and-train line (`pip install ... && iap-mjx train ...`)")
 
 
 def write_section(path: Path, name: str, body: str) -> None:

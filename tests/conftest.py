@@ -11,7 +11,8 @@ processes (the CLI and notebook tests) inherit it through ``XLA_FLAGS``. Timed f
 from ``benchmarks/``, never from here.
 
 Tests marked ``slow`` (a minute or more: end-to-end runs, multi-task parity) are handed out
-first, so that no long test starts last and keeps one worker busy after the other is done.
+first, so that no long test starts last and keeps one worker busy after the other is done;
+tests marked ``last`` go at the end (they reuse an earlier test's compiled programs).
 """
 
 import os
@@ -31,5 +32,9 @@ runtime.enable_compilation_cache(
 
 
 def pytest_collection_modifyitems(items):
-    """Slow tests first (a stable sort: the order within each group is kept)."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    """Slow tests first, tests marked ``last`` at the end (a stable sort: the order within each
+    group is kept). A ``last`` test compiles what an earlier test compiled (the same shapes), so
+    it loads the programs from the shared compilation cache instead."""
+    items.sort(key=lambda item: (item.get_closest_marker("last") is not None,
+                                 item.get_closest_marker("slow") is None))
+

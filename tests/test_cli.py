@@ -1,11 +1,9 @@
-"""The ``iap-mjx`` command line: presets, errors before compiling, train -> eval end to end."""
+"""The ``iap-mjx`` command line: presets, errors before compiling, ``show``. Train -> eval end to
+end is ``tests/test_first_run.py`` (the README's command, then ``iap-mjx eval`` on its run)."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -71,40 +69,6 @@ def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):
     code = cli.main(["train", "cheetah-run-state", "iterations=3", "--run-dir", str(tmp_path)])
     assert code == 130
     assert f"--run-dir {tmp_path}" in capsys.readouterr().err
-
-
-@pytest.mark.slow
-def test_train_then_eval(tmp_path):
-    run_dir = tmp_path / "run"
-    env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
-    # cartpole-swingup: the cheapest physics to compile (the CLI, not the task, is under test)
-    tiny = ["env.name=cartpole-swingup", "env.episode_length=4", "es.population_size=4", "iterations=2",
-            "run.eval_episodes=2", "run.checkpoint_every=1", "run.chunk_size=4"]
-    train = subprocess.run(
-        [sys.executable, "-m", "iap_mjx.cli", "train", "cheetah-run-state", *tiny,
-         "--run-dir", str(run_dir), "--no-progress"],
-        env=env, capture_output=True, text=True, timeout=600,
-    )
-    assert train.returncode == 0, train.stderr
-    (line,) = train.stdout.splitlines()  # stdout is the summary alone
-    summary = json.loads(line)
-    assert summary["run_dir"] == str(run_dir) and summary["iterations"] == 2
-    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-    assert [r["iteration"] for r in rows] == [1, 2]
-    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["1", "2"]
-    expected = configs.apply_overrides(configs.get("cheetah-run-state"), tiny)
-    written = json.loads((run_dir / "config.json").read_text())
-    assert written["es"]["population_size"] == 4 and written["env"]["overrides"] == {"episode_length": 4}
-    assert configs.TrainConfig.from_dict(written) == expected
-    evaluated = subprocess.run(
-        [sys.executable, "-m", "iap_mjx.cli", "eval", str(run_dir), "--episodes", "3"],
-        env=env, capture_output=True, text=True, timeout=600,
-    )
-    assert evaluated.returncode == 0, evaluated.stderr
-    report = json.loads(evaluated.stdout.strip().splitlines()[-1])
-    assert report["episodes"] == 3 and len(report["returns"]) == 3
-    # cartpole-swingup rewards are in [0, 1] per step: a 4-step return is in [0, 4]
-    assert all(0.0 <= r <= 4.0 for r in report["returns"])
 
 
 def test_show_prints_the_resolved_config_of_a_preset_and_of_a_run(tmp_path, capsys):

@@ -1,4 +1,8 @@
-"""The quickstart notebook runs top to bottom and shows a curve and a video."""
+"""The quickstart notebook runs top to bottom and shows a curve and a video.
+
+Its budget (8 members, 60-step episodes, 2 evaluation episodes) is ``tests/test_first_run.py``'s,
+which runs first: the notebook's ES iteration and video load from the compilation cache.
+"""
 
 from pathlib import Path
 
@@ -9,7 +13,7 @@ from nbclient import NotebookClient
 NOTEBOOK = Path(__file__).resolve().parent.parent / "notebooks" / "quickstart.ipynb"
 
 
-@pytest.mark.slow
+@pytest.mark.last  # compiles what test_first_run compiles: loads it from the cache
 def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     # the kernel inherits this: it compiles into the tests' cache, not the user's
     monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(NOTEBOOK.parent.parent / ".jax_cache"))
