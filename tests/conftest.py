@@ -37,4 +37,3 @@ def pytest_collection_modifyitems(items):
     it loads the programs from the shared compilation cache instead."""
     items.sort(key=lambda item: (item.get_closest_marker("last") is not None,
                                  item.get_closest_marker("slow") is None))
-

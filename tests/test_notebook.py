@@ -13,6 +13,19 @@ from nbclient import NotebookClient
 NOTEBOOK = Path(__file__).resolve().parent.parent / "notebooks" / "quickstart.ipynb"
 
 
+def test_notebook_budget_is_the_first_run_tests():
+    """The notebook's overrides that shape its programs are ``test_first_run``'s, so that the
+    notebook (scheduled last) loads them from the compilation cache instead of compiling."""
+    from test_first_run import BUDGET, EPISODE_STEPS
+
+    source = "".join("".join(cell.source) for cell in nbformat.read(NOTEBOOK, as_version=4).cells
+                     if cell.cell_type == "code")
+    for setting in BUDGET:
+        if not setting.startswith(("run.iterations", "run.checkpoint_every")):  # host-side only
+            assert f'"{setting}"' in source, setting
+    assert f"steps={EPISODE_STEPS})" in source  # the video: the CLI records a whole episode
+
+
 @pytest.mark.last  # compiles what test_first_run compiles: loads it from the cache
 def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     # the kernel inherits this: it compiles into the tests' cache, not the user's
