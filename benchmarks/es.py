@@ -6,7 +6,7 @@ of wall-clock (compile included, compilation cache cold), then gives brax's own 
 adapter), the same number of env steps and matching hyperparameters, in the same process.
 Writes the ``es`` sections of ``BENCHMARKS.md`` and ``RESULTS.md`` and a curve PNG.
 
-    flock /work/bench.lock python benchmarks/es.py --minutes 15
+    python benchmarks/es.py --minutes 15
 """
 
 from __future__ import annotations
@@ -203,7 +203,7 @@ def write_outputs(args, config, summary, ours, brax) -> None:
 
     png = ROOT / "benchmarks" / f"es_{args.preset}.png"
     plot(ours, brax, png, f"{args.preset} {' '.join(args.overrides)} ({args.minutes:g} min)")
-    command = ("flock /work/bench.lock python benchmarks/es.py --minutes "
+    command = ("python benchmarks/es.py --minutes "
                f"{args.minutes:g} --preset {args.preset} {' '.join(args.overrides)}").rstrip()
     o = summary["ours"]
     lines = [

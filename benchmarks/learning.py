@@ -16,7 +16,7 @@ others. A seed without the marker is trained afresh: resuming it would restart i
 
 Run (heavy; it owns the machine for the budget):
 
-    flock /work/bench.lock python benchmarks/learning.py --preset cheetah-run-pixels --seeds 3 --minutes 60 --parallel
+    python benchmarks/learning.py --preset cheetah-run-pixels --seeds 3 --minutes 60 --parallel
 """
 
 from __future__ import annotations
