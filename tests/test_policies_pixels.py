@@ -64,6 +64,25 @@ def test_lstm_controller_carries_memory_across_steps():
                                   policy.select(params, image, start).indices)
 
 
+@pytest.mark.parametrize("group", [1, 2, 0])
+def test_batched_apply_equals_vmap_of_apply(group):
+    """``apply_batch`` (attention in ``lax.map`` groups, controller vmapped) is ``vmap(apply)``:
+    one policy per row, LSTM state carried, groups of 1 and 2 images and the default."""
+    policy = policies.make("iap", SHAPE, 3, patch_size=2, top_l=4, controller="lstm", hidden_sizes=[5],
+                           redraw_projections=True, attention_group=group)
+    keys = jax.random.split(jax.random.PRNGKey(4), 6)
+    params = jax.vmap(policy.init)(keys)
+    state = jax.vmap(policy.initial_state)(keys)
+    obs = images(6)
+    for _ in range(2):
+        want, want_state = jax.jit(jax.vmap(policy.apply))(params, obs, state)
+        got, state = jax.jit(policy.apply_batch)(params, obs, state)
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+        for a, b in zip(jax.tree_util.tree_leaves(state), jax.tree_util.tree_leaves(want_state)):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+        obs = obs[::-1]
+
+
 def test_projections_are_fixed_unless_redrawn():
     fixed = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3)
     a, b = fixed.initial_state(jax.random.PRNGKey(1)), fixed.initial_state(jax.random.PRNGKey(2))
@@ -98,6 +117,8 @@ def test_bad_pixel_policy_settings_fail_early():
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=30)
     with pytest.raises(ValueError, match="do not tile"):
         policies.make("iap", SHAPE, 2, patch_size=3)
+    with pytest.raises(ValueError, match="IAPPolicy.attention_group = -1"):
+        policies.make("iap", SHAPE, 2, patch_size=4, attention_group=-1)
     with pytest.raises(ValueError, match="needs \\(H, W, C\\) observations"):
         policies.make("iap", (17,), 2)
     with pytest.raises(ValueError, match="IAPPolicy.controller"):
