@@ -1,10 +1,10 @@
-"""Population evaluation: ``lax.scan`` over time of a batched step, chunked and sharded.
+"""Population evaluation: ``lax.scan`` over time, ``vmap`` over episodes, chunked and sharded.
 
 Every episode runs the env's full horizon (static shapes, no data-dependent control flow);
 rewards after ``done`` are masked out. Episodes are independent, so the flat list of
 ``members x episodes`` is split over devices (``shard_map`` on a 1-D mesh named ``"pop"``)
-and, on each device, into chunks of at most ``chunk_size`` that one ``lax.scan`` over time
-steps together (:func:`run_episodes`) while ``lax.map`` walks the chunks. Keys are drawn per episode before the split, so results do not
+and, on each device, into chunks of ``chunk_size`` that one ``vmap`` simulates together while
+``lax.map`` walks the chunks. Keys are drawn per episode before the split, so results do not
 depend on the device count or chunk size (beyond float rounding).
 """
 
@@ -52,37 +52,31 @@ jax.tree_util.register_dataclass(
 )
 
 
-def run_episodes(
+def run_episode(
     env: Any,
     policy: Policy,
     params: Any,
-    keys: jax.Array,
+    key: jax.Array,
     obs_stats: ObsStats | None,
     track_obs: bool,
 ) -> EpisodeResult:
-    """``B`` episodes of ``env.episode_length`` control steps, row ``i`` from ``env.reset(keys[i])``.
-
-    ``params`` is a pytree with a leading ``(B,)`` axis (one policy per episode), ``keys``
-    ``(B, 2)``. The episodes advance together: one ``lax.scan`` over time whose body steps the
-    whole batch (the env and the bookkeeping ``vmap``-ed, the policy through
-    :func:`batched_apply`), so the step is traced once with every carry leaf batched from
-    reset, rather than ``vmap`` of a per-episode ``scan`` (whose batching rule traces the
-    body repeatedly to find which carry leaves are batched).
+    """One episode of ``env.episode_length`` control steps from ``env.reset(key)``.
 
     ``obs_stats`` (or ``None``) normalises vector observations before the policy sees them;
     ``track_obs`` accumulates raw-observation sums for the statistics' next update.
-    Returns an :class:`EpisodeResult` with ``(B,)`` leaves.
     """
-    split = jax.vmap(jax.random.split)(keys)  # (B, 2, 2)
-    state = jax.vmap(env.reset)(split[:, 0])
-    policy_state = jax.vmap(policy.initial_state)(split[:, 1])
-    batch = keys.shape[0]
+    reset_key, policy_key = jax.random.split(key)
+    state = env.reset(reset_key)
+    policy_state = policy.initial_state(policy_key)
     obs_size = int(np.prod(env.observation_shape)) if track_obs else 1
-    apply = batched_apply(policy)
+    zeros = jnp.zeros((obs_size,), jnp.float32)
 
-    def account(totals, obs, next_state):
-        """One episode's bookkeeping for one step: ``(ret, alive, bad, obs_sum, obs_sq_sum)``."""
-        ret, alive, bad, obs_sum, obs_sq_sum = totals
+    def step(carry, _):
+        env_state, policy_state, ret, alive, bad, obs_sum, obs_sq_sum = carry
+        obs = env_state.obs
+        seen = obs if obs_stats is None else normalize(obs_stats, obs)
+        action, policy_state = policy.apply(params, seen, policy_state)
+        next_state = env.step(env_state, action)
         reward = next_state.reward
         finite = jnp.isfinite(reward) & jnp.all(
             jnp.array([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(obs)])
@@ -99,49 +93,16 @@ def run_episodes(
             obs_sq_sum = obs_sq_sum + flat**2
         steps_alive = jnp.where(live, 1.0, 0.0)
         alive = alive * (1.0 - next_state.done) * jnp.where(finite, 1.0, 0.0)
-        return (ret, alive, bad, obs_sum, obs_sq_sum), steps_alive
+        return (next_state, policy_state, ret, alive, bad, obs_sum, obs_sq_sum), steps_alive
 
-    def step(carry, _):
-        env_state, policy_state, totals = carry
-        obs = env_state.obs
-        seen = obs if obs_stats is None else jax.vmap(normalize, (None, 0))(obs_stats, obs)
-        action, policy_state = apply(params, seen, policy_state)
-        next_state = jax.vmap(env.step)(env_state, action)
-        totals, steps_alive = jax.vmap(account)(totals, obs, next_state)
-        return (next_state, policy_state, totals), steps_alive
-
-    ones = jnp.ones((batch,), jnp.float32)
-    zeros = jnp.zeros((batch,), jnp.float32)
-    sums = jnp.zeros((batch, obs_size), jnp.float32)
-    carry = (state, policy_state, (zeros, ones, zeros, sums, sums))
+    one = jnp.ones((), jnp.float32)
+    zero = jnp.zeros((), jnp.float32)
+    carry = (state, policy_state, zero, one, zero, zeros, zeros)
     carry, steps_alive = jax.lax.scan(step, carry, None, length=env.episode_length)
-    final, _, (ret, _, bad, obs_sum, obs_sq_sum) = carry
+    final, _, ret, _, bad, obs_sum, obs_sq_sum = carry
     saturated = (final.metrics["contact_saturated"] > 0).astype(jnp.float32) \
-        if "contact_saturated" in final.metrics else zeros
-    return EpisodeResult(ret, jnp.sum(steps_alive, axis=0), bad, saturated, obs_sum, obs_sq_sum)
-
-
-def run_episode(
-    env: Any,
-    policy: Policy,
-    params: Any,
-    key: jax.Array,
-    obs_stats: ObsStats | None,
-    track_obs: bool,
-) -> EpisodeResult:
-    """One episode (:func:`run_episodes` with a batch of one): unbatched ``params``, ``key (2,)``."""
-    batched = run_episodes(env, policy, jax.tree_util.tree_map(lambda x: x[None], params),
-                           key[None], obs_stats, track_obs)
-    return jax.tree_util.tree_map(lambda x: x[0], batched)
-
-
-def batched_apply(policy: Policy) -> Callable[..., tuple[jax.Array, Any]]:
-    """``(params, obs, policy_state)`` with a leading batch axis -> ``(actions (B, A), policy_state)``.
-
-    The policy's own ``apply_batch`` when it has one (e.g. IAP, which walks the batch in small
-    groups for the attention), else ``vmap`` of ``apply``.
-    """
-    return getattr(policy, "apply_batch", None) or jax.vmap(policy.apply)
+        if "contact_saturated" in final.metrics else zero
+    return EpisodeResult(ret, jnp.sum(steps_alive), bad, saturated, obs_sum, obs_sq_sum)
 
 
 def make_mesh(num_devices: int = 0, devices: Any = None) -> Mesh:
@@ -174,15 +135,13 @@ def make_evaluator(
     num_devices = mesh.devices.size
 
     def local(flat_params, keys, obs_stats):
-        def chunk(args):
-            flat, chunk_keys = args
-            return run_episodes(env, policy, jax.vmap(unravel)(flat), chunk_keys, obs_stats, track_obs)
+        def one(args):
+            flat, key = args
+            return run_episode(env, policy, unravel(flat), key, obs_stats, track_obs)
 
         per_device = flat_params.shape[0]
-        chunks = -(-per_device // chunk_size)
-        split = partial(_split_rows, chunks=chunks)
-        result = jax.lax.map(chunk, (split(flat_params), split(keys)))
-        return jax.tree_util.tree_map(lambda x: x.reshape(per_device, *x.shape[2:]), result)
+        batch = per_device // -(-per_device // chunk_size)
+        return jax.lax.map(one, (flat_params, keys), batch_size=batch)
 
     replicated = PartitionSpec()
     sharded = jax.shard_map(
@@ -217,8 +176,3 @@ def padded_share(n: int, num_devices: int, chunk_size: int) -> int:
 
 def _pad_rows(x: jax.Array, count: int) -> jax.Array:
     return jnp.concatenate([x, jnp.repeat(x[:1], count, axis=0)], axis=0)
-
-
-def _split_rows(x: jax.Array, chunks: int) -> jax.Array:
-    """``(chunks * n, ...)`` -> ``(chunks, n, ...)``."""
-    return x.reshape(chunks, x.shape[0] // chunks, *x.shape[1:])

@@ -48,15 +48,19 @@ def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
 
 
 GROUP_PATCHES = 4096
-"""Patches the attention layer vectorises at once in a batched step (see ``apply_batch``)."""
+"""Patches the attention layer vectorises at once under ``vmap`` (see ``IAPPolicy.grouped_features``)."""
 
 
 def attention_group(batch: int, num_patches: int, requested: int = 0) -> int:
-    """Images per attention group for a batch of ``batch``: the largest divisor of ``batch`` not
-    above ``requested`` (0: ``GROUP_PATCHES // num_patches``, at least 1). A divisor, so that
-    ``lax.map`` needs no separately compiled remainder."""
-    target = requested or max(1, GROUP_PATCHES // num_patches)
-    return max(g for g in range(1, min(batch, target) + 1) if batch % g == 0)
+    """Images per attention group in a batch of ``batch`` (see ``IAPPolicy.grouped_features``).
+
+    The target is ``requested`` (0: ``GROUP_PATCHES // num_patches``, at least 1), capped at
+    ``batch``; the largest divisor of ``batch`` not above it is taken when it is at least half
+    the target (then ``lax.map`` needs no separately compiled remainder), else the target.
+    """
+    target = min(batch, requested or max(1, GROUP_PATCHES // num_patches))
+    divisor = max(g for g in range(1, target + 1) if batch % g == 0)
+    return divisor if 2 * divisor >= target else target
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +78,7 @@ class IAPPolicy:
       activation: the MLP controller's hidden activation.
       with_patches: also feed the selected patches' pixels to the controller.
       projection_seed: seed of the fixed random projections (unless redrawn per episode).
-      attention_group: images the attention layer vectorises together in :meth:`apply_batch`
+      attention_group: images the attention layer vectorises together under ``vmap``
         (0: chosen from the patch count, :func:`attention_group`). Speed only, not results.
     """
 
@@ -155,36 +159,38 @@ class IAPPolicy:
         return jnp.concatenate(parts), selection
 
     def apply(self, params: dict[str, Any], obs: Any, policy_state):
-        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``."""
-        features, _ = self.features(params, obs, self._projections(policy_state))
+        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``.
+
+        Under ``vmap`` the attention runs ``attention_group`` images at a time (see
+        :meth:`grouped_features`); the controller is vectorised over the whole batch.
+        """
+        features = self.grouped_features(params, obs, self._projections(policy_state))
         return self.control(params, features, policy_state)
 
-    def apply_batch(self, params: dict[str, Any], obs: Any, policy_state):
-        """``apply`` for a batch: every argument has a leading ``(B,)`` axis.
+    def grouped_features(self, params: dict[str, Any], obs: Any, projections) -> jax.Array:
+        """The controller's input ``(feature_size,)``, with a batching rule of its own.
 
-        The attention runs in groups (:meth:`features_batch`), the controller is ``vmap``-ed over
-        the batch. Equal to ``vmap(apply)`` up to float rounding.
+        ``vmap`` of this function (e.g. over a chunk of episodes) runs the attention layer
+        ``attention_group`` images at a time (``lax.map``) rather than on the whole batch at
+        once: at large ``L`` vectorising it over many images makes its working set leave the
+        cache. Results equal ``vmap`` of :meth:`features` up to float rounding.
         """
-        features = self.features_batch(params, obs, self._projections(policy_state))
-        return jax.vmap(self.control)(params, features, policy_state)
-
-    def features_batch(self, params: dict[str, Any], obs: Any, projections) -> jax.Array:
-        """The controller's inputs ``(B, feature_size)`` for a batch (leading ``(B,)`` axes).
-
-        The attention layer runs ``attention_group`` images at a time (``lax.map``): vectorising
-        it over a whole batch of large images makes its working set leave the cache (at
-        ``L = 19,200`` about 2x slower per image than groups of 1-4).
-        """
-        def features(args):
-            one_params, one_obs, one_projections = args
+        def one(one_params, one_obs, one_projections):
             return self.features(one_params, one_obs, one_projections)[0]
 
-        inputs = (params, obs, projections)
-        batch = jax.tree_util.tree_leaves(obs)[0].shape[0]
-        group = attention_group(batch, self.layer.num_patches, self.attention_group)
-        if group == batch:
-            return jax.vmap(features)(inputs)
-        return jax.lax.map(features, inputs, batch_size=group)
+        grouped = jax.custom_batching.custom_vmap(one)
+
+        @grouped.def_vmap
+        def rule(axis_size, in_batched, *args):
+            args = jax.tree_util.tree_map(
+                lambda x, batched: x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
+                args, tuple(in_batched))
+            group = attention_group(axis_size, self.layer.num_patches, self.attention_group)
+            if group == axis_size:
+                return jax.vmap(one)(*args), True
+            return jax.lax.map(lambda a: one(*a), args, batch_size=group), True
+
+        return grouped(params, obs, projections)
 
     def control(self, params: dict[str, Any], features: jax.Array, policy_state):
         """The controller: ``features (feature_size,)`` -> ``(action (action_size,), policy_state)``."""
