@@ -64,34 +64,6 @@ def test_lstm_controller_carries_memory_across_steps():
                                   policy.select(params, image, start).indices)
 
 
-@pytest.mark.parametrize("group", [1, 2, 0])
-def test_vmapped_apply_with_attention_groups_equals_per_image_apply(group):
-    """Under ``vmap`` the attention runs in ``lax.map`` groups of 1 or 2 images (or the whole
-    batch, the default here); actions and LSTM state equal one ``apply`` per image: one policy
-    per row, and shared params and projections (unbatched arguments) too."""
-    policy = policies.make("iap", SHAPE, 3, patch_size=2, top_l=4, controller="lstm", hidden_sizes=[5],
-                           redraw_projections=True, attention_group=group)
-    keys = jax.random.split(jax.random.PRNGKey(4), 6)
-    params = jax.vmap(policy.init)(keys)
-    state = jax.vmap(policy.initial_state)(keys)
-    obs = images(6)
-    step = jax.jit(jax.vmap(policy.apply))
-    for _ in range(2):
-        rows = [policy.apply(jax.tree_util.tree_map(lambda x: x[i], params), obs[i],
-                             jax.tree_util.tree_map(lambda x: x[i], state)) for i in range(6)]
-        got, state = step(params, obs, state)
-        np.testing.assert_allclose(got, jnp.stack([a for a, _ in rows]), rtol=1e-5, atol=1e-6)
-        want_state = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *[s for _, s in rows])
-        for a, b in zip(jax.tree_util.tree_leaves(state), jax.tree_util.tree_leaves(want_state)):
-            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
-        obs = obs[::-1]
-    shared = jax.tree_util.tree_map(lambda x: x[0], params)
-    start = policy.initial_state(keys[0])
-    got, _ = jax.jit(jax.vmap(policy.apply, in_axes=(None, 0, None)))(shared, obs, start)
-    want = jnp.stack([policy.apply(shared, image, start)[0] for image in obs])
-    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
-
-
 def test_projections_are_fixed_unless_redrawn():
     fixed = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3)
     a, b = fixed.initial_state(jax.random.PRNGKey(1)), fixed.initial_state(jax.random.PRNGKey(2))
@@ -126,8 +98,6 @@ def test_bad_pixel_policy_settings_fail_early():
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=30)
     with pytest.raises(ValueError, match="do not tile"):
         policies.make("iap", SHAPE, 2, patch_size=3)
-    with pytest.raises(ValueError, match="IAPPolicy.attention_group = -1"):
-        policies.make("iap", SHAPE, 2, patch_size=4, attention_group=-1)
     with pytest.raises(ValueError, match="needs \\(H, W, C\\) observations"):
         policies.make("iap", (17,), 2)
     with pytest.raises(ValueError, match="IAPPolicy.controller"):

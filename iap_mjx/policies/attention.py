@@ -47,22 +47,6 @@ def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
     return pixels, state_size
 
 
-GROUP_PATCHES = 4096
-"""Patches the attention layer vectorises at once under ``vmap`` (see ``IAPPolicy.grouped_features``)."""
-
-
-def attention_group(batch: int, num_patches: int, requested: int = 0) -> int:
-    """Images per attention group in a batch of ``batch`` (see ``IAPPolicy.grouped_features``).
-
-    The target is ``requested`` (0: ``GROUP_PATCHES // num_patches``, at least 1), capped at
-    ``batch``; the largest divisor of ``batch`` not above it is taken when it is at least half
-    the target (then ``lax.map`` needs no separately compiled remainder), else the target.
-    """
-    target = min(batch, requested or max(1, GROUP_PATCHES // num_patches))
-    divisor = max(g for g in range(1, target + 1) if batch % g == 0)
-    return divisor if 2 * divisor >= target else target
-
-
 @dataclasses.dataclass(frozen=True)
 class IAPPolicy:
     """Attention over patches -> ``l`` patch centres (+ patches, + state) -> controller -> tanh.
@@ -78,8 +62,6 @@ class IAPPolicy:
       activation: the MLP controller's hidden activation.
       with_patches: also feed the selected patches' pixels to the controller.
       projection_seed: seed of the fixed random projections (unless redrawn per episode).
-      attention_group: images the attention layer vectorises together under ``vmap``
-        (0: chosen from the patch count, :func:`attention_group`). Speed only, not results.
     """
 
     image_shape: tuple[int, int, int]
@@ -91,16 +73,12 @@ class IAPPolicy:
     activation: str = "tanh"
     with_patches: bool = False
     projection_seed: int = 0
-    attention_group: int = 0
 
     def __post_init__(self):
         check_positive("IAPPolicy", "action_size", self.action_size)
         check_choice("IAPPolicy", "controller", self.controller, CONTROLLERS)
         check_choice("IAPPolicy", "activation", self.activation, ACTIVATIONS)
         check_sizes("IAPPolicy", "hidden_sizes", self.hidden_sizes, non_empty=self.controller == "lstm")
-        if not isinstance(self.attention_group, int) or self.attention_group < 0:
-            raise ValueError(f"IAPPolicy.attention_group = {self.attention_group!r} must be a "
-                             "non-negative int (0: chosen from the patch count)")
         if not isinstance(self.state_size, int) or self.state_size < 0:
             raise ValueError(f"IAPPolicy.state_size = {self.state_size!r} must be a non-negative int")
         IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
@@ -159,45 +137,13 @@ class IAPPolicy:
         return jnp.concatenate(parts), selection
 
     def apply(self, params: dict[str, Any], obs: Any, policy_state):
-        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``.
-
-        Under ``vmap`` the attention runs ``attention_group`` images at a time (see
-        :meth:`grouped_features`); the controller is vectorised over the whole batch.
-        """
-        features = self.grouped_features(params, obs, self._projections(policy_state))
-        return self.control(params, features, policy_state)
-
-    def grouped_features(self, params: dict[str, Any], obs: Any, projections) -> jax.Array:
-        """The controller's input ``(feature_size,)``, with a batching rule of its own.
-
-        ``vmap`` of this function (e.g. over a chunk of episodes) runs the attention layer
-        ``attention_group`` images at a time (``lax.map``) rather than on the whole batch at
-        once: at large ``L`` vectorising it over many images makes its working set leave the
-        cache. Results equal ``vmap`` of :meth:`features` up to float rounding.
-        """
-        def one(one_params, one_obs, one_projections):
-            return self.features(one_params, one_obs, one_projections)[0]
-
-        grouped = jax.custom_batching.custom_vmap(one)
-
-        @grouped.def_vmap
-        def rule(axis_size, in_batched, *args):
-            args = jax.tree_util.tree_map(
-                lambda x, batched: x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
-                args, tuple(in_batched))
-            group = attention_group(axis_size, self.layer.num_patches, self.attention_group)
-            if group == axis_size:
-                return jax.vmap(one)(*args), True
-            return jax.lax.map(lambda a: one(*a), args, batch_size=group), True
-
-        return grouped(params, obs, projections)
-
-    def control(self, params: dict[str, Any], features: jax.Array, policy_state):
-        """The controller: ``features (feature_size,)`` -> ``(action (action_size,), policy_state)``."""
+        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``."""
         if self.controller != "lstm":
+            features, _ = self.features(params, obs, policy_state)
             out = apply_dense_layers(params["controller"], features, ACTIVATIONS[self.activation])
             return jnp.tanh(out), policy_state
         projections, (hidden, cell) = policy_state
+        features, _ = self.features(params, obs, projections)
         layer = params["controller"]["cell"]
         gates = jnp.concatenate([features, hidden]) @ layer["w"] + layer["b"]
         in_gate, forget_gate, candidate, out_gate = jnp.split(gates, 4)
@@ -206,12 +152,10 @@ class IAPPolicy:
         out = apply_dense_layers(params["controller"]["out"], hidden, jnp.tanh)
         return jnp.tanh(out), (projections, (hidden, cell))
 
-    def _projections(self, policy_state):
-        return policy_state[0] if self.controller == "lstm" else policy_state
-
     def select(self, params: dict[str, Any], obs: Any, policy_state):
         """The attention layer's ``Selection`` for ``obs`` (for videos and figures)."""
-        return self.features(params, obs, self._projections(policy_state))[1]
+        projections = policy_state[0] if self.controller == "lstm" else policy_state
+        return self.features(params, obs, projections)[1]
 
 
 @dataclasses.dataclass(frozen=True)
