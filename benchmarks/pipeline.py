@@ -10,8 +10,8 @@ table is written when all are done:
 - brute force at sizes where the ``L x L`` matrix is too large for the rollout: one frame of
   its attention layer measured alone, and the whole program's projected cost;
 - with ``--stages``, a per-stage breakdown: the population's episodes as programs that
-  include successively more stages (physics; + camera; + attention; + controller), and the
-  whole ES iteration (+ ES bookkeeping and centre evaluation); each stage's cost is the
+  include successively more stages (physics; + camera; + attention), and the whole ES
+  iteration (+ controller, ES bookkeeping and centre evaluation); each stage's cost is the
   difference of consecutive programs' time per frame;
 - the attention layer alone, batch ``population``, sharded over the devices, in the groups
   the rollout uses;
@@ -45,7 +45,7 @@ DEFAULT = "cheetah-run-pixels"
 PRESETS = [("hybrid (10,5)", "cheetah-run-pixels"), ("ReLU", "cheetah-run-pixels-relu"),
            ("brute force", "cheetah-run-pixels-brute")]
 BRUTE_ROLLOUT_MAX_PATCHES = 2500  # beyond, brute force's L x L matrices make a rollout take hours
-STAGES = ["physics", "camera", "attention", "controller"]
+STAGES = ["physics", "camera", "attention"]
 
 
 def peak_rss_mb() -> float:
@@ -109,9 +109,9 @@ def work_stage(job: dict) -> dict:
     if job["stage"] == "physics":
         options = {k: v for k, v in options.items() if k not in ("obs_mode", "height", "width")}
     env = envs.make(config.env.name, **options)
-    iap = None if job["stage"] == "physics" else policies.make(
+    iap = None if job["stage"] != "attention" else policies.make(
         config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
-    policy = iap if job["stage"] == "controller" else _Idle(env.action_size, iap if job["stage"] == "attention" else None)
+    policy = _Idle(env.action_size, iap)
     flat, unravel = ravel_pytree(policy.init(jax.random.PRNGKey(0)))
     if flat.shape[0] == 0:
         flat = jnp.zeros((1,))
@@ -297,11 +297,11 @@ def tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows,
                  "", "| program | frames/s | ms / frame | stage | stage ms / frame | share | compile s |",
                  "|---|---:|---:|---|---:|---:|---:|"]
         names = ["physics only (state env, zero actions)", "+ camera", "+ attention (top-10 features)",
-                 "+ LSTM controller (the population's episodes)", "+ ES update and centre evaluation (`train`)"]
+                 "+ LSTM controller, ES update and centre evaluation (`train`)"]
         ladder = [*stage_rows, rows[0][1]]
         total_ms = 1e3 / ladder[-1]["frames_per_s"]
         previous = 0.0
-        for name, stage, row in zip(names, [*STAGES, "ES bookkeeping"], ladder):
+        for name, stage, row in zip(names, [*STAGES, "controller + ES bookkeeping"], ladder):
             ms = 1e3 / row["frames_per_s"]
             lines.append(f"| {name} | {fmt(row['frames_per_s'])} | {ms:.3f} | {stage} | {ms - previous:.3f} | "
                          f"{100 * (ms - previous) / total_ms:.0f}% | {fmt(row['compile_s'], '.1f')} |")
