@@ -198,7 +198,10 @@ def main() -> int:
         worker_main(json.loads(args.worker))
         return 0
 
-    from iap_mjx import configs, runtime
+    from iap_mjx import runtime
+
+    runtime.set_host_device_count()  # as the workers do, so that machine_line() names their devices
+    from iap_mjx import configs
     from iap_mjx.attention import IAPAttention
 
     cache_was_cold = not any(runtime.enable_compilation_cache().iterdir())
