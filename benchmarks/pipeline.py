@@ -18,8 +18,9 @@ table is written when all are done:
 - the 100x100 default preset measured in the same run (when the setting is another size).
 
     python benchmarks/pipeline.py              # 100x100, writes the pipeline section of BENCHMARKS.md
-    python benchmarks/pipeline.py --height 240 --width 320 --patch 2 --stages --episode-length 25
-                                              # writes the pipeline-240x320-p2 section
+    python benchmarks/pipeline.py --height 240 --width 320 --patch 2 --population 64 \
+        --episode-length 20 --iterations 3 --stages --memory-population 256
+                                              # writes the pipeline-240x320-p2 section (~10 min)
 """
 
 from __future__ import annotations
@@ -188,6 +189,8 @@ def main() -> int:
     parser.add_argument("--population", type=int, default=64)
     parser.add_argument("--episode-length", type=int, default=50, help="frames per episode")
     parser.add_argument("--iterations", type=int, default=3)
+    parser.add_argument("--action-repeat", type=int, default=0,
+                        help="control steps per frame (0: the preset's; 1: a frame every control step)")
     parser.add_argument("--stages", action="store_true", help="also the per-stage breakdown")
     parser.add_argument("--memory-population", type=int, default=0,
                         help="also one whole-program run of hybrid (10,5) at this population (peak RSS)")
@@ -208,7 +211,8 @@ def main() -> int:
     default_size = (args.height, args.width, args.patch) == (100, 100, 4)
     size = (f"env.height={args.height}", f"env.width={args.width}", f"policy.patch_size={args.patch}")
     common = (f"es.population_size={args.population}", f"env.episode_length={args.episode_length}",
-              f"run.iterations={args.iterations}", "run.checkpoint_every=0", "run.tensorboard=false")
+              f"run.iterations={args.iterations}", "run.checkpoint_every=0", "run.tensorboard=false") + (
+        (f"env.action_repeat={args.action_repeat}",) if args.action_repeat else ())
     config = configs.apply_overrides(configs.get(DEFAULT), list(size + common))
     repeat = dict(config.env.overrides)["action_repeat"]
     num_patches = IAPAttention(_attention_config(config), (args.height, args.width, 3)).num_patches
@@ -248,7 +252,8 @@ def main() -> int:
         return 0
     command = (f"python benchmarks/pipeline.py --height {args.height} --width {args.width} --patch {args.patch} "
                f"--population {args.population} --episode-length {args.episode_length} "
-               f"--iterations {args.iterations}" + (" --stages" if args.stages else "")
+               f"--iterations {args.iterations}" + (f" --action-repeat {args.action_repeat}" if args.action_repeat else "")
+               + (" --stages" if args.stages else "")
                + (f" --memory-population {args.memory_population}" if args.memory_population else ""))
     name = "pipeline" if default_size else f"pipeline-{args.height}x{args.width}-p{args.patch}"
     cache = ("The persistent compilation cache was empty at the start (cold compiles; run with "
