@@ -18,9 +18,8 @@ table is written when all are done:
 - the 100x100 default preset measured in the same run (when the setting is another size).
 
     python benchmarks/pipeline.py              # 100x100, writes the pipeline section of BENCHMARKS.md
-    python benchmarks/pipeline.py --height 240 --width 320 --patch 2 --population 64 \
-        --episode-length 20 --iterations 3 --stages --memory-population 256
-                                              # writes the pipeline-240x320-p2 section (~10 min)
+    # the pipeline-240x320-p2 section (~10 min):
+    python benchmarks/pipeline.py --height 240 --width 320 --patch 2 --population 64 --episode-length 20 --iterations 3 --stages --memory-population 256
 """
 
 from __future__ import annotations
