@@ -473,7 +473,9 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
           f"`XLA_FLAGS={run.get('xla_flags', 'not recorded')}`; 1-min load average "
           f"{run['load_before']:.1f} before, {run['load_after']:.1f} after)" for part, run in args.runs.items()],
         "",
-        f"MJX envs are vmapped in chunks of at most {args.chunk_size} per device (`lax.map` over chunks): "
+        "The physics parts vmap at most "
+        f"{max([run.get('chunk_size', args.chunk_size) for part, run in args.runs.items() if part != 'camera'] or [args.chunk_size])} "
+        "envs together per device (`lax.map` over chunks): "
         "with jaxlib 0.10, 103 or more quadrupeds vmapped together per device, sharded over both devices, "
         "deadlock XLA:CPU at the first execution (each intra-op pool thread blocks in a batched LAPACK "
         "Cholesky waiting for tasks queued on that pool; `iap_mjx.envs.quadruped.serial_lapack_batch`). "
@@ -481,6 +483,11 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         "",
         "Bars (issue 15), from these runs:",
     ]
+    missing = [name for part, name in (("sweep", "the solver sweep"), ("throughput", "the throughput table"),
+                                       ("long", "the full-length random-action episodes"),
+                                       ("camera", "the camera rows")) if part not in args.runs]
+    if missing:
+        lines[-1:-1] = [f"Not measured yet: {', '.join(missing)}.", ""]
     if walls:
         lines.append(f"- `quadruped-walls` at B=256 on both cores: **{walls[0]['mjx_n']:,.0f}** control steps/s "
                      f"(bar 4,000: {'met' if walls[0]['mjx_n'] >= 4000 else 'not met'}); walls, foot and wall contacts on.")
@@ -579,7 +586,8 @@ def main_quadruped(args) -> None:
     }
     for part in args.parts:
         rows = measure[part]()
-        record = dict(argv=args.argv, xla_flags=os.environ.get("XLA_FLAGS", ""), load_before=load_before,
+        record = dict(argv=args.argv, xla_flags=os.environ.get("XLA_FLAGS", ""), chunk_size=args.chunk_size,
+                      load_before=load_before,
                       load_after=os.getloadavg()[0],
                       when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), rows=rows)
         (rows_dir / f"{part}.json").write_text(json.dumps(record, indent=1, default=float))
