@@ -32,6 +32,14 @@ command, time and load); the section is written from every part saved there:
     /work/coord/cpu exclusive python benchmarks/physics.py --quadruped --parts sweep --no-write
     ...
     python benchmarks/physics.py --quadruped --parts   # no measuring: writes the section
+
+The quadruped's envs are vmapped in chunks of ``--chunk-size`` (default 64) per device, at most
+the env's ``max_chunk_size`` (102): with jaxlib 0.10, a larger vmapped batch of quadrupeds
+sharded over both devices deadlocks XLA:CPU at its first execution (every thread parked on a
+futex: the two intra-op pool threads each block in a batched LAPACK Cholesky waiting for tasks
+queued on that same pool; see ``iap_mjx.envs.quadruped.serial_lapack_batch``).
+``--xla_cpu_multi_thread_eigen=false`` does not avoid it (the LAPACK kernels use XLA's intra-op
+pool, not Eigen's) and is not set.
 """
 
 from __future__ import annotations
@@ -47,13 +55,6 @@ import time
 from pathlib import Path
 
 from iap_mjx import runtime
-
-# XLA:CPU wedged at the first execution of the quadruped's big (B >= 256) programs in most runs
-# here: every thread parked, no CPU progress (like PyAutoLabs/PyAutoFit#1528-1530, where
-# single-threaded Eigen avoided it). Here the flag below did NOT avoid it (2 of 2 runs still hung);
-# it stays so that the camera rows in BENCHMARKS.md keep the flags they were measured with.
-if "--quadruped" in sys.argv:
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 
 DEVICE_COUNT = runtime.set_host_device_count(2)
 
@@ -381,7 +382,7 @@ def _accurate(model: mujoco.MjModel) -> mujoco.MjModel:
     return accurate
 
 
-def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]:
+def quadruped_sweep(name: str, settings, steps: int, repeats: int, chunk_size: int) -> list[dict]:
     """Per solver setting: MJX vs native on the same compiled model (``same``), vs native
     run to convergence (``converged``), native's own sensitivity, and env-steps/s at B=256.
 
@@ -415,9 +416,9 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]
             reference = _native_run(_accurate(env.mj_model), first.data, controls, env.n_sub_steps)
             converged.append(np.abs(ours - reference)[live].max())
         size = 256
-        states = jax.jit(batch.chunked_vmap(env.reset, 128))(jax.random.split(jax.random.key(0), size))
+        states = jax.jit(batch.chunked_vmap(env.reset, chunk_size))(jax.random.split(jax.random.key(0), size))
         random_actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
-        _, rate = measure_mjx(env, states, random_actions, size // len(devices), mesh, repeats)
+        _, rate = measure_mjx(env, states, random_actions, min(size // len(devices), chunk_size), mesh, repeats)
         rows.append(dict(task=name, iterations=env.config.solver_iterations, ls_iterations=env.config.ls_iterations,
                          contacts="all" if env.max_contacts is None else env.max_contacts,
                          pairs="all" if env.max_geom_pairs is None else env.max_geom_pairs,
@@ -427,16 +428,17 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int) -> list[dict]
     return rows
 
 
-def camera_rate(name: str, batches, repeats: int) -> list[dict]:
+def camera_rate(name: str, batches, repeats: int, chunk_size: int) -> list[dict]:
     """First-person frames/s (RGB at the env's default size) on states of random episodes."""
     env = envs.make(name, obs_mode="pixels")
     devices = jax.devices()
     mesh = Mesh(np.array(devices), (batch.BATCH_AXIS,)) if len(devices) > 1 else None
     rows = []
     for size in batches:
-        states = jax.jit(batch.chunked_vmap(env.env.reset, min(size, 128)))(jax.random.split(jax.random.key(3), size))
+        states = jax.jit(batch.chunked_vmap(env.env.reset, min(size, chunk_size)))(
+            jax.random.split(jax.random.key(3), size))
         actions = jax.random.uniform(jax.random.key(4), (size, 20, env.action_size), minval=-0.2, maxval=0.2)
-        states = _steps_program(env.env, 20, min(size, 128), None)(states, actions)
+        states = _steps_program(env.env, 20, min(size, chunk_size), None)(states, actions)
         render = jax.vmap(lambda d: env.render(d))
         one = jax.jit(render)
         start = time.perf_counter()
@@ -464,14 +466,28 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         "",
         f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
         f"jax {jax.__version__}, mujoco {mujoco.__version__}, {os.cpu_count()} cores. Each part measured "
-        "by its own command under the exclusive CPU lock (`/work/coord/cpu exclusive ...`), with "
-        f"`XLA_FLAGS={os.environ.get('XLA_FLAGS', '')}` (single-threaded Eigen: see the script's header):",
+        "by its own command under the exclusive CPU lock (`/work/coord/cpu exclusive ...`), with the "
+        "`XLA_FLAGS` it ran with:",
         "",
-        *[f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; 1-min load average "
+        *[f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; "
+          f"`XLA_FLAGS={run.get('xla_flags', 'not recorded')}`; 1-min load average "
           f"{run['load_before']:.1f} before, {run['load_after']:.1f} after)" for part, run in args.runs.items()],
         "",
-        "Bars (issue 15), from this run:",
+        "The physics parts vmap at most "
+        f"{max([run.get('chunk_size', args.chunk_size) for part, run in args.runs.items() if part != 'camera'] or [args.chunk_size])} "
+        "envs together per device (`lax.map` over chunks): "
+        "with jaxlib 0.10, 103 or more quadrupeds vmapped together per device, sharded over both devices, "
+        "deadlock XLA:CPU at the first execution (each intra-op pool thread blocks in a batched LAPACK "
+        "Cholesky waiting for tasks queued on that pool; `iap_mjx.envs.quadruped.serial_lapack_batch`). "
+        "`--xla_cpu_multi_thread_eigen=false` does not avoid it.",
+        "",
+        "Bars (issue 15), from these runs:",
     ]
+    missing = [name for part, name in (("sweep", "the solver sweep"), ("throughput", "the throughput table"),
+                                       ("long", "the full-length random-action episodes"),
+                                       ("camera", "the camera rows")) if part not in args.runs]
+    if missing:
+        lines[-1:-1] = [f"Not measured yet: {', '.join(missing)}.", ""]
     if walls:
         lines.append(f"- `quadruped-walls` at B=256 on both cores: **{walls[0]['mjx_n']:,.0f}** control steps/s "
                      f"(bar 4,000: {'met' if walls[0]['mjx_n'] >= 4000 else 'not met'}); walls, foot and wall contacts on.")
@@ -529,6 +545,8 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         ]
         for r in camera_rows:
             lines.append(f"| {r['width']}x{r['height']} | {r['batch']} | {r['fps_1']:,.0f} | {r['fps_n']:,.0f} | {r['compile']:.1f} |")
+        lines += ["", "The camera rows have no baseline measured in the same run (`benchmarks/camera.py`'s "
+                  "MuJoCo-renderer column covers the dm_control tasks only)."]
     if long_rows:
         lines += [
             "",
@@ -559,16 +577,18 @@ def main_quadruped(args) -> None:
     load_before = os.getloadavg()[0]
     measure = {
         "sweep": lambda: [row for name in args.sweep_tasks
-                          for row in quadruped_sweep(name, args.sweep, args.sweep_steps, args.repeats)],
+                          for row in quadruped_sweep(name, args.sweep, args.sweep_steps, args.repeats, args.chunk_size)],
         "throughput": lambda: [row for name in args.tasks
                                for row in throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)],
-        "camera": lambda: camera_rate("quadruped-walls", args.camera_batch, args.repeats),
+        "camera": lambda: camera_rate("quadruped-walls", args.camera_batch, args.repeats, args.chunk_size),
         "long": lambda: [long_run(name, args.long_batch, envs.make(name).episode_length, args.chunk_size)
                          for name in args.long_tasks],
     }
     for part in args.parts:
         rows = measure[part]()
-        record = dict(argv=args.argv, load_before=load_before, load_after=os.getloadavg()[0],
+        record = dict(argv=args.argv, xla_flags=os.environ.get("XLA_FLAGS", ""), chunk_size=args.chunk_size,
+                      load_before=load_before,
+                      load_after=os.getloadavg()[0],
                       when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), rows=rows)
         (rows_dir / f"{part}.json").write_text(json.dumps(record, indent=1, default=float))
     saved = {part: json.loads((rows_dir / f"{part}.json").read_text())
@@ -588,7 +608,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tasks", nargs="+", default=None, choices=TASKS + QUADRUPED_TASKS)
     parser.add_argument("--batch", nargs="+", type=int, default=[64, 256, 1024])
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
-    parser.add_argument("--chunk-size", type=int, default=256)
+    parser.add_argument("--chunk-size", type=int, default=None,
+                        help="envs vmapped together per device (default 256; --quadruped: 64, at most the "
+                             "env's max_chunk_size)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sweep-tasks", nargs="*", default=None, choices=TASKS + QUADRUPED_TASKS)
     parser.add_argument("--sweep", nargs="*", default=None,
@@ -608,6 +630,11 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     args.argv = " ".join(argv) if argv else ""
     if args.quadruped:
+        limit = envs.make("quadruped-flat").max_chunk_size
+        args.chunk_size = args.chunk_size or 64
+        if limit is not None and args.chunk_size > limit:
+            parser.error(f"--chunk-size {args.chunk_size}: the quadruped vmaps at most {limit} envs per device "
+                         "(a larger batch deadlocks XLA:CPU; see iap_mjx.envs.quadruped.serial_lapack_batch)")
         args.tasks = args.tasks or list(QUADRUPED_TASKS)
         args.sweep_tasks = ["quadruped-walls"] if args.sweep_tasks is None else args.sweep_tasks
         args.sweep = args.sweep or ["8/4/task/task", "4/4/task/task", "4/2/task/task", "2/2/task/task",
@@ -615,6 +642,7 @@ def main(argv: list[str] | None = None) -> None:
         args.long_tasks = ["quadruped-walls"] if args.long_tasks is None else args.long_tasks
         main_quadruped(args)
         return
+    args.chunk_size = args.chunk_size or 256
     args.tasks = args.tasks or list(TASKS)
     args.sweep_tasks = ["cheetah-run", "walker-walk"] if args.sweep_tasks is None else args.sweep_tasks
     args.sweep = args.sweep or ["8/8/all", "8/8/task", "4/4/task", "8/2/task", "16/2/task"]

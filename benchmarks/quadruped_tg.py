@@ -16,15 +16,8 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
-import os
 
 from iap_mjx import runtime
-
-# XLA:CPU wedged at the first execution of the quadruped's big (B >= 256) programs in most runs
-# here: every thread parked, no CPU progress (like PyAutoLabs/PyAutoFit#1528-1530, where
-# single-threaded Eigen avoided it). Here the flag below did NOT avoid it (2 of 2 runs still hung);
-# it stays so that the camera rows in BENCHMARKS.md keep the flags they were measured with.
-os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 
 runtime.set_host_device_count(2)
 
@@ -81,12 +74,13 @@ def main(argv=None) -> None:
                        to_unit(h, tg.height_range), to_unit(k, tg.ratio_range, log=True)]
                       for f, i, h, k in grid], np.float32)
     n = len(grid) * args.episodes
-    pad = (-n) % 128
+    chunk = 64  # <= env.max_chunk_size: larger vmapped batches can deadlock XLA:CPU (jaxlib 0.10)
+    pad = (-n) % chunk
     u = np.repeat(units, args.episodes, axis=0)
     u = np.concatenate([u, np.zeros((pad, 4), np.float32)])
     keys = jax.random.split(jax.random.key(0), n + pad)
     run = jax.jit(jax.vmap(lambda uu, kk: episode_speed(env, tg, uu, kk)))
-    out = [jax.device_get(run(jnp.asarray(u[i: i + 128]), keys[i: i + 128])) for i in range(0, n + pad, 128)]
+    out = [jax.device_get(run(jnp.asarray(u[i: i + chunk]), keys[i: i + chunk])) for i in range(0, n + pad, chunk)]
     speed, fell = (np.concatenate([o[j] for o in out]) for j in (0, 1))
     speed, fell = speed[:n].reshape(len(grid), -1), fell[:n].reshape(len(grid), -1)
     rows = sorted(range(len(grid)), key=lambda g: -speed[g].mean())

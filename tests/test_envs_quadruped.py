@@ -179,3 +179,19 @@ def test_task_settings_are_validated_by_the_task_config():
     with pytest.raises(ValueError, match="n_walls"):
         QuadrupedWallsConfig(n_walls=0)
     assert envs.make("quadruped-walls").max_geom_pairs == 8
+
+
+def test_max_chunk_size_keeps_the_batched_cholesky_on_its_calling_thread():
+    """jaxlib 0.10's LAPACK Cholesky splits a batch over XLA's intra-op pool, and blocks on it,
+    from ``batch * (nv**3 // 3) >= 200,000`` (jaxlib/cpu/lapack_kernels.cc,
+    GetLapackBatchChunkSize); sharded over 2 devices, 104 quadrupeds per device deadlocked
+    XLA:CPU and 64 or 102 did not. The limit is the largest batch below that threshold."""
+    import jaxlib.version
+
+    env = envs.make("quadruped-walls")
+    cost = env.mj_model.nv**3 // 3
+    if tuple(jaxlib.version.__version_info__[:3]) < (0, 11, 1):
+        assert env.max_chunk_size * cost < 200_000 <= (env.max_chunk_size + 1) * cost
+        assert env.max_chunk_size == 102
+    else:  # open-source jaxlib >= 0.11.1 never splits the batch
+        assert env.max_chunk_size is None
