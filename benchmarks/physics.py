@@ -37,7 +37,7 @@ The quadruped's envs are vmapped in chunks of ``--chunk-size`` (default 64) per 
 the env's ``max_chunk_size`` (102): with jaxlib 0.10, a larger vmapped batch of quadrupeds
 sharded over both devices deadlocks XLA:CPU at its first execution (every thread parked on a
 futex: the two intra-op pool threads each block in a batched LAPACK Cholesky waiting for tasks
-queued on that same pool; see ``iap_mjx.envs.quadruped.serial_lapack_batch``).
+queued on that same pool; see ``iap_mjx.envs.dmc.serial_lapack_batch``).
 ``--xla_cpu_multi_thread_eigen=false`` does not avoid it (the LAPACK kernels use XLA's intra-op
 pool, not Eigen's) and is not set.
 """
@@ -478,7 +478,7 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         "envs together per device (`lax.map` over chunks): "
         "with jaxlib 0.10, 103 or more quadrupeds vmapped together per device, sharded over both devices, "
         "deadlock XLA:CPU at the first execution (each intra-op pool thread blocks in a batched LAPACK "
-        "Cholesky waiting for tasks queued on that pool; `iap_mjx.envs.quadruped.serial_lapack_batch`). "
+        "Cholesky waiting for tasks queued on that pool; `iap_mjx.envs.dmc.serial_lapack_batch`). "
         "`--xla_cpu_multi_thread_eigen=false` does not avoid it.",
         "",
         "Bars (issue 15), from these runs:",
@@ -634,7 +634,7 @@ def main(argv: list[str] | None = None) -> None:
         args.chunk_size = args.chunk_size or 64
         if limit is not None and args.chunk_size > limit:
             parser.error(f"--chunk-size {args.chunk_size}: the quadruped vmaps at most {limit} envs per device "
-                         "(a larger batch deadlocks XLA:CPU; see iap_mjx.envs.quadruped.serial_lapack_batch)")
+                         "(a larger batch deadlocks XLA:CPU; see iap_mjx.envs.dmc.serial_lapack_batch)")
         args.tasks = args.tasks or list(QUADRUPED_TASKS)
         args.sweep_tasks = ["quadruped-walls"] if args.sweep_tasks is None else args.sweep_tasks
         args.sweep = args.sweep or ["8/4/task/task", "4/4/task/task", "4/2/task/task", "2/2/task/task",

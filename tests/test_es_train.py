@@ -240,3 +240,26 @@ def test_evosax_strategy_trains_through_the_adapter():
     result = train(config, env=PointMass(), progress=False)
     assert np.all(np.isfinite(flat(result.params)))
     assert np.linalg.norm(flat(result.params)) > 0  # moved away from the zero init
+
+
+def test_a_chunk_size_that_would_deadlock_xla_is_refused_before_compiling():
+    """With jaxlib 0.10, vmapping more than ``env.max_chunk_size`` MJX envs per device on two
+    devices deadlocks XLA:CPU (``iap_mjx.envs.dmc.serial_lapack_batch``): ``build`` refuses it,
+    naming the setting and its valid values; one device, or a chunk within the limit, builds."""
+    import jaxlib.version
+
+    from iap_mjx import envs
+    from iap_mjx.es.train import build
+
+    env = envs.make("cheetah-run")
+    limit = env.max_chunk_size
+    if tuple(jaxlib.version.__version_info__[:3]) >= (0, 11, 1):
+        assert limit is None
+        return
+    assert limit == (200_000 - 1) // (env.mj_model.nv**3 // 3) == 823
+    config = TrainConfig(EnvSpec("cheetah-run"), PolicySpec("linear"), ESConfig(population_size=4),
+                         RunConfig(iterations=1, eval_episodes=0, chunk_size=limit + 1))
+    with pytest.raises(ValueError, match=rf"run.chunk_size = {limit + 1} .*valid values are 1..{limit}"):
+        build(config, env=env)
+    build(config, env=env, devices=jax.devices()[:1])
+    build(dataclasses.replace(config, run=dataclasses.replace(config.run, chunk_size=limit)), env=env)

@@ -74,6 +74,37 @@ def _select(pred: jax.Array, on_true: Any, on_false: Any) -> Any:
     return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
 
 
+# jaxlib 0.10's CPU LAPACK kernels (jaxlib/cpu/lapack_kernels.cc, GetLapackBatchChunkSize)
+# split a batched call into tasks on XLA's intra-op thread pool once batch x flops per matrix
+# reaches this, and block the calling thread until the tasks are done.
+_LAPACK_MIN_WORK_PER_TASK = 200_000
+
+
+def serial_lapack_batch(nv: int) -> int | None:
+    """Largest batch of ``nv x nv`` Cholesky factorizations that jaxlib's CPU LAPACK kernel
+    runs on its calling thread (``None``: any batch; jaxlib >= 0.11.1 never splits).
+
+    MJX factors the dense mass matrix (``smooth.factor_m``, twice per physics step with the
+    Euler integrator's implicit damping) and the Newton solver's Hessian with
+    ``jax.scipy.linalg.cho_factor``, one batched LAPACK ``potrf`` call per factorization over
+    the vmapped envs. jaxlib 0.10 splits such a call into tasks on XLA's intra-op pool (one
+    thread per core) when ``batch * (nv**3 // 3) >= 200,000`` and blocks the calling thread on
+    them. XLA:CPU runs a program's thunks on that same pool, so when every pool thread is
+    blocked in such a call at once (one per device, when a ``shard_map`` runs the same program
+    on as many devices as there are pool threads), nobody runs the tasks: XLA:CPU deadlocks,
+    every thread parked on a futex (seen here at 128 quadruped envs per device on 2 devices).
+    The Cholesky dominates MJX's other LAPACK call (``cho_solve``'s triangular solves, ``nv**2``
+    flops per env). jaxlib removed the split from open-source builds after 0.11.0
+    (jax commit 859992407d, "Don't try to parallelize LAPACK kernels in opensource builds").
+    """
+    import jaxlib.version
+
+    if tuple(jaxlib.version.__version_info__[:3]) >= (0, 11, 1):
+        return None
+    return (_LAPACK_MIN_WORK_PER_TASK - 1) // (nv**3 // 3)
+
+
+
 class DmControlEnv:
     """A dm_control suite task on MJX. Subclasses set the class constants and task hooks.
 
@@ -144,6 +175,13 @@ class DmControlEnv:
     def observation_size(self) -> int:
         data = mjx.make_data(self.mj_model)
         return int(jax.eval_shape(self.state_observation, data).shape[0])
+
+    @property
+    def max_chunk_size(self) -> int | None:
+        """Most envs to ``vmap`` together on one device (``None``: no limit): a larger vmapped
+        batch can deadlock XLA:CPU on two or more devices (:func:`serial_lapack_batch`); with
+        jaxlib 0.10, 823 for ``nv`` = 9 (cheetah, walker), 102 for the quadruped (``nv`` = 18)."""
+        return serial_lapack_batch(int(self.mj_model.nv))
 
     @property
     def episode_length(self) -> int:

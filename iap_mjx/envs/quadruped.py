@@ -19,9 +19,9 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
 - Control step 0.02 s = 5 physics steps of 0.004 s (Playground's MJX quadrupeds). Episodes:
   500 control steps (10 s) on the flat, 1000 (20 s) on the course.
 
-Batch size: vmap at most :attr:`QuadrupedFlat.max_chunk_size` (102) envs together per device
-(chunk larger populations, ``lax.map``). See :func:`serial_lapack_batch`: with jaxlib 0.10,
-larger vmapped batches on two or more XLA CPU devices deadlock XLA:CPU.
+Batch size: vmap at most ``max_chunk_size`` (102 for this robot) envs together per device
+(chunk larger populations, ``lax.map``). See :func:`iap_mjx.envs.dmc.serial_lapack_batch`: with
+jaxlib 0.10, larger vmapped batches on two or more XLA CPU devices deadlock XLA:CPU.
 """
 
 from __future__ import annotations
@@ -39,36 +39,6 @@ from iap_mjx.robots import a1
 from iap_mjx.robots.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
 from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
 from iap_mjx.envs.dmc import DmControlEnv
-
-
-# jaxlib 0.10's CPU LAPACK kernels (jaxlib/cpu/lapack_kernels.cc, GetLapackBatchChunkSize)
-# split a batched call into tasks on XLA's intra-op thread pool once batch x flops per matrix
-# reaches this, and block the calling thread until the tasks are done.
-_LAPACK_MIN_WORK_PER_TASK = 200_000
-
-
-def serial_lapack_batch(nv: int) -> int | None:
-    """Largest batch of ``nv x nv`` Cholesky factorizations that jaxlib's CPU LAPACK kernel
-    runs on its calling thread (``None``: any batch; jaxlib >= 0.11.1 never splits).
-
-    MJX factors the dense mass matrix (``smooth.factor_m``, twice per physics step with the
-    Euler integrator's implicit damping) and the Newton solver's Hessian with
-    ``jax.scipy.linalg.cho_factor``, one batched LAPACK ``potrf`` call per factorization over
-    the vmapped envs. jaxlib 0.10 splits such a call into tasks on XLA's intra-op pool (one
-    thread per core) when ``batch * (nv**3 // 3) >= 200,000`` and blocks the calling thread on
-    them. XLA:CPU runs a program's thunks on that same pool, so when every pool thread is
-    blocked in such a call at once (one per device, when a ``shard_map`` runs the same program
-    on as many devices as there are pool threads), nobody runs the tasks: XLA:CPU deadlocks,
-    every thread parked on a futex (seen here at 128 quadruped envs per device on 2 devices).
-    The Cholesky dominates MJX's other LAPACK call (``cho_solve``'s triangular solves, ``nv**2``
-    flops per env). jaxlib removed the split from open-source builds after 0.11.0
-    (jax commit 859992407d, "Don't try to parallelize LAPACK kernels in opensource builds").
-    """
-    import jaxlib.version
-
-    if tuple(jaxlib.version.__version_info__[:3]) >= (0, 11, 1):
-        return None
-    return (_LAPACK_MIN_WORK_PER_TASK - 1) // (nv**3 // 3)
 
 
 def roll_pitch(quat: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -117,13 +87,6 @@ class QuadrupedFlat(DmControlEnv):
                 for key, pairs in groups.items()
                 if not set(key.types) & collision_driver._GEOM_NO_BROADPHASE
                 and len(pairs) > self.max_geom_pairs)
-
-    @property
-    def max_chunk_size(self) -> int | None:
-        """Most envs to ``vmap`` together on one device (``None``: no limit): a larger vmapped
-        batch can deadlock XLA:CPU on two or more devices (:func:`serial_lapack_batch`); 102
-        for this robot (``nv`` = 18) with jaxlib 0.10."""
-        return serial_lapack_batch(int(self.mj_model.nv))
 
     @property
     def max_geom_pairs(self) -> int | None:

@@ -173,11 +173,24 @@ def build(
     template = policy.init(jax.random.fold_in(jax.random.PRNGKey(config.run.seed), _INIT_STREAM))
     flat, unravel = ravel_pytree(template)
     mesh = make_mesh(config.run.num_devices, devices)
+    check_chunk_size(config.run.chunk_size, env, mesh.devices.size)
     track = config.es.normalize_observations
     evaluate = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, track)
     strategy = make_strategy(config.es, flat.shape[0], config.run.iterations)
     return Components(config, env, policy, strategy, template, unravel, flat.shape[0],
                       mesh, evaluate)
+
+
+def check_chunk_size(chunk_size: int, env: Any, num_devices: int) -> None:
+    """Refuses ``run.chunk_size`` above the env's ``max_chunk_size`` on two or more devices,
+    where a larger vmapped batch deadlocks XLA:CPU (``iap_mjx.envs.dmc.serial_lapack_batch``)."""
+    limit = getattr(env, "max_chunk_size", None)
+    if num_devices > 1 and limit is not None and chunk_size > limit:
+        raise ValueError(
+            f"run.chunk_size = {chunk_size} is too large for this env on {num_devices} devices: "
+            f"valid values are 1..{limit}. With jaxlib 0.10 a larger vmapped batch splits MJX's "
+            "batched Cholesky over XLA's thread pool and deadlocks XLA:CPU "
+            "(see iap_mjx.envs.dmc.serial_lapack_batch).")
 
 
 def init_state(parts: Components) -> TrainState:
