@@ -165,6 +165,8 @@ class Camera:
         self._tile_grid = (ny, nx, th, tw)
         self._tile_x = np.moveaxis(x, 2, 1).reshape(ny * nx, th * tw).astype(np.float32)
         self._tile_y = np.moveaxis(y, 2, 1).reshape(ny * nx, th * tw).astype(np.float32)
+        self._grid_x = cols[None, :].astype(np.float32)  # (1, nx * tw)
+        self._grid_y = rows[:, None].astype(np.float32)  # (ny * th, 1)
         self._tile_bounds = np.stack([self._tile_x.min(1), self._tile_x.max(1),
                                       self._tile_y.min(1), self._tile_y.max(1)], axis=1)
 
@@ -326,35 +328,49 @@ class Camera:
             return (jnp.broadcast_to(zero + self.scene.zfar, shape),
                     jnp.broadcast_to(zero.astype(jnp.int32) + len(self.scene.geom_ids), shape))
 
+        def padded(trace):
+            return lambda: lift(_pad_one)(trace())
+
+        # Each stage runs inside a ``lax.cond`` on ``finite`` (the other branch gives zeros):
+        # its results are materialised once, where XLA would otherwise fuse the nearest-hit
+        # selection, or the shading, into every consumer (and the interleaved (H, W, 3) output
+        # per channel) and redo it many times. Computed inside the branch, a stage writes its
+        # outputs directly (a cond passing through values computed outside copies them).
+        dense = padded(lambda: lift(self._trace_dense)(frames))
         if self._culled_groups:
-            depth, best, overflow = lift(self._trace_culled)(frames)
-            depth, best = jax.lax.cond(
+            keys, overflow = lift(self._trace_culled_keys)(frames)
+            depth_p, best_p = jax.lax.cond(
                 jnp.any(overflow) | ~finite,
-                lambda: jax.lax.cond(finite, lambda: lift(self._trace_dense)(frames), nothing),
-                lambda: (depth, best))
+                lambda: jax.lax.cond(finite, dense, padded(nothing)),
+                padded(lambda: lift(self._decode_image)(keys)))
         else:
-            depth, best = jax.lax.cond(finite, lambda: lift(self._trace_dense)(frames), nothing)
+            depth_p, best_p = jax.lax.cond(finite, dense, padded(nothing))
+        depth = depth_p[..., 1:-1, 1:-1]
+        best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
         ids = jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best]
         if not colour:
             return None, depth, ids
-        # Shading in planes, each stage materialised behind a cond: XLA would otherwise fuse
-        # everything into the interleaved (H, W, 3) output and redo it per channel.
-        # Neighbour lookups read slices of materialised padded copies (no concatenates, which
-        # XLA's CPU loops do not vectorise).
-        padded = self._barrier(lift(_pad_one)((depth, best)), finite)
-        surface, light = self._barrier(
-            lift(self._surface_terms)(poses, frames, padded, geom_rgb), finite)
+        # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
+        # CPU loops do not vectorise). A non-finite pose gives a black image.
+        surface, light = self._stage(
+            lambda: lift(self._surface_terms)(poses, frames, (depth_p, best_p), geom_rgb), finite)
         if background.size == 0 and sky_texture.size != 0:
             background = self._skybox(poses["cam_mat"], sky_texture)
-        planes = self._barrier(
-            lift(self._compose)(poses, surface, light, padded[1], background), finite)
+        planes = self._stage(
+            lambda: lift(self._compose)(poses, surface, light, best_p, background), finite)
         return jnp.stack(planes, axis=-1), depth, ids
 
     @staticmethod
-    def _barrier(tree, pred):
-        """``tree``, materialised: returned through a ``lax.cond`` (``pred`` should hold; the
-        other branch negates, so the two cannot be merged)."""
-        return jax.lax.cond(pred, lambda: tree, lambda: jax.tree.map(jnp.negative, tree))
+    def _stage(fn, pred):
+        """``fn()`` computed inside a ``lax.cond`` on ``pred`` (which should hold; otherwise
+        zeros of the same shapes), so that its outputs are materialised."""
+        shapes = jax.eval_shape(fn)
+
+        def zeros():
+            zero = jnp.where(pred, 0, 0)  # carries pred's sharding type under shard_map
+            return jax.tree.map(lambda s: jnp.broadcast_to(zero.astype(s.dtype), s.shape), shapes)
+
+        return jax.lax.cond(pred, fn, zeros)
 
     def _frames(self, poses) -> dict[str, jax.Array]:
         """Per-geom constants of one image in camera and local frames."""
@@ -380,27 +396,44 @@ class Camera:
         return self._nearest(candidates, (self.config.height, self.config.width))
 
     def _trace_culled(self, frames):
+        """:meth:`_trace_culled_keys` decoded: depth and geom index ``(H, W)`` and ``overflow``."""
+        keys, overflow = self._trace_culled_keys(frames)
+        depth, best = self._decode_image(keys)
+        return depth, best, overflow
+
+    def _decode_image(self, keys):
+        """Keys of the image padded to whole tiles -> depth and geom index ``(H, W)``."""
+        cfg = self.config
+        return self._decode(keys[: cfg.height, : cfg.width])
+
+    def _trace_culled_keys(self, frames):
         """Planes and small type groups against every pixel; each culled type group only
         against the tiles its geoms' projected bounds reach: the (tile, geom) pairs are listed
         (at most ``self._pair_budget`` per group), each pair traces its tile's pixels, and a
-        scatter-min merges them. Returns depth and geom index ``(H, W)`` and ``overflow``,
-        true if a group had more pairs than the budget (the result is then incomplete and the
-        caller falls back to ``_trace_dense``)."""
+        scatter-min of the tile windows merges them. Returns the nearest-hit keys (``_key``)
+        ``(ny * th, nx * tw)`` (the image padded to whole tiles) and ``overflow``, true if a
+        group had more pairs than the budget (the result is then incomplete and the caller
+        falls back to ``_trace_dense``)."""
         sc = self.scene
+        ny, nx, th, tw = self._tile_grid
+        gx, gy = jnp.asarray(self._grid_x), jnp.asarray(self._grid_y)
         tx, ty = jnp.asarray(self._tile_x), jnp.asarray(self._tile_y)
         r_cam, origin = frames["r_cam"], frames["origin"]
+        shape = (ny * th, nx * tw)
         keys = jnp.min(jnp.stack(
-            [self._far_key(tx.shape)]
-            + [self._key(self._intersect_static(k, r_cam, origin, tx, ty), k) for k in self._dense_geoms]),
+            [self._far_key(shape)]
+            + [jnp.broadcast_to(self._key(self._intersect_static(k, r_cam, origin, gx, gy), k), shape)
+               for k in self._dense_geoms]),
             axis=0)
         overflow = jnp.zeros((), bool)
         budget = self._pair_budget
+        windows = jax.lax.ScatterDimensionNumbers(
+            update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0, 1))
         for gtype, members in self._culled_groups:
             members_arr = jnp.asarray(members, jnp.int32)
             overlap = self._tile_overlap(frames, members).reshape(-1)  # tile-major pairs
-            n_pairs = overlap.shape[0]
             overflow |= jnp.sum(overlap) > budget
-            score, pair = jax.lax.top_k(jnp.where(overlap, n_pairs - jnp.arange(n_pairs), 0), budget)
+            pair, valid = _first_pairs(overlap, budget)
             tile, local = pair // len(members), pair % len(members)
             params = jnp.concatenate([
                 r_cam[members_arr, 0, :], r_cam[members_arr, 1, :], -r_cam[members_arr, 2, :],
@@ -410,11 +443,13 @@ class Camera:
             px, py = tx[tile], ty[tile]
             d = tuple(px * col[i] + py * col[3 + i] + col[6 + i] for i in range(3))
             t = intersect.BY_TYPE[gtype](tuple(col[9:12]), d, tuple(col[12:15]))
-            pair_keys = jnp.where((score > 0)[:, None], self._key(t, members_arr[local][:, None]),
+            pair_keys = jnp.where(valid[:, None], self._key(t, members_arr[local][:, None]),
                                   jnp.iinfo(jnp.int32).max)
-            keys = keys.at[tile].min(pair_keys, mode="promise_in_bounds")
-        depth, best = self._decode(keys)
-        return self._to_image(depth), self._to_image(best), overflow
+            corner = jnp.stack([tile // nx * th, tile % nx * tw], axis=1)  # (budget, 2)
+            keys = jax.lax.scatter_min(keys, corner, pair_keys.reshape(budget, th, tw), windows,
+                                       indices_are_sorted=True,
+                                       mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
+        return keys, overflow
 
     def _tile_overlap(self, frames, members):
         """``(tiles, len(members))`` bool: may the geom cover a pixel centre of the tile?
@@ -500,15 +535,6 @@ class Camera:
         """The nearest of ``(t, geom index)`` candidates and the far plane: depth and index."""
         keys = [self._far_key(shape)] + [jnp.broadcast_to(self._key(t, k), shape) for t, k in candidates]
         return self._decode(jnp.min(jnp.stack(keys), axis=0))
-
-    def _to_image(self, tiled):
-        """``(tiles, tile pixels, ...)`` -> ``(H, W, ...)``."""
-        cfg = self.config
-        ny, nx, th, tw = self._tile_grid
-        rest = tiled.shape[2:]
-        image = tiled.reshape((ny, nx, th, tw) + rest)
-        image = jnp.moveaxis(image, 2, 1).reshape((ny * th, nx * tw) + rest)
-        return image[: cfg.height, : cfg.width]
 
     def _compose(self, poses, surface, light, best_p, background):
         """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background
@@ -649,6 +675,23 @@ def _floor_int(a):
     ``jnp.floor`` may not)."""
     truncated = a.astype(jnp.int32)
     return truncated - (a < truncated.astype(a.dtype)).astype(jnp.int32)
+
+
+def _first_pairs(overlap, budget: int):
+    """The indices of the first ``budget`` true entries of ``overlap`` ``(P,)`` bool, in order,
+    ``(budget,)`` int32, and which of those slots hold one (``(budget,)`` bool; empty slots
+    hold 0). Ranks come from a prefix sum done as two small triangular matmuls (exact for
+    counts below 2**24; a sort-based ``top_k`` or XLA's ``cumsum`` costs several times more
+    on CPU), then one scatter."""
+    n = overlap.shape[0]
+    row = next(r for r in (64, 32, 16, 8, 4, 2, 1) if n % r == 0)
+    x = overlap.astype(jnp.float32).reshape(n // row, row)
+    within = x @ jnp.asarray(np.triu(np.ones((row, row), np.float32)))  # inclusive, per row
+    before = jnp.asarray(np.tril(np.ones((n // row,) * 2, np.float32), -1)) @ jnp.sum(x, axis=1)
+    rank = (within + before[:, None]).reshape(n).astype(jnp.int32) - 1
+    slot = jnp.where(overlap, rank, budget)  # past the end: dropped
+    pair = jnp.zeros(budget, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    return pair, jnp.arange(budget) < jnp.sum(overlap)
 
 
 def _pad_one(depth_and_best):
