@@ -328,7 +328,7 @@ class Camera:
             return (jnp.broadcast_to(zero + self.scene.zfar, shape),
                     jnp.broadcast_to(zero.astype(jnp.int32) + len(self.scene.geom_ids), shape))
 
-        def padded(trace):
+        def padded_of(trace):
             return lambda: lift(_pad_one)(trace())
 
         # Each stage runs inside a ``lax.cond`` on ``finite`` (the other branch gives zeros):
@@ -336,28 +336,35 @@ class Camera:
         # selection, or the shading, into every consumer (and the interleaved (H, W, 3) output
         # per channel) and redo it many times. Computed inside the branch, a stage writes its
         # outputs directly (a cond passing through values computed outside copies them).
-        dense = padded(lambda: lift(self._trace_dense)(frames))
+        dense = padded_of(lambda: lift(self._trace_dense)(frames))
         if self._culled_groups:
             keys, overflow = lift(self._trace_culled_keys)(frames)
             depth_p, best_p = jax.lax.cond(
                 jnp.any(overflow) | ~finite,
-                lambda: jax.lax.cond(finite, dense, padded(nothing)),
-                padded(lambda: lift(self._decode_image)(keys)))
+                lambda: jax.lax.cond(finite, dense, padded_of(nothing)),
+                padded_of(lambda: lift(self._decode_image)(keys)))
         else:
-            depth_p, best_p = jax.lax.cond(finite, dense, padded(nothing))
+            depth_p, best_p = jax.lax.cond(finite, dense, padded_of(nothing))
         depth = depth_p[..., 1:-1, 1:-1]
         best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
         ids = jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best]
         if not colour:
             return None, depth, ids
         # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
-        # CPU loops do not vectorise). A non-finite pose gives a black image.
-        surface, light = self._stage(
-            lambda: lift(self._surface_terms)(poses, frames, (depth_p, best_p), geom_rgb), finite)
+        # CPU loops do not vectorise). The light (normals, lights) and a skybox texture's
+        # texels are materialised, then the colour and composition in planes (fused into the
+        # interleaved output they would run per element, unvectorised). A non-finite pose
+        # gives a black image.
+        padded = (depth_p, best_p)
+        if self.config.shading == "flat":
+            light = (jnp.ones_like(depth),)
+        else:
+            light = self._stage(lambda: lift(self._light)(poses, padded), finite)
         if background.size == 0 and sky_texture.size != 0:
-            background = self._skybox(poses["cam_mat"], sky_texture)
-        planes = self._stage(
-            lambda: lift(self._compose)(poses, surface, light, best_p, background), finite)
+            texels = self._stage(lambda: self._skybox(poses["cam_mat"], sky_texture), finite)
+            background = tuple(sky_lib.unpack_rgb(texels))
+        planes = self._stage(lambda: lift(self._compose)(
+            poses, lift(self._colour)(frames, padded, geom_rgb), light, best_p, background), finite)
         return jnp.stack(planes, axis=-1), depth, ids
 
     @staticmethod
@@ -557,38 +564,30 @@ class Camera:
             lit = [sky_lib.over(alpha, lit[c], background[c]) for c in range(3)]
         return tuple(jnp.where(hit, lit[c], background[c]) for c in range(3))
 
-    def _skybox(self, cam_mat, sky_texture) -> tuple[jax.Array, ...]:
-        """``3 x ([C,] H, W)`` the packed skybox texture ``([C,] S * S)`` int32 by world ray
-        direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk of images."""
+    def _skybox(self, cam_mat, sky_texture) -> jax.Array:
+        """``([C,] H, W)`` int32 packed texels of the skybox texture ``([C,] S * S)`` by world
+        ray direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk of images."""
         x = jnp.asarray(self._x)
         y = jnp.asarray(self._y)
         m = cam_mat[..., None, None]  # (..., 3, 3, 1, 1) against (H, 1) and (1, W)
         dx, dy, dz = (x * m[..., i, 0, :, :] + y * m[..., i, 1, :, :] - m[..., i, 2, :, :] for i in range(3))
         size = math.isqrt(int(sky_texture.shape[-1]))
-        return tuple(sky_lib.skybox_planes(sky_texture, size, dx, dy, dz))
+        return sky_lib.skybox_texels(sky_texture, size, dx, dy, dz)
 
-    def _surface_terms(self, poses, frames, padded, geom_rgb):
-        """Surface colour ``3 x (H, W)`` of each pixel's nearest geom and the light falling on
-        it, ``1 x (H, W)`` when all lights are grey (dm_control's are) else ``3 x (H, W)``;
-        ``padded`` is depth and geom index with a one-pixel border (``_pad_one``).
-
-        The colour is the geom's (or the checker floor's at the hit point); the normal for
-        Lambert shading comes from the hit points of neighbouring pixels on the same geom
-        (the one-sided difference with the smaller depth step, so edges do not bend it),
-        which needs no per-geom work per pixel.
-        """
+    def _colour(self, frames, padded, geom_rgb):
+        """Surface colour ``3 x (H, W)`` of each pixel's nearest geom: the geom's, or the
+        checker floor's at the hit point (``padded``: depth and geom index with a one-pixel
+        border, ``_pad_one``)."""
         rgb_table = self.scene.geom_rgb if geom_rgb.size == 0 else geom_rgb.astype(jnp.float32)
-        checker = self.config.checker_floor
-        sc, cfg = self.scene, self.config
+        sc = self.scene
         depth_p, best_p = padded
         depth, best = depth_p[1:-1, 1:-1], best_p[1:-1, 1:-1]
-        n_geom = len(sc.geom_ids)
         x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         colour = [jnp.zeros_like(depth) for _ in range(3)]
-        for k in range(n_geom):
+        for k in range(len(sc.geom_ids)):
             mine = best == k
             colour = [jnp.where(mine, rgb_table[k, c], colour[c]) for c in range(3)]
-        if checker:
+        if self.config.checker_floor:
             r_cam, origin = frames["r_cam"], frames["origin"]
             for k in np.flatnonzero(sc.checker):
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
@@ -602,8 +601,20 @@ class Camera:
                     tints = [sc.checker_texture[k, :, c] * rgb_table[k, c] for c in range(3)]
                 colour = [jnp.where(mine, jnp.where(odd, tints[c][1], tints[c][0]), colour[c])
                           for c in range(3)]
-        if cfg.shading == "flat":
-            return tuple(colour), (jnp.ones_like(depth),)
+        return tuple(colour)
+
+    def _light(self, poses, padded):
+        """The light falling on each pixel's surface, ``1 x (H, W)`` when all lights are grey
+        (dm_control's are) else ``3 x (H, W)`` (``padded`` as in :meth:`_colour`).
+
+        The normal for Lambert shading comes from the hit points of neighbouring pixels on
+        the same geom (the one-sided difference with the smaller depth step, so edges do not
+        bend it), which needs no per-geom work per pixel.
+        """
+        sc = self.scene
+        depth_p, best_p = padded
+        depth = depth_p[1:-1, 1:-1]
+        x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         tangent_x = _surface_step(depth_p, best_p, x, y, self._pixel_pitch[0], axis=1)
         tangent_y = _surface_step(depth_p, best_p, x, y, -self._pixel_pitch[1], axis=0)
         normal = _cross(tangent_x, tangent_y)
@@ -635,7 +646,7 @@ class Camera:
         channels = (0,) if grey else (0, 1, 2)
         light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines)))
                  for c in channels]
-        return tuple(colour), tuple(light)
+        return tuple(light)
 
     def _lights(self, poses) -> tuple[jax.Array, jax.Array]:
         """Model lights in camera coordinates: positions ``(L, 3)`` and unit directions they

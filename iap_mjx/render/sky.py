@@ -60,18 +60,22 @@ def face_texel(dx: jax.Array, dy: jax.Array, dz: jax.Array, size: int) -> jax.Ar
     return (row * size + col).astype(jnp.int32)
 
 
-def skybox_planes(packed: jax.Array, size: int, dx: jax.Array, dy: jax.Array,
-                  dz: jax.Array) -> list[jax.Array]:
-    """``[3 x (..., H, W)]`` float32 colours in [0, 1] of the skybox texture ``packed``
-    (``(..., S * S)`` from :func:`pack_rgb`, one texture per image) in world directions
-    ``dx, dy, dz`` ``(..., H, W)``."""
+def skybox_texels(packed: jax.Array, size: int, dx: jax.Array, dy: jax.Array,
+                  dz: jax.Array) -> jax.Array:
+    """``(..., H, W)`` int32 packed texels (:func:`pack_rgb`) of the skybox texture ``packed``
+    (``(..., S * S)``, one texture per image) in world directions ``dx, dy, dz``
+    ``(..., H, W)``; :func:`unpack_rgb` gives the colours."""
     index = face_texel(dx, dy, dz, size)
     if packed.ndim == 2:  # a chunk of images: one flat gather from the textures end to end
         offsets = (jnp.arange(packed.shape[0], dtype=jnp.int32) * packed.shape[1]).reshape(
             (-1,) + (1,) * (index.ndim - 1))
         index = index + offsets
         packed = packed.reshape(-1)
-    texel = packed.at[index].get(mode="promise_in_bounds")
+    return packed.at[index].get(mode="promise_in_bounds")
+
+
+def unpack_rgb(texel: jax.Array) -> list[jax.Array]:
+    """``[3 x (...)]`` float32 colours in [0, 1] of packed texels (:func:`pack_rgb`)."""
     return [((texel >> (8 * c)) & 255).astype(jnp.float32) * (1.0 / 255.0) for c in range(3)]
 
 
