@@ -58,7 +58,8 @@ class CameraConfig:
       background_color: RGB in [0, 1] for ``sky="color"``.
       checker_floor: draw textured planes as dm_control's 2x2 checker (else flat material colour).
       batch_chunk: under ``vmap``, images rendered together per step of the loop over the batch
-        (small enough for the intermediates to stay in cache).
+        (small enough for the intermediates to stay in cache); ``None`` (default): 4 up to
+        10,000 pixels per image, fewer for larger images (one from 40,000 pixels).
       tile: side in pixels of the square screen tiles used for culling.
       cull_pairs_per_tile: budget of (tile, geom) pairs per culled type group, per tile on
         average (types with at least 3 geoms, planes excepted, are traced only on the tiles
@@ -74,7 +75,7 @@ class CameraConfig:
     sky: str = "skybox"
     background_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
     checker_floor: bool = True
-    batch_chunk: int = 4
+    batch_chunk: Optional[int] = None
     tile: int = 10
     cull_pairs_per_tile: float = 1.0
 
@@ -91,8 +92,10 @@ class CameraConfig:
             raise ValueError(f"tile must be a positive int, got {self.tile!r}")
         if not isinstance(self.cull_pairs_per_tile, (int, float)) or self.cull_pairs_per_tile < 0:
             raise ValueError(f"cull_pairs_per_tile must be a number >= 0, got {self.cull_pairs_per_tile!r}")
+        if self.batch_chunk is None:
+            object.__setattr__(self, "batch_chunk", max(1, min(4, 40_000 // (self.height * self.width))))
         if not isinstance(self.batch_chunk, int) or self.batch_chunk < 1:
-            raise ValueError(f"batch_chunk must be a positive int, got {self.batch_chunk!r}")
+            raise ValueError(f"batch_chunk must be a positive int or None, got {self.batch_chunk!r}")
         if self.shading not in SHADINGS:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.sky not in SKIES:
@@ -196,7 +199,8 @@ class Camera:
 
     def render(self, data: mjx.Data, background: Optional[jax.Array] = None,
                geom_rgb: Optional[jax.Array] = None,
-               sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array]:
+               sky_texture: Optional[jax.Array | tuple[jax.Array, jax.Array]] = None,
+               ) -> tuple[jax.Array, jax.Array]:
         """Renders one state (``vmap`` it for a batch); :meth:`render_ids` also returns the
         geom seen at each pixel.
 
@@ -212,7 +216,9 @@ class Camera:
             ``(S, S, 3)`` uint8 or already packed by ``sky.pack_rgb`` (``(S * S,)`` int32, as
             the distraction layer keeps its frames), seen by ray direction on every face of
             the cube as MuJoCo draws a square skybox texture (``sky.py``); replaces the sky
-            (``background`` wins).
+            (``background`` wins). Or a pair ``(stack, row)``: packed frames ``(N, S * S)``
+            int32 and the ``()`` int32 row shown (under ``vmap``, an unbatched stack is read
+            in place, never copied per image).
 
         Returns:
           rgb ``(H, W, 3)`` float32 in [0, 1] and depth ``(H, W)`` float32 in metres.
@@ -222,7 +228,8 @@ class Camera:
 
     def render_ids(self, data: mjx.Data, background: Optional[jax.Array] = None,
                    geom_rgb: Optional[jax.Array] = None,
-                   sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array, jax.Array]:
+                   sky_texture: Optional[jax.Array | tuple[jax.Array, jax.Array]] = None,
+                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """:meth:`render`'s rgb and depth, and the hit geom's MuJoCo id ``(H, W)`` int32
         (``-1`` where nothing is hit) from the same trace (one program, not two)."""
         cfg = self.config
@@ -236,22 +243,40 @@ class Camera:
         elif tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
             raise ValueError(
                 f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
-        if sky_texture is None:
-            sky_texture = jnp.zeros((0,), jnp.int32)
+        sky_frame = None
+        if isinstance(sky_texture, (tuple, list)):
+            sky_texture, sky_frame = sky_texture
+            if not (sky_texture.ndim == 2 and sky_texture.dtype == jnp.int32
+                    and math.isqrt(sky_texture.shape[1]) ** 2 == sky_texture.shape[1] > 0
+                    and sky_texture.size < 2**31):
+                raise ValueError("sky_texture (stack, row): the stack must be packed frames "
+                                 "(N, S * S) int32 (fewer than 2**31 texels), got "
+                                 f"{sky_texture.dtype} {sky_texture.shape}")
+            if jnp.shape(sky_frame) != ():
+                raise ValueError(f"sky_texture (stack, row): the row must be a scalar int, got shape "
+                                 f"{jnp.shape(sky_frame)}")
+            sky_frame = jnp.asarray(sky_frame, jnp.int32)
+        elif sky_texture is None:
+            sky_texture = jnp.zeros((0, 1), jnp.int32)
         elif (sky_texture.ndim == 3 and sky_texture.shape[0] == sky_texture.shape[1]
               and sky_texture.shape[2] == 3 and sky_texture.dtype == jnp.uint8):
-            sky_texture = sky_lib.pack_rgb(sky_texture)
-        elif not (sky_texture.ndim == 1 and sky_texture.dtype == jnp.int32
-                  and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0):
-            raise ValueError("sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32, got "
-                             f"{sky_texture.dtype} {sky_texture.shape}")
-        return self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture)
+            sky_texture = sky_lib.pack_rgb(sky_texture)[None]
+        elif (sky_texture.ndim == 1 and sky_texture.dtype == jnp.int32
+              and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0):
+            sky_texture = sky_texture[None]
+        else:
+            raise ValueError("sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32 (or a "
+                             f"pair (stack (N, S * S), row)), got {sky_texture.dtype} {sky_texture.shape}")
+        if sky_frame is None:
+            sky_frame = jnp.zeros((), jnp.int32)
+        return self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture, sky_frame)
 
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
         empty = jnp.zeros((0,), jnp.float32)
-        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty, jnp.zeros((0,), jnp.int32))
+        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty,
+                                               jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32))
         return depth, ids
 
     # -- implementation ---------------------------------------------------------------------
@@ -281,16 +306,20 @@ class Camera:
         if cached is not None:
             return cached
 
-        def single(poses, background, geom_rgb, sky_texture):
-            return self._program(poses, background, geom_rgb, sky_texture, colour, batched=False)
+        def single(poses, background, geom_rgb, sky_texture, sky_frame):
+            return self._program(poses, background, geom_rgb, sky_texture, sky_frame, colour,
+                                 batched=False)
 
         batched = jax.custom_batching.custom_vmap(single)
 
         @batched.def_vmap
-        def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture):
+        def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture, sky_frame):
+            # an unbatched sky stack is shared by every chunk as it is (not broadcast per image)
+            shared_sky = not in_batched[3]
+            per_image = (poses, background, geom_rgb, sky_frame) + (() if shared_sky else (sky_texture,))
+            flags = tuple(in_batched[:3]) + (in_batched[4],) + (() if shared_sky else (True,))
             args = jax.tree.map(
-                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
-                (poses, background, geom_rgb, sky_texture), tuple(in_batched))
+                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
             chunk = min(self.config.batch_chunk, axis_size)
             n_chunks = -(-axis_size // chunk)
             padded = n_chunks * chunk
@@ -300,15 +329,19 @@ class Camera:
                     x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
                 return x.reshape((n_chunks, chunk) + x.shape[1:])
 
-            out = jax.lax.map(lambda a: self._program(*a, colour, batched=True),
-                              jax.tree.map(split, args))
+            def one_chunk(a):
+                sky = sky_texture if shared_sky else a[4]
+                return self._program(a[0], a[1], a[2], sky, a[3], colour, batched=True)
+
+            out = jax.lax.map(one_chunk, jax.tree.map(split, args))
             out = jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:axis_size], out)
             return out, jax.tree.map(lambda _: True, out)
 
         self._kernels[colour] = batched
         return batched
 
-    def _program(self, poses, background, geom_rgb, sky_texture, colour: bool, batched: bool):
+    def _program(self, poses, background, geom_rgb, sky_texture, sky_frame, colour: bool,
+                 batched: bool):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
         depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
         more (tile, geom) pairs than the budget, dense tracing.
@@ -361,7 +394,7 @@ class Camera:
         else:
             light = self._stage(lambda: lift(self._light)(poses, padded), finite)
         if background.size == 0 and sky_texture.size != 0:
-            texels = self._stage(lambda: self._skybox(poses["cam_mat"], sky_texture), finite)
+            texels = self._stage(lambda: self._skybox(poses["cam_mat"], sky_texture, sky_frame), finite)
             background = tuple(sky_lib.unpack_rgb(texels))
         planes = self._stage(lambda: lift(self._compose)(
             poses, lift(self._colour)(frames, padded, geom_rgb), light, best_p, background), finite)
@@ -564,15 +597,20 @@ class Camera:
             lit = [sky_lib.over(alpha, lit[c], background[c]) for c in range(3)]
         return tuple(jnp.where(hit, lit[c], background[c]) for c in range(3))
 
-    def _skybox(self, cam_mat, sky_texture) -> jax.Array:
-        """``([C,] H, W)`` int32 packed texels of the skybox texture ``([C,] S * S)`` by world
-        ray direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk of images."""
+    def _skybox(self, cam_mat, sky_texture, sky_frame) -> jax.Array:
+        """``([C,] H, W)`` int32 packed texels of frame ``sky_frame`` ``([C])`` of the stack
+        ``sky_texture`` (``(N, S * S)`` shared, or ``(C, N, S * S)`` one stack per image) by
+        world ray direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk."""
+        if sky_texture.ndim == 3:  # one stack per image: rows of the stacks laid end to end
+            n = sky_texture.shape[1]
+            sky_frame = jnp.arange(sky_texture.shape[0], dtype=jnp.int32) * n + sky_frame
+            sky_texture = sky_texture.reshape(-1, sky_texture.shape[-1])
         x = jnp.asarray(self._x)
         y = jnp.asarray(self._y)
         m = cam_mat[..., None, None]  # (..., 3, 3, 1, 1) against (H, 1) and (1, W)
         dx, dy, dz = (x * m[..., i, 0, :, :] + y * m[..., i, 1, :, :] - m[..., i, 2, :, :] for i in range(3))
         size = math.isqrt(int(sky_texture.shape[-1]))
-        return sky_lib.skybox_texels(sky_texture, size, dx, dy, dz)
+        return sky_lib.skybox_texels(sky_texture, sky_frame, size, dx, dy, dz)
 
     def _colour(self, frames, padded, geom_rgb):
         """Surface colour ``3 x (H, W)`` of each pixel's nearest geom: the geom's, or the
