@@ -8,7 +8,7 @@ How it works (and why, on a CPU):
   closed forms per primitive (``intersect.py``), unrolled over the geoms (types and sizes are
   static).
 - The nearest hit is one ``min`` over int32 keys that pack the depth and the geom index
-  (``Camera._nearest``): no argmin, no per-geom payloads.
+  (``Camera._key``): no argmin, no per-geom payloads.
 - Types with many geoms (cheetah's capsules) are culled per screen tile: only the (tile, geom)
   pairs where the geom's projected bounds reach the tile are traced, from a fixed-size list
   (``cull_pairs_per_tile``); a batch chunk with more pairs than that is traced densely
@@ -369,7 +369,12 @@ class Camera:
         # selection, or the shading, into every consumer (and the interleaved (H, W, 3) output
         # per channel) and redo it many times. Computed inside the branch, a stage writes its
         # outputs directly (a cond passing through values computed outside copies them).
-        dense = padded_of(lambda: lift(self._trace_dense)(frames))
+        def dense():
+            # the nearest-hit keys materialised first (fused into the padded outputs, the
+            # search over all geoms would run once per output element and per output)
+            keys = self._stage(lambda: lift(self._dense_keys)(frames), finite)
+            return lift(_pad_one)(lift(self._decode)(keys))
+
         if self._culled_groups:
             keys, overflow = lift(self._trace_culled_keys)(frames)
             depth_p, best_p = jax.lax.cond(
@@ -427,13 +432,15 @@ class Camera:
             "centre": offset @ cam_mat,
         }
 
-    def _trace_dense(self, frames):
-        """Every geom against every pixel: depth and geom index ``(H, W)``."""
+    def _dense_keys(self, frames):
+        """Every geom against every pixel: the nearest-hit keys (``_key``) ``(H, W)``."""
         x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         r_cam, origin = frames["r_cam"], frames["origin"]
-        candidates = [(self._intersect_static(k, r_cam, origin, x, y), k)
-                      for k in range(len(self.scene.geom_ids))]
-        return self._nearest(candidates, (self.config.height, self.config.width))
+        shape = (self.config.height, self.config.width)
+        keys = [self._far_key(shape)] + [
+            jnp.broadcast_to(self._key(self._intersect_static(k, r_cam, origin, x, y), k), shape)
+            for k in range(len(self.scene.geom_ids))]
+        return jnp.min(jnp.stack(keys), axis=0)
 
     def _trace_culled(self, frames):
         """:meth:`_trace_culled_keys` decoded: depth and geom index ``(H, W)`` and ``overflow``."""
@@ -453,7 +460,7 @@ class Camera:
         scatter-min of the tile windows merges them. Returns the nearest-hit keys (``_key``)
         ``(ny * th, nx * tw)`` (the image padded to whole tiles) and ``overflow``, true if a
         group had more pairs than the budget (the result is then incomplete and the caller
-        falls back to ``_trace_dense``)."""
+        falls back to ``_dense_keys``)."""
         sc = self.scene
         ny, nx, th, tw = self._tile_grid
         gx, gy = jnp.asarray(self._grid_x), jnp.asarray(self._grid_y)
@@ -570,11 +577,6 @@ class Camera:
         index = keys & self._index_mask
         depth = jax.lax.bitcast_convert_type(keys & ~self._index_mask, jnp.float32)
         return jnp.where(index == n_geom, jnp.float32(self.scene.zfar), depth), index
-
-    def _nearest(self, candidates, shape):
-        """The nearest of ``(t, geom index)`` candidates and the far plane: depth and index."""
-        keys = [self._far_key(shape)] + [jnp.broadcast_to(self._key(t, k), shape) for t, k in candidates]
-        return self._decode(jnp.min(jnp.stack(keys), axis=0))
 
     def _compose(self, poses, surface, light, best_p, background):
         """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background
