@@ -2,16 +2,18 @@
 OpenGL renderer, measured in the same run.
 
 Writes the ``camera`` section of ``BENCHMARKS.md``: RGB-D frames/s (steady state; compile
-time apart) of ``Camera.render`` at 64x64, 100x100 and 240x320 for B in {1, 64, 256} random
-states of the task, on one XLA CPU device and on two (``shard_map`` over the batch); the
-same rays cast by ``jax.vmap(mjx.ray)`` (depth and geom only, no shading) on one device; and
-``mujoco.Renderer`` (software OSMesa, one process, one frame at a time) for RGB and for depth.
+time apart) of ``Camera.render`` (an RGB image and a depth map per frame) at 64x64, 100x100
+and 240x320 for B in {1, 64, 256} random states of the task, on one XLA CPU device and on
+two (``shard_map`` over the batch); the same rays cast by ``jax.vmap(mjx.ray)`` (depth and
+geom only, no shading) on one device; and ``mujoco.Renderer`` (software OSMesa, one process,
+one frame at a time) for RGB and for depth. A second table: each of the five tasks at
+100x100 and 240x320, B = 64, with MuJoCo's renderer on the same task.
 
-Run (heavy; serialise with the other benchmarks; needs ``libosmesa6`` for the MuJoCo column):
+Run (heavy: run it alone; needs ``libosmesa6`` for the MuJoCo column):
 
-    flock /work/bench.lock python benchmarks/camera.py
+    python benchmarks/camera.py
 
-``--distraction`` (``/work/coord/cpu exclusive python benchmarks/camera.py --distraction``)
+``--distraction`` (``python benchmarks/camera.py --distraction``)
 instead writes the ``camera-distraction`` section: per task, the 240x320
 camera's frames/s with the Distracting Control Suite's three distractions on (static,
 medium: perturbed pose, material colours, a background frame as the sky, the floor's alpha)
@@ -51,6 +53,9 @@ DISTRACTION_TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_
                      "reacher-easy", "finger-spin")
 RESOLUTIONS = ((64, 64), (100, 100), (240, 320))
 BATCHES = (1, 64, 256)
+TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy")
+TASK_RESOLUTIONS = ((100, 100), (240, 320))
+TASK_BATCH = 64
 
 
 def _states(domain: str, task: str, n: int, seed: int):
@@ -62,10 +67,8 @@ def _states(domain: str, task: str, n: int, seed: int):
 
 
 def _rgbd(cam: Camera):
-    def one(data):
-        rgb, depth = cam.render(data)
-        return jnp.concatenate([rgb, depth[..., None]], axis=-1)
-    return jax.vmap(one)
+    """Batched ``Camera.render``: RGB ``(B, H, W, 3)`` and depth ``(B, H, W)``."""
+    return jax.vmap(cam.render)
 
 
 def _sharded(fn, mesh):
@@ -88,12 +91,12 @@ def _mjx_ray(model, cam: Camera):
     return jax.vmap(one)
 
 
-def _mujoco_renderer(domain: str, states, seconds: float) -> dict:
+def _mujoco_renderer(domain: str, states, seconds: float, resolutions=RESOLUTIONS) -> dict:
     """MuJoCo's renderer frames/s (RGB, depth) per resolution, in an OSMesa child process."""
     request = {"domain": domain, "qpos": [np.asarray(d.qpos).tolist() for _, d in states[:16]],
                "geom_pos": np.asarray(states[0][0].geom_pos).tolist(),
                "geom_size": np.asarray(states[0][0].geom_size).tolist(),
-               "resolutions": RESOLUTIONS, "seconds": seconds}
+               "resolutions": resolutions, "seconds": seconds}
     env = dict(os.environ, MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
     proc = subprocess.run([sys.executable, __file__, "--mujoco-child"], input=json.dumps(request),
                           env=env, capture_output=True, text=True)
@@ -135,7 +138,8 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="cheetah-run")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--mjx-ray-batches", type=int, nargs="*", default=list(BATCHES))
+    parser.add_argument("--mjx-ray-batches", type=int, nargs="*", default=[1, 64],
+                        help="batches at which vmapped mjx.ray is timed (slow at 240x320)")
     parser.add_argument("--out", type=Path, default=report.ROOT / "BENCHMARKS.md")
     parser.add_argument("--distraction", action="store_true",
                         help="write the camera-distraction section instead")
@@ -154,7 +158,10 @@ def main(argv=None) -> None:
 
         lines = [ast.literal_eval(line) for line in args.from_log.read_text().splitlines()
                  if line.startswith("{")]
-        _write(args, [r for r in lines if "res" in r], next(r for r in lines if "res" not in r))
+        sweep = [r for r in lines if "res" in r and "task" not in r]
+        natives = [r for r in lines if "res" not in r and "task" not in r]
+        per_task = [r for r in lines if "task" in r]
+        _write(args, sweep, natives[0], per_task)
         return
     domain, task = args.task.split("-")
     model, batch, states = _states(domain, task, max(BATCHES), args.seed)
@@ -178,7 +185,29 @@ def main(argv=None) -> None:
             print(row, flush=True)
     native = _mujoco_renderer(domain, states, seconds=3.0)
     print(native, flush=True)
-    _write(args, rows, native)
+    _write(args, rows, native, _per_task(args, mesh, sharding))
+
+
+def _per_task(args, mesh, sharding) -> list[dict]:
+    """Each task at ``TASK_RESOLUTIONS``, B = ``TASK_BATCH``, one and two devices, with MuJoCo's
+    renderer on the same task."""
+    rows = []
+    for task in TASKS:
+        domain, name = task.split("-")
+        model, batch, states = _states(domain, name, TASK_BATCH, args.seed)
+        native = _mujoco_renderer(domain, states, seconds=2.0, resolutions=TASK_RESOLUTIONS)
+        for height, width in TASK_RESOLUTIONS:
+            cam = Camera(model, camera_id=0, height=height, width=width)
+            compile_1, step_1, _ = report.compile_and_time(_rgbd(cam), batch)
+            _, step_2, _ = report.compile_and_time(_sharded(_rgbd(cam), mesh),
+                                                   jax.device_put(batch, sharding))
+            ref = native.get(f"{height}x{width}", {}) if "error" not in native else {}
+            row = {"task": task, "res": f"{height}x{width}", "pixels": height * width,
+                   "one": TASK_BATCH / step_1, "two": TASK_BATCH / step_2, "compile": compile_1,
+                   "mujoco_rgb": ref.get("rgb"), "mujoco_depth": ref.get("depth")}
+            rows.append(row)
+            print(row, flush=True)
+    return rows
 
 
 def _distraction(args) -> None:
@@ -222,7 +251,7 @@ def _distraction(args) -> None:
     for row in rows:
         lines.append(f"| {row['task']} | {_fmt(row['plain'])} | {_fmt(row['dcs'])} | "
                      f"{row['dcs'] / row['plain']:.1%} | {row['compile_plain']:.1f} | {row['compile_dcs']:.1f} |")
-    lines += ["", "Reproduce: `/work/coord/cpu exclusive python benchmarks/camera.py --distraction`."]
+    lines += ["", "Reproduce: `python benchmarks/camera.py --distraction`."]
     report.write_section(args.out, DISTRACTION_SECTION, "\n".join(lines))
 
 
@@ -230,7 +259,7 @@ def _fmt(value, digits=0):
     return "—" if value is None else f"{value:,.{digits}f}"
 
 
-def _write(args, rows, native) -> None:
+def _write(args, rows, native, per_task) -> None:
     lines = [
         f"Camera: `iap_mjx.render.Camera.render` on {args.task} (camera 0), RGB-D frames/s, "
         "steady state; states from dm_control's initial distribution plus random actions.",
@@ -254,12 +283,33 @@ def _write(args, rows, native) -> None:
         lines += ["", f"MuJoCo renderer unavailable: `{native['error'].strip().splitlines()[-1]}`"]
     lines += [
         "",
+        f"Per task, B = {TASK_BATCH}: RGB-D frames/s, and megapixels/s (frames/s x pixels per frame) "
+        "on two devices; '240x320 / 100x100' compares the two resolutions' pixels/s on two devices.",
+        "",
+        "| task | resolution | ours, 1 device | ours, 2 devices | Mpx/s, 2 devices "
+        "| 240x320 / 100x100 px/s | compile (s) | MuJoCo RGB | MuJoCo depth "
+        "| ours (2 devices) / MuJoCo RGB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    base = {r["task"]: r for r in per_task if r["res"] == "100x100"}
+    for row in per_task:
+        mpx = row["two"] * row["pixels"] / 1e6
+        small = base.get(row["task"])
+        per_px = (f"{mpx / (small['two'] * small['pixels'] / 1e6):.2f}"
+                  if small is not None and small is not row else "—")
+        ratio = row["two"] / row["mujoco_rgb"] if row.get("mujoco_rgb") else None
+        lines.append(
+            f"| {row['task']} | {row['res']} | {_fmt(row['one'])} | {_fmt(row['two'])} | {mpx:.1f} | "
+            f"{per_px} | {row['compile']:.1f} | {_fmt(row.get('mujoco_rgb'))} | "
+            f"{_fmt(row.get('mujoco_depth'))} | {_fmt(ratio, 1)} |")
+    lines += [
+        "",
         "MuJoCo's renderer: `mujoco.Renderer` with `MUJOCO_GL=osmesa` (software GL), one process,",
         "one frame per call including `mj_forward` and `update_scene`; its frames/s do not depend",
-        "on B. `mjx.ray` casts one ray per call (no cylinders), vmapped over pixels and states.",
+        "on B. `mjx.ray` casts one ray per call (no cylinders), vmapped over pixels and states",
+        "(timed at B in " + ", ".join(str(b) for b in args.mjx_ray_batches) + ").",
         "",
-        "Reproduce: `flock /work/bench.lock python benchmarks/camera.py` "
-        f"(`--task {args.task}`).",
+        f"Reproduce: `python benchmarks/camera.py` (`--task {args.task}`).",
     ]
     report.write_section(args.out, SECTION, "\n".join(lines))
 

@@ -15,7 +15,10 @@ by up to 15 texels (median ~5).
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
+import pytest
+from mujoco import mjx
 
 from iap_mjx.render import Camera
 from iap_mjx.render import sky
@@ -64,3 +67,28 @@ def test_skybox_texels_match_mujoco_by_direction():
         error = np.concatenate([np.abs(decoded_col - texel % SIZE)[mask], np.abs(decoded_row - texel // SIZE)[mask]])
         assert np.median(error) <= 0.5 and np.percentile(error, 90) <= 1.0, (
             AXES[face], np.median(error), np.percentile(error, 90))
+
+
+def test_a_sky_stack_and_row_draw_the_same_frame_as_the_frame_itself():
+    """``sky_texture=(stack, row)`` (the distraction layer's form: its whole frame stack,
+    shared by the batch and read in place) draws exactly what passing the selected frame
+    itself draws, under ``vmap`` and for one image; a row that is not a scalar is refused."""
+    states = render_compare.suite_states("cartpole", "swingup", n_states=3, seed=3)
+    model = states[0][0]
+    batch = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])
+    rng = np.random.default_rng(1)
+    frames = rng.integers(0, 256, (5, SIZE, SIZE, 3), dtype=np.uint8)
+    stack = sky.pack_rgb(jnp.asarray(frames))  # (5, S * S)
+    rows = jnp.asarray([4, 0, 2], jnp.int32)
+    cam = Camera(model, height=12, width=16, batch_chunk=2)
+    want = jax.jit(jax.vmap(lambda d, f: cam.render(d, sky_texture=f)))(batch, jnp.asarray(frames)[rows])
+    draw = jax.jit(jax.vmap(lambda d, r: cam.render(d, sky_texture=(stack, r))))
+    got = draw(batch, rows)
+    one = jax.jit(lambda d: cam.render(d, sky_texture=(stack, rows[0])))(jax.tree.map(lambda x: x[0], batch))
+    for w, g in zip(want, got):
+        np.testing.assert_array_equal(np.asarray(w), np.asarray(g))
+    np.testing.assert_array_equal(np.asarray(want[0][0]), np.asarray(one[0]))
+    other = draw(batch, (rows + 1) % len(frames))
+    assert not np.allclose(np.asarray(got[0]), np.asarray(other[0])), "the sky should be on screen"
+    with pytest.raises(ValueError, match="row must be a scalar"):
+        cam.render(jax.tree.map(lambda x: x[0], batch), sky_texture=(stack, rows))

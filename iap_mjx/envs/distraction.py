@@ -311,7 +311,9 @@ class Distraction:
             inputs["geom_rgb"] = jnp.where(jnp.asarray(self.geom_material >= 0)[:, None], picked,
                                            jnp.asarray(self.geom_rgb))
         if "background" in self.kinds:
-            inputs["sky_texture"] = self.frames[perturbation.video, perturbation.frame]
+            # the whole stack and the frame's row: the camera reads the frame in place
+            stack = self.frames.reshape(-1, self.frames.shape[-1])
+            inputs["sky_texture"] = (stack, perturbation.video * self.frames.shape[1] + perturbation.frame)
         return data, inputs
 
     # ---- helpers ------------------------------------------------------------------------

@@ -8,7 +8,7 @@ How it works (and why, on a CPU):
   closed forms per primitive (``intersect.py``), unrolled over the geoms (types and sizes are
   static).
 - The nearest hit is one ``min`` over int32 keys that pack the depth and the geom index
-  (``Camera._nearest``): no argmin, no per-geom payloads.
+  (``Camera._key``): no argmin, no per-geom payloads.
 - Types with many geoms (cheetah's capsules) are culled per screen tile: only the (tile, geom)
   pairs where the geom's projected bounds reach the tile are traced, from a fixed-size list
   (``cull_pairs_per_tile``); a batch chunk with more pairs than that is traced densely
@@ -58,7 +58,8 @@ class CameraConfig:
       background_color: RGB in [0, 1] for ``sky="color"``.
       checker_floor: draw textured planes as dm_control's 2x2 checker (else flat material colour).
       batch_chunk: under ``vmap``, images rendered together per step of the loop over the batch
-        (small enough for the intermediates to stay in cache).
+        (small enough for the intermediates to stay in cache); ``None`` (default): 4 up to
+        10,000 pixels per image, fewer for larger images (one from 40,000 pixels).
       tile: side in pixels of the square screen tiles used for culling.
       cull_pairs_per_tile: budget of (tile, geom) pairs per culled type group, per tile on
         average (types with at least 3 geoms, planes excepted, are traced only on the tiles
@@ -74,7 +75,7 @@ class CameraConfig:
     sky: str = "skybox"
     background_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
     checker_floor: bool = True
-    batch_chunk: int = 4
+    batch_chunk: Optional[int] = None
     tile: int = 10
     cull_pairs_per_tile: float = 1.0
 
@@ -91,8 +92,10 @@ class CameraConfig:
             raise ValueError(f"tile must be a positive int, got {self.tile!r}")
         if not isinstance(self.cull_pairs_per_tile, (int, float)) or self.cull_pairs_per_tile < 0:
             raise ValueError(f"cull_pairs_per_tile must be a number >= 0, got {self.cull_pairs_per_tile!r}")
+        if self.batch_chunk is None:
+            object.__setattr__(self, "batch_chunk", max(1, min(4, 40_000 // (self.height * self.width))))
         if not isinstance(self.batch_chunk, int) or self.batch_chunk < 1:
-            raise ValueError(f"batch_chunk must be a positive int, got {self.batch_chunk!r}")
+            raise ValueError(f"batch_chunk must be a positive int or None, got {self.batch_chunk!r}")
         if self.shading not in SHADINGS:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.sky not in SKIES:
@@ -165,6 +168,8 @@ class Camera:
         self._tile_grid = (ny, nx, th, tw)
         self._tile_x = np.moveaxis(x, 2, 1).reshape(ny * nx, th * tw).astype(np.float32)
         self._tile_y = np.moveaxis(y, 2, 1).reshape(ny * nx, th * tw).astype(np.float32)
+        self._grid_x = cols[None, :].astype(np.float32)  # (1, nx * tw)
+        self._grid_y = rows[:, None].astype(np.float32)  # (ny * th, 1)
         self._tile_bounds = np.stack([self._tile_x.min(1), self._tile_x.max(1),
                                       self._tile_y.min(1), self._tile_y.max(1)], axis=1)
 
@@ -194,7 +199,8 @@ class Camera:
 
     def render(self, data: mjx.Data, background: Optional[jax.Array] = None,
                geom_rgb: Optional[jax.Array] = None,
-               sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array]:
+               sky_texture: Optional[jax.Array | tuple[jax.Array, jax.Array]] = None,
+               ) -> tuple[jax.Array, jax.Array]:
         """Renders one state (``vmap`` it for a batch); :meth:`render_ids` also returns the
         geom seen at each pixel.
 
@@ -210,7 +216,9 @@ class Camera:
             ``(S, S, 3)`` uint8 or already packed by ``sky.pack_rgb`` (``(S * S,)`` int32, as
             the distraction layer keeps its frames), seen by ray direction on every face of
             the cube as MuJoCo draws a square skybox texture (``sky.py``); replaces the sky
-            (``background`` wins).
+            (``background`` wins). Or a pair ``(stack, row)``: packed frames ``(N, S * S)``
+            int32 and the ``()`` int32 row shown (under ``vmap``, an unbatched stack is read
+            in place, never copied per image).
 
         Returns:
           rgb ``(H, W, 3)`` float32 in [0, 1] and depth ``(H, W)`` float32 in metres.
@@ -220,7 +228,8 @@ class Camera:
 
     def render_ids(self, data: mjx.Data, background: Optional[jax.Array] = None,
                    geom_rgb: Optional[jax.Array] = None,
-                   sky_texture: Optional[jax.Array] = None) -> tuple[jax.Array, jax.Array, jax.Array]:
+                   sky_texture: Optional[jax.Array | tuple[jax.Array, jax.Array]] = None,
+                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """:meth:`render`'s rgb and depth, and the hit geom's MuJoCo id ``(H, W)`` int32
         (``-1`` where nothing is hit) from the same trace (one program, not two)."""
         cfg = self.config
@@ -234,22 +243,40 @@ class Camera:
         elif tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
             raise ValueError(
                 f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
-        if sky_texture is None:
-            sky_texture = jnp.zeros((0,), jnp.int32)
+        sky_frame = None
+        if isinstance(sky_texture, (tuple, list)):
+            sky_texture, sky_frame = sky_texture
+            if not (sky_texture.ndim == 2 and sky_texture.dtype == jnp.int32
+                    and math.isqrt(sky_texture.shape[1]) ** 2 == sky_texture.shape[1] > 0
+                    and sky_texture.size < 2**31):
+                raise ValueError("sky_texture (stack, row): the stack must be packed frames "
+                                 "(N, S * S) int32 (fewer than 2**31 texels), got "
+                                 f"{sky_texture.dtype} {sky_texture.shape}")
+            if jnp.shape(sky_frame) != ():
+                raise ValueError(f"sky_texture (stack, row): the row must be a scalar int, got shape "
+                                 f"{jnp.shape(sky_frame)}")
+            sky_frame = jnp.asarray(sky_frame, jnp.int32)
+        elif sky_texture is None:
+            sky_texture = jnp.zeros((0, 1), jnp.int32)
         elif (sky_texture.ndim == 3 and sky_texture.shape[0] == sky_texture.shape[1]
               and sky_texture.shape[2] == 3 and sky_texture.dtype == jnp.uint8):
-            sky_texture = sky_lib.pack_rgb(sky_texture)
-        elif not (sky_texture.ndim == 1 and sky_texture.dtype == jnp.int32
-                  and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0):
-            raise ValueError("sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32, got "
-                             f"{sky_texture.dtype} {sky_texture.shape}")
-        return self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture)
+            sky_texture = sky_lib.pack_rgb(sky_texture)[None]
+        elif (sky_texture.ndim == 1 and sky_texture.dtype == jnp.int32
+              and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0):
+            sky_texture = sky_texture[None]
+        else:
+            raise ValueError("sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32 (or a "
+                             f"pair (stack (N, S * S), row)), got {sky_texture.dtype} {sky_texture.shape}")
+        if sky_frame is None:
+            sky_frame = jnp.zeros((), jnp.int32)
+        return self._batchable(True)(self._poses(data), background, geom_rgb, sky_texture, sky_frame)
 
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
         empty = jnp.zeros((0,), jnp.float32)
-        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty, jnp.zeros((0,), jnp.int32))
+        _, depth, ids = self._batchable(False)(self._poses(data), empty, empty,
+                                               jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32))
         return depth, ids
 
     # -- implementation ---------------------------------------------------------------------
@@ -279,16 +306,20 @@ class Camera:
         if cached is not None:
             return cached
 
-        def single(poses, background, geom_rgb, sky_texture):
-            return self._program(poses, background, geom_rgb, sky_texture, colour, batched=False)
+        def single(poses, background, geom_rgb, sky_texture, sky_frame):
+            return self._program(poses, background, geom_rgb, sky_texture, sky_frame, colour,
+                                 batched=False)
 
         batched = jax.custom_batching.custom_vmap(single)
 
         @batched.def_vmap
-        def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture):
+        def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture, sky_frame):
+            # an unbatched sky stack is shared by every chunk as it is (not broadcast per image)
+            shared_sky = not in_batched[3]
+            per_image = (poses, background, geom_rgb, sky_frame) + (() if shared_sky else (sky_texture,))
+            flags = tuple(in_batched[:3]) + (in_batched[4],) + (() if shared_sky else (True,))
             args = jax.tree.map(
-                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
-                (poses, background, geom_rgb, sky_texture), tuple(in_batched))
+                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
             chunk = min(self.config.batch_chunk, axis_size)
             n_chunks = -(-axis_size // chunk)
             padded = n_chunks * chunk
@@ -298,15 +329,19 @@ class Camera:
                     x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
                 return x.reshape((n_chunks, chunk) + x.shape[1:])
 
-            out = jax.lax.map(lambda a: self._program(*a, colour, batched=True),
-                              jax.tree.map(split, args))
+            def one_chunk(a):
+                sky = sky_texture if shared_sky else a[4]
+                return self._program(a[0], a[1], a[2], sky, a[3], colour, batched=True)
+
+            out = jax.lax.map(one_chunk, jax.tree.map(split, args))
             out = jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:axis_size], out)
             return out, jax.tree.map(lambda _: True, out)
 
         self._kernels[colour] = batched
         return batched
 
-    def _program(self, poses, background, geom_rgb, sky_texture, colour: bool, batched: bool):
+    def _program(self, poses, background, geom_rgb, sky_texture, sky_frame, colour: bool,
+                 batched: bool):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
         depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
         more (tile, geom) pairs than the budget, dense tracing.
@@ -326,35 +361,61 @@ class Camera:
             return (jnp.broadcast_to(zero + self.scene.zfar, shape),
                     jnp.broadcast_to(zero.astype(jnp.int32) + len(self.scene.geom_ids), shape))
 
+        def padded_of(trace):
+            return lambda: lift(_pad_one)(trace())
+
+        # Each stage runs inside a ``lax.cond`` on ``finite`` (the other branch gives zeros):
+        # its results are materialised once, where XLA would otherwise fuse the nearest-hit
+        # selection, or the shading, into every consumer (and the interleaved (H, W, 3) output
+        # per channel) and redo it many times. Computed inside the branch, a stage writes its
+        # outputs directly (a cond passing through values computed outside copies them).
+        def dense():
+            # the nearest-hit keys materialised first (fused into the padded outputs, the
+            # search over all geoms would run once per output element and per output)
+            keys = self._stage(lambda: lift(self._dense_keys)(frames), finite)
+            return lift(_pad_one)(lift(self._decode)(keys))
+
         if self._culled_groups:
-            depth, best, overflow = lift(self._trace_culled)(frames)
-            depth, best = jax.lax.cond(
+            keys, overflow = lift(self._trace_culled_keys)(frames)
+            depth_p, best_p = jax.lax.cond(
                 jnp.any(overflow) | ~finite,
-                lambda: jax.lax.cond(finite, lambda: lift(self._trace_dense)(frames), nothing),
-                lambda: (depth, best))
+                lambda: jax.lax.cond(finite, dense, padded_of(nothing)),
+                padded_of(lambda: lift(self._decode_image)(keys)))
         else:
-            depth, best = jax.lax.cond(finite, lambda: lift(self._trace_dense)(frames), nothing)
+            depth_p, best_p = jax.lax.cond(finite, dense, padded_of(nothing))
+        depth = depth_p[..., 1:-1, 1:-1]
+        best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
         ids = jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best]
         if not colour:
             return None, depth, ids
-        # Shading in planes, each stage materialised behind a cond: XLA would otherwise fuse
-        # everything into the interleaved (H, W, 3) output and redo it per channel.
-        # Neighbour lookups read slices of materialised padded copies (no concatenates, which
-        # XLA's CPU loops do not vectorise).
-        padded = self._barrier(lift(_pad_one)((depth, best)), finite)
-        surface, light = self._barrier(
-            lift(self._surface_terms)(poses, frames, padded, geom_rgb), finite)
+        # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
+        # CPU loops do not vectorise). The light (normals, lights) and a skybox texture's
+        # texels are materialised, then the colour and composition in planes (fused into the
+        # interleaved output they would run per element, unvectorised). A non-finite pose
+        # gives a black image.
+        padded = (depth_p, best_p)
+        if self.config.shading == "flat":
+            light = (jnp.ones_like(depth),)
+        else:
+            light = self._stage(lambda: lift(self._light)(poses, padded), finite)
         if background.size == 0 and sky_texture.size != 0:
-            background = self._skybox(poses["cam_mat"], sky_texture)
-        planes = self._barrier(
-            lift(self._compose)(poses, surface, light, padded[1], background), finite)
+            texels = self._stage(lambda: self._skybox(poses["cam_mat"], sky_texture, sky_frame), finite)
+            background = tuple(sky_lib.unpack_rgb(texels))
+        planes = self._stage(lambda: lift(self._compose)(
+            poses, lift(self._colour)(frames, padded, geom_rgb), light, best_p, background), finite)
         return jnp.stack(planes, axis=-1), depth, ids
 
     @staticmethod
-    def _barrier(tree, pred):
-        """``tree``, materialised: returned through a ``lax.cond`` (``pred`` should hold; the
-        other branch negates, so the two cannot be merged)."""
-        return jax.lax.cond(pred, lambda: tree, lambda: jax.tree.map(jnp.negative, tree))
+    def _stage(fn, pred):
+        """``fn()`` computed inside a ``lax.cond`` on ``pred`` (which should hold; otherwise
+        zeros of the same shapes), so that its outputs are materialised."""
+        shapes = jax.eval_shape(fn)
+
+        def zeros():
+            zero = jnp.where(pred, 0, 0)  # carries pred's sharding type under shard_map
+            return jax.tree.map(lambda s: jnp.broadcast_to(zero.astype(s.dtype), s.shape), shapes)
+
+        return jax.lax.cond(pred, fn, zeros)
 
     def _frames(self, poses) -> dict[str, jax.Array]:
         """Per-geom constants of one image in camera and local frames."""
@@ -371,36 +432,55 @@ class Camera:
             "centre": offset @ cam_mat,
         }
 
-    def _trace_dense(self, frames):
-        """Every geom against every pixel: depth and geom index ``(H, W)``."""
+    def _dense_keys(self, frames):
+        """Every geom against every pixel: the nearest-hit keys (``_key``) ``(H, W)``."""
         x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         r_cam, origin = frames["r_cam"], frames["origin"]
-        candidates = [(self._intersect_static(k, r_cam, origin, x, y), k)
-                      for k in range(len(self.scene.geom_ids))]
-        return self._nearest(candidates, (self.config.height, self.config.width))
+        shape = (self.config.height, self.config.width)
+        keys = [self._far_key(shape)] + [
+            jnp.broadcast_to(self._key(self._intersect_static(k, r_cam, origin, x, y), k), shape)
+            for k in range(len(self.scene.geom_ids))]
+        return jnp.min(jnp.stack(keys), axis=0)
 
     def _trace_culled(self, frames):
+        """:meth:`_trace_culled_keys` decoded: depth and geom index ``(H, W)`` and ``overflow``."""
+        keys, overflow = self._trace_culled_keys(frames)
+        depth, best = self._decode_image(keys)
+        return depth, best, overflow
+
+    def _decode_image(self, keys):
+        """Keys of the image padded to whole tiles -> depth and geom index ``(H, W)``."""
+        cfg = self.config
+        return self._decode(keys[: cfg.height, : cfg.width])
+
+    def _trace_culled_keys(self, frames):
         """Planes and small type groups against every pixel; each culled type group only
         against the tiles its geoms' projected bounds reach: the (tile, geom) pairs are listed
         (at most ``self._pair_budget`` per group), each pair traces its tile's pixels, and a
-        scatter-min merges them. Returns depth and geom index ``(H, W)`` and ``overflow``,
-        true if a group had more pairs than the budget (the result is then incomplete and the
-        caller falls back to ``_trace_dense``)."""
+        scatter-min of the tile windows merges them. Returns the nearest-hit keys (``_key``)
+        ``(ny * th, nx * tw)`` (the image padded to whole tiles) and ``overflow``, true if a
+        group had more pairs than the budget (the result is then incomplete and the caller
+        falls back to ``_dense_keys``)."""
         sc = self.scene
+        ny, nx, th, tw = self._tile_grid
+        gx, gy = jnp.asarray(self._grid_x), jnp.asarray(self._grid_y)
         tx, ty = jnp.asarray(self._tile_x), jnp.asarray(self._tile_y)
         r_cam, origin = frames["r_cam"], frames["origin"]
+        shape = (ny * th, nx * tw)
         keys = jnp.min(jnp.stack(
-            [self._far_key(tx.shape)]
-            + [self._key(self._intersect_static(k, r_cam, origin, tx, ty), k) for k in self._dense_geoms]),
+            [self._far_key(shape)]
+            + [jnp.broadcast_to(self._key(self._intersect_static(k, r_cam, origin, gx, gy), k), shape)
+               for k in self._dense_geoms]),
             axis=0)
         overflow = jnp.zeros((), bool)
         budget = self._pair_budget
+        windows = jax.lax.ScatterDimensionNumbers(
+            update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0, 1))
         for gtype, members in self._culled_groups:
             members_arr = jnp.asarray(members, jnp.int32)
             overlap = self._tile_overlap(frames, members).reshape(-1)  # tile-major pairs
-            n_pairs = overlap.shape[0]
             overflow |= jnp.sum(overlap) > budget
-            score, pair = jax.lax.top_k(jnp.where(overlap, n_pairs - jnp.arange(n_pairs), 0), budget)
+            pair, valid = _first_pairs(overlap, budget)
             tile, local = pair // len(members), pair % len(members)
             params = jnp.concatenate([
                 r_cam[members_arr, 0, :], r_cam[members_arr, 1, :], -r_cam[members_arr, 2, :],
@@ -410,11 +490,13 @@ class Camera:
             px, py = tx[tile], ty[tile]
             d = tuple(px * col[i] + py * col[3 + i] + col[6 + i] for i in range(3))
             t = intersect.BY_TYPE[gtype](tuple(col[9:12]), d, tuple(col[12:15]))
-            pair_keys = jnp.where((score > 0)[:, None], self._key(t, members_arr[local][:, None]),
+            pair_keys = jnp.where(valid[:, None], self._key(t, members_arr[local][:, None]),
                                   jnp.iinfo(jnp.int32).max)
-            keys = keys.at[tile].min(pair_keys, mode="promise_in_bounds")
-        depth, best = self._decode(keys)
-        return self._to_image(depth), self._to_image(best), overflow
+            corner = jnp.stack([tile // nx * th, tile % nx * tw], axis=1)  # (budget, 2)
+            keys = jax.lax.scatter_min(keys, corner, pair_keys.reshape(budget, th, tw), windows,
+                                       indices_are_sorted=True,
+                                       mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
+        return keys, overflow
 
     def _tile_overlap(self, frames, members):
         """``(tiles, len(members))`` bool: may the geom cover a pixel centre of the tile?
@@ -496,20 +578,6 @@ class Camera:
         depth = jax.lax.bitcast_convert_type(keys & ~self._index_mask, jnp.float32)
         return jnp.where(index == n_geom, jnp.float32(self.scene.zfar), depth), index
 
-    def _nearest(self, candidates, shape):
-        """The nearest of ``(t, geom index)`` candidates and the far plane: depth and index."""
-        keys = [self._far_key(shape)] + [jnp.broadcast_to(self._key(t, k), shape) for t, k in candidates]
-        return self._decode(jnp.min(jnp.stack(keys), axis=0))
-
-    def _to_image(self, tiled):
-        """``(tiles, tile pixels, ...)`` -> ``(H, W, ...)``."""
-        cfg = self.config
-        ny, nx, th, tw = self._tile_grid
-        rest = tiled.shape[2:]
-        image = tiled.reshape((ny, nx, th, tw) + rest)
-        image = jnp.moveaxis(image, 2, 1).reshape((ny * th, nx * tw) + rest)
-        return image[: cfg.height, : cfg.width]
-
     def _compose(self, poses, surface, light, best_p, background):
         """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background
         (``best_p``: the padded float geom index of ``_pad_one``)."""
@@ -531,38 +599,35 @@ class Camera:
             lit = [sky_lib.over(alpha, lit[c], background[c]) for c in range(3)]
         return tuple(jnp.where(hit, lit[c], background[c]) for c in range(3))
 
-    def _skybox(self, cam_mat, sky_texture) -> tuple[jax.Array, ...]:
-        """``3 x ([C,] H, W)`` the packed skybox texture ``([C,] S * S)`` int32 by world ray
-        direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk of images."""
+    def _skybox(self, cam_mat, sky_texture, sky_frame) -> jax.Array:
+        """``([C,] H, W)`` int32 packed texels of frame ``sky_frame`` ``([C])`` of the stack
+        ``sky_texture`` (``(N, S * S)`` shared, or ``(C, N, S * S)`` one stack per image) by
+        world ray direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk."""
+        if sky_texture.ndim == 3:  # one stack per image: rows of the stacks laid end to end
+            n = sky_texture.shape[1]
+            sky_frame = jnp.arange(sky_texture.shape[0], dtype=jnp.int32) * n + sky_frame
+            sky_texture = sky_texture.reshape(-1, sky_texture.shape[-1])
         x = jnp.asarray(self._x)
         y = jnp.asarray(self._y)
         m = cam_mat[..., None, None]  # (..., 3, 3, 1, 1) against (H, 1) and (1, W)
         dx, dy, dz = (x * m[..., i, 0, :, :] + y * m[..., i, 1, :, :] - m[..., i, 2, :, :] for i in range(3))
         size = math.isqrt(int(sky_texture.shape[-1]))
-        return tuple(sky_lib.skybox_planes(sky_texture, size, dx, dy, dz))
+        return sky_lib.skybox_texels(sky_texture, sky_frame, size, dx, dy, dz)
 
-    def _surface_terms(self, poses, frames, padded, geom_rgb):
-        """Surface colour ``3 x (H, W)`` of each pixel's nearest geom and the light falling on
-        it, ``1 x (H, W)`` when all lights are grey (dm_control's are) else ``3 x (H, W)``;
-        ``padded`` is depth and geom index with a one-pixel border (``_pad_one``).
-
-        The colour is the geom's (or the checker floor's at the hit point); the normal for
-        Lambert shading comes from the hit points of neighbouring pixels on the same geom
-        (the one-sided difference with the smaller depth step, so edges do not bend it),
-        which needs no per-geom work per pixel.
-        """
+    def _colour(self, frames, padded, geom_rgb):
+        """Surface colour ``3 x (H, W)`` of each pixel's nearest geom: the geom's, or the
+        checker floor's at the hit point (``padded``: depth and geom index with a one-pixel
+        border, ``_pad_one``)."""
         rgb_table = self.scene.geom_rgb if geom_rgb.size == 0 else geom_rgb.astype(jnp.float32)
-        checker = self.config.checker_floor
-        sc, cfg = self.scene, self.config
+        sc = self.scene
         depth_p, best_p = padded
         depth, best = depth_p[1:-1, 1:-1], best_p[1:-1, 1:-1]
-        n_geom = len(sc.geom_ids)
         x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         colour = [jnp.zeros_like(depth) for _ in range(3)]
-        for k in range(n_geom):
+        for k in range(len(sc.geom_ids)):
             mine = best == k
             colour = [jnp.where(mine, rgb_table[k, c], colour[c]) for c in range(3)]
-        if checker:
+        if self.config.checker_floor:
             r_cam, origin = frames["r_cam"], frames["origin"]
             for k in np.flatnonzero(sc.checker):
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
@@ -576,8 +641,20 @@ class Camera:
                     tints = [sc.checker_texture[k, :, c] * rgb_table[k, c] for c in range(3)]
                 colour = [jnp.where(mine, jnp.where(odd, tints[c][1], tints[c][0]), colour[c])
                           for c in range(3)]
-        if cfg.shading == "flat":
-            return tuple(colour), (jnp.ones_like(depth),)
+        return tuple(colour)
+
+    def _light(self, poses, padded):
+        """The light falling on each pixel's surface, ``1 x (H, W)`` when all lights are grey
+        (dm_control's are) else ``3 x (H, W)`` (``padded`` as in :meth:`_colour`).
+
+        The normal for Lambert shading comes from the hit points of neighbouring pixels on
+        the same geom (the one-sided difference with the smaller depth step, so edges do not
+        bend it), which needs no per-geom work per pixel.
+        """
+        sc = self.scene
+        depth_p, best_p = padded
+        depth = depth_p[1:-1, 1:-1]
+        x, y = jnp.asarray(self._x), jnp.asarray(self._y)
         tangent_x = _surface_step(depth_p, best_p, x, y, self._pixel_pitch[0], axis=1)
         tangent_y = _surface_step(depth_p, best_p, x, y, -self._pixel_pitch[1], axis=0)
         normal = _cross(tangent_x, tangent_y)
@@ -609,7 +686,7 @@ class Camera:
         channels = (0,) if grey else (0, 1, 2)
         light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines)))
                  for c in channels]
-        return tuple(colour), tuple(light)
+        return tuple(light)
 
     def _lights(self, poses) -> tuple[jax.Array, jax.Array]:
         """Model lights in camera coordinates: positions ``(L, 3)`` and unit directions they
@@ -649,6 +726,23 @@ def _floor_int(a):
     ``jnp.floor`` may not)."""
     truncated = a.astype(jnp.int32)
     return truncated - (a < truncated.astype(a.dtype)).astype(jnp.int32)
+
+
+def _first_pairs(overlap, budget: int):
+    """The indices of the first ``budget`` true entries of ``overlap`` ``(P,)`` bool, in order,
+    ``(budget,)`` int32, and which of those slots hold one (``(budget,)`` bool; empty slots
+    hold 0). Ranks come from a prefix sum done as two small triangular matmuls (exact for
+    counts below 2**24; a sort-based ``top_k`` or XLA's ``cumsum`` costs several times more
+    on CPU), then one scatter."""
+    n = overlap.shape[0]
+    row = next(r for r in (64, 32, 16, 8, 4, 2, 1) if n % r == 0)
+    x = overlap.astype(jnp.float32).reshape(n // row, row)
+    within = x @ jnp.asarray(np.triu(np.ones((row, row), np.float32)))  # inclusive, per row
+    before = jnp.asarray(np.tril(np.ones((n // row,) * 2, np.float32), -1)) @ jnp.sum(x, axis=1)
+    rank = (within + before[:, None]).reshape(n).astype(jnp.int32) - 1
+    slot = jnp.where(overlap, rank, budget)  # past the end: dropped
+    pair = jnp.zeros(budget, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    return pair, jnp.arange(budget) < jnp.sum(overlap)
 
 
 def _pad_one(depth_and_best):

@@ -24,7 +24,7 @@ difference is at most a texel's blur).
 
 Everything here works on planes ``(H, W)`` with an optional leading axis of images, so the
 camera can call it on a chunk of images at once: the texture read is then one gather from
-the chunk's textures laid end to end (a batched gather is slower on CPU).
+a stack of textures, one row per image (a batched gather is slower on CPU).
 """
 
 from __future__ import annotations
@@ -60,18 +60,19 @@ def face_texel(dx: jax.Array, dy: jax.Array, dz: jax.Array, size: int) -> jax.Ar
     return (row * size + col).astype(jnp.int32)
 
 
-def skybox_planes(packed: jax.Array, size: int, dx: jax.Array, dy: jax.Array,
-                  dz: jax.Array) -> list[jax.Array]:
-    """``[3 x (..., H, W)]`` float32 colours in [0, 1] of the skybox texture ``packed``
-    (``(..., S * S)`` from :func:`pack_rgb`, one texture per image) in world directions
-    ``dx, dy, dz`` ``(..., H, W)``."""
+def skybox_texels(packed: jax.Array, frame: jax.Array, size: int, dx: jax.Array, dy: jax.Array,
+                  dz: jax.Array) -> jax.Array:
+    """``(..., H, W)`` int32 packed texels (:func:`pack_rgb`) of the skybox textures
+    ``packed[frame]`` (``packed``: ``(N, S * S)`` textures; ``frame``: ``(...)`` int32, one row
+    per image) in world directions ``dx, dy, dz`` ``(..., H, W)``, as one flat gather from
+    the stack; :func:`unpack_rgb` gives the colours."""
     index = face_texel(dx, dy, dz, size)
-    if packed.ndim == 2:  # a chunk of images: one flat gather from the textures end to end
-        offsets = (jnp.arange(packed.shape[0], dtype=jnp.int32) * packed.shape[1]).reshape(
-            (-1,) + (1,) * (index.ndim - 1))
-        index = index + offsets
-        packed = packed.reshape(-1)
-    texel = packed.at[index].get(mode="promise_in_bounds")
+    offsets = (frame * packed.shape[1]).reshape(jnp.shape(frame) + (1,) * (index.ndim - jnp.ndim(frame)))
+    return packed.reshape(-1).at[index + offsets].get(mode="promise_in_bounds")
+
+
+def unpack_rgb(texel: jax.Array) -> list[jax.Array]:
+    """``[3 x (...)]`` float32 colours in [0, 1] of packed texels (:func:`pack_rgb`)."""
     return [((texel >> (8 * c)) & 255).astype(jnp.float32) * (1.0 / 255.0) for c in range(3)]
 
 
