@@ -51,7 +51,9 @@ def test_frame_stack_and_depth_under_vmap(cartpole):
     obs = np.asarray(states[-1].obs)
     for back in range(3):  # oldest first: channels [4i, 4i+4) are the frame of step 1 + i
         frame = jax.vmap(cartpole.render)(states[1 + back].data)
-        np.testing.assert_allclose(obs[..., 4 * back: 4 * back + 4], np.asarray(frame), atol=1e-6)
+        # float rounding only: the frame rendered op by op here and fused inside the jitted step
+        # differ by up to ~1e-5 on a few pixels (XLA:CPU's loop emitters, as the tests compile)
+        np.testing.assert_allclose(obs[..., 4 * back: 4 * back + 4], np.asarray(frame), atol=1e-4)
     rgb = obs[..., -4:-1]
     assert 0.0 <= rgb.min() and rgb.max() <= 1.0
     depth, _ = jax.vmap(cartpole.camera.trace)(states[-1].data)
