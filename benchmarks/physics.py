@@ -19,7 +19,7 @@ Writes the ``physics`` section of ``BENCHMARKS.md``:
 
 Run (heavy; serialise with the other benchmarks):
 
-    flock /work/bench.lock python benchmarks/physics.py
+    python benchmarks/physics.py
 
 ``--quadruped`` measures our A1-class quadruped instead (``quadruped-flat``,
 ``quadruped-walls``) and writes the ``physics-quadruped`` section: the same three parts with
@@ -29,7 +29,7 @@ Its parts (``--parts sweep throughput camera long``) can be measured one per com
 saving its rows to ``--rows-dir`` (``benchmarks/physics-quadruped/<part>.json``, with its
 command, time and load); the section is written from every part saved there:
 
-    /work/coord/cpu exclusive python benchmarks/physics.py --quadruped --parts sweep --no-write
+    python benchmarks/physics.py --quadruped --parts sweep --no-write
     ...
     python benchmarks/physics.py --quadruped --parts   # no measuring: writes the section
 
@@ -279,7 +279,7 @@ def _markdown(sweep_rows, rows, long_rows, args) -> str:
     lines = [
         "## Physics: MJX task ports vs native MuJoCo",
         "",
-        f"Command: `flock /work/bench.lock python benchmarks/physics.py {args.argv}`".rstrip() + "  ",
+        f"Command: `python benchmarks/physics.py {args.argv}`".rstrip() + "  ",
         f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU "
         f"devices, jax {jax.__version__}, mujoco {mujoco.__version__}. One run; the machine is "
         "shared, so compare numbers within a row (measured back to back), not across runs.",
@@ -466,7 +466,7 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         "",
         f"Machine: {platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
         f"jax {jax.__version__}, mujoco {mujoco.__version__}, {os.cpu_count()} cores. Each part measured "
-        "by its own command under the exclusive CPU lock (`/work/coord/cpu exclusive ...`), with the "
+        "by its own command, alone on the machine, with the "
         "`XLA_FLAGS` it ran with:",
         "",
         *[f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; "

@@ -8,7 +8,7 @@ a fall counting as standing still from then on) and how many episodes fell. A gr
 zero-output setting, so one can see whether the TG's centre (what a zero policy walks) is a
 good place for ES to start and what the TG alone can reach.
 
-    /work/coord/cpu shared python benchmarks/quadruped_tg.py --episodes 8
+    python benchmarks/quadruped_tg.py --episodes 8
 """
 
 from __future__ import annotations
