@@ -114,7 +114,7 @@ PRESETS: tuple[Preset, ...] = (
     Preset("cheetah-run-pixels-cnn", "cheetah-run from 100x100 RGB with a small CNN policy (baseline)",
            "cheetah-run", "cnn", pixels("cheetah-run"), es=PIXEL_ES, run=PIXEL_RUN),
     Preset("cheetah-run-pixels-quick",
-           "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (~5 min cold)",
+           "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (~3 min cold)",
            "cheetah-run", "iap", pixels("cheetah-run"), iap(),
            dataclasses.replace(PIXEL_ES, population_size=30, learning_rate=0.08),
            RunConfig(iterations=40, eval_episodes=2, checkpoint_every=5)),
