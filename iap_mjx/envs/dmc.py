@@ -104,7 +104,6 @@ def serial_lapack_batch(nv: int) -> int | None:
     return (_LAPACK_MIN_WORK_PER_TASK - 1) // (nv**3 // 3)
 
 
-
 class DmControlEnv:
     """A dm_control suite task on MJX. Subclasses set the class constants and task hooks.
 
