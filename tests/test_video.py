@@ -61,3 +61,54 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
                                   key=jax.random.PRNGKey(1), steps=3, program=program)
     frames = imageio.mimread(path)
     assert len(frames) == 3 and frames[0].shape[:2] == (video.STATE_VIDEO_SIZE[0] + 16, video.STATE_VIDEO_SIZE[1])
+
+
+@pytest.mark.slow
+def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tmp_path, monkeypatch):
+    """``iap-mjx video`` on a ``dcs-`` run: the frames are the distracted env's (not the plain
+    camera's view of the same state), with the selected patches outlined."""
+    from pathlib import Path
+
+    from iap_mjx import cli, es
+    from iap_mjx.viz import artifacts
+
+    monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
+    run_dir, out = tmp_path / "run", tmp_path / "dcs.mp4"
+    size = ("env.height=48", "env.width=64")
+    assert cli.main(["train", "dcs-cartpole-swingup-quick", *size, "run.iterations=1",
+                     "--run-dir", str(run_dir), "--no-progress"]) == 0
+    # the whole 10-step episode: the program the run compiled for its own video, from the cache
+    assert cli.main(["video", str(run_dir), "--out", str(out), "--seed", "3"]) == 0
+
+    # the env as the issue specifies it, built here rather than from the run's config
+    env = envs.make("cartpole-swingup", obs_mode="pixels", height=48, width=64, action_repeat=8,
+                    distraction="medium", dynamic=False, episode_length=10, background_size=64,
+                    background_frames=4)
+    plain = envs.make("cartpole-swingup", obs_mode="pixels", height=48, width=64, action_repeat=8,
+                      episode_length=10)
+    reset_key = jax.random.split(jax.random.PRNGKey(3))[0]  # the episode program's reset key
+    first = jax.jit(env.reset)(reset_key)
+    plain_view = jax.jit(plain.render)(first.data)
+    assert np.abs(np.asarray(first.obs) - np.asarray(plain_view)).mean() > 0.05  # distracted
+
+    result = es.load_run(run_dir)
+    _, policy = artifacts.env_and_policy(result.config)
+    record = video.run_episode(env, policy, result.params, jax.random.PRNGKey(3), steps=10,
+                               obs_stats=result.obs_stats)
+    # the same picture (fused inside the episode's scan, a few pixels round differently)
+    np.testing.assert_allclose(record["frames"][0], first.obs, atol=2e-3)
+    returns = np.cumsum(record["rewards"])
+    annotated = np.stack([video.annotate(f, i, policy.layer, float(r))
+                          for f, i, r in zip(record["frames"], record["indices"], returns)])
+    bare = np.stack([video.annotate(f, None, None, float(r)) for f, r in zip(record["frames"], returns)])
+    decoded = iio.imread(out, plugin="pyav").astype(float)
+    assert decoded.shape == annotated.shape == (10, 48 * 3 + 16, 64 * 3, 3)
+    body = (slice(None), slice(16, None))  # below the caption
+    assert np.abs(decoded[body] - annotated[body]).mean() < 4.0  # H.264's loss, on 0-255
+    outline = np.any(annotated != bare, axis=-1)  # where the patch outlines are drawn
+    assert outline.sum() > 0
+    # H.264 halves chroma resolution, which blurs 1-pixel red lines: the outlines are there
+    # when the video is closer to the outlined frames than to the bare ones (without outlines
+    # it is within the codec's loss of the bare frames, and far from the outlined ones)
+    assert (np.abs(decoded - annotated)[outline].mean()
+            < np.abs(decoded - bare.astype(float))[outline].mean())
