@@ -8,7 +8,7 @@ import shlex
 import statistics
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,6 +63,35 @@ def compile_and_time(fn: Callable, *args: Any, repeats: int = 5,
         jax.block_until_ready(out)
         samples.append((time.perf_counter() - start) / calls)
     return compile_seconds, statistics.median(samples), compiled
+
+
+def interleaved_times(compiled: Sequence[Callable], args: Sequence[tuple], *, rounds: int = 9,
+                      min_seconds: float = 0.3) -> list[list[float]]:
+    """Steady-state seconds per call of several compiled programs, timed in turns.
+
+    Each round times every program once (a batch of calls at least ``min_seconds`` long), so
+    a change in the machine's load hits all of them alike; ratios are then taken per round.
+    Returns ``times[round][program]``.
+    """
+    import jax
+
+    calls = []
+    for fn, fn_args in zip(compiled, args):
+        jax.block_until_ready(fn(*fn_args))
+        once = time.perf_counter()
+        jax.block_until_ready(fn(*fn_args))
+        calls.append(max(1, int(min_seconds / max(time.perf_counter() - once, 1e-6))))
+    times = []
+    for _ in range(rounds):
+        row = []
+        for fn, fn_args, count in zip(compiled, args, calls):
+            start = time.perf_counter()
+            for _ in range(count):
+                out = fn(*fn_args)
+            jax.block_until_ready(out)
+            row.append((time.perf_counter() - start) / count)
+        times.append(row)
+    return times
 
 
 def machine_line() -> str:
