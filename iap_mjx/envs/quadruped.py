@@ -172,12 +172,12 @@ class QuadrupedWalls(QuadrupedFlat):
     ``U(0.6, 1.0)`` m between its end and the platform's other edge; the robot starts at the
     origin facing +x, so it must turn to pass each wall. Positions are drawn per episode
     (``mjx.Data.mocap_pos``); shapes never change. The walls are seen; the one that collides
-    is ``wall_contact``, kept on the wall nearest the trunk (:meth:`contact_wall_position`).
+    is ``wall_contact``, kept on the wall nearest the trunk (:meth:`contact_wall_position`), so
+    every candidate geom pair can touch and none is culled (``max_geom_pairs`` ``None``).
     """
 
     name = "quadruped-walls"
     default_max_contacts = 8  # wall contacts (condim 1); the four foot contacts are their own group
-    default_max_geom_pairs = None  # one colliding wall: every pair can touch, none is culled
     default_episode_steps = 1000
     config_class = QuadrupedWallsConfig
     PLATFORM = (-1.0, 10.0, 1.0, 0.5)  # x_min, x_max, half-width, drop
