@@ -37,6 +37,10 @@ def test_the_robot_is_built_from_the_figures():
     np.testing.assert_allclose(m.jnt_range[1:], a1.JOINT_RANGES, atol=1e-6)
     np.testing.assert_allclose(m.actuator_forcerange, [[-33.5, 33.5]] * 12)
     assert env.control_timestep == pytest.approx(0.02) and m.opt.timestep == pytest.approx(0.004)
+    # the env's solver settings are its MJCF's (the config's defaults equal them)
+    mjcf = mujoco.MjModel.from_xml_string(a1.world_xml()).opt
+    assert (m.opt.solver, m.opt.iterations, m.opt.ls_iterations) == (mjcf.solver, mjcf.iterations, mjcf.ls_iterations)
+    assert (mjcf.solver, mjcf.iterations, mjcf.ls_iterations) == (mujoco.mjtSolver.mjSOL_NEWTON, 8, 4)
     # contacts: the feet with the floor only (no self-collision)
     from mujoco.mjx._src import collision_driver
 
