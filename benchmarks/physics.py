@@ -33,7 +33,8 @@ command, time and load); the section is written from every part saved there:
     ...
     python benchmarks/physics.py --quadruped --parts   # no measuring: writes the section
 
-The quadruped's envs are vmapped in chunks of ``--chunk-size`` (default 64) per device, at most
+The quadruped's envs are vmapped in chunks of ``--chunk-size`` (default 32: faster than 64 on
+this machine, measured) per device, at most
 the env's ``max_chunk_size`` (102): with jaxlib 0.10, a larger vmapped batch of quadrupeds
 sharded over both devices deadlocks XLA:CPU at its first execution (every thread parked on a
 futex: the two intra-op pool threads each block in a batched LAPACK Cholesky waiting for tasks
@@ -212,10 +213,16 @@ def _dm_reference(name: str, seed: int, steps: int):
 
 def parse_setting(text: str) -> dict:
     """``"8/4/12"`` -> solver_iterations 8, ls_iterations 4, max_contacts 12 (or ``all``/``task``);
-    a fourth field sets the quadruped's ``max_geom_pairs`` the same way."""
-    iterations, ls_iterations, contacts, *pairs = text.split("/")
+    a fourth field sets the quadruped's ``max_geom_pairs`` the same way. The quadruped's settings
+    may start with its solver and leave out the slots: ``"cg/4/4"`` (contacts and pairs ``task``)."""
+    fields = text.split("/")
+    setting = {}
+    if fields[0] in ("newton", "cg"):
+        setting["solver"] = fields.pop(0)
+        fields += ["task"] * (4 - len(fields))
+    iterations, ls_iterations, contacts, *pairs = fields
     count = lambda v: v if v in ("all", "task") else int(v)  # noqa: E731
-    setting = dict(solver_iterations=int(iterations), ls_iterations=int(ls_iterations),
+    setting.update(solver_iterations=int(iterations), ls_iterations=int(ls_iterations),
                    max_contacts=count(contacts))
     if pairs:
         setting["max_geom_pairs"] = count(pairs[0])
@@ -352,11 +359,11 @@ def _default_setting(name: str) -> str:
 # ---- the quadruped: native MuJoCo on the env's own model is the reference ----------------
 
 
-def _native_run(model: mujoco.MjModel, data0, controls: np.ndarray, n_sub_steps: int,
-                ulp: bool = False) -> np.ndarray:
+def _native_run(env, model: mujoco.MjModel, data0, controls: np.ndarray, ulp: bool = False) -> np.ndarray:
     """qpos after every control step of ``mujoco.mj_step`` (float64) from an env state; with
     ``ulp``, its joint angles and velocities moved 1 float32 ulp up first (native's own
-    sensitivity, as the physics section measures it for dm_control)."""
+    sensitivity, as the physics section measures it for dm_control). On the course, the
+    colliding wall is moved after every control step as the env moves it."""
     data = mujoco.MjData(model)
     qpos = np.asarray(data0.qpos, np.float32)
     qvel = np.asarray(data0.qvel, np.float32)
@@ -369,15 +376,19 @@ def _native_run(model: mujoco.MjModel, data0, controls: np.ndarray, n_sub_steps:
     out = []
     for ctrl in controls:
         data.ctrl[:] = ctrl
-        for _ in range(n_sub_steps):
+        for _ in range(env.n_sub_steps):
             mujoco.mj_step(model, data)
+        if hasattr(env, "contact_wall_position"):
+            data.mocap_pos[-1] = np.asarray(env.contact_wall_position(data.qpos[0], data.mocap_pos[:-1]))
         out.append(data.qpos.copy())
     return np.array(out)
 
 
 def _accurate(model: mujoco.MjModel) -> mujoco.MjModel:
-    """A copy of ``model`` with MuJoCo's solver run to convergence (100 / 50 iterations)."""
+    """A copy of ``model`` with MuJoCo's default solver settings (Newton, 100 iterations, 50
+    line-search iterations; it converges to its tolerance well before)."""
     accurate = copy.deepcopy(model)
+    accurate.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
     accurate.opt.iterations, accurate.opt.ls_iterations = 100, 50
     return accurate
 
@@ -409,17 +420,18 @@ def quadruped_sweep(name: str, settings, steps: int, repeats: int, chunk_size: i
             done += int(ended[-1])
             live = np.concatenate([[True], ~ended[:-1]])  # up to the step that ended the episode
             controls = native_controls(name, actions[seed])
-            theirs = _native_run(env.mj_model, first.data, controls, env.n_sub_steps)
+            theirs = _native_run(env, env.mj_model, first.data, controls)
             same.append(np.abs(ours - theirs)[live].max())
-            moved = _native_run(env.mj_model, first.data, controls, env.n_sub_steps, ulp=True)
+            moved = _native_run(env, env.mj_model, first.data, controls, ulp=True)
             own.append(np.abs(moved - theirs)[live].max())
-            reference = _native_run(_accurate(env.mj_model), first.data, controls, env.n_sub_steps)
+            reference = _native_run(env, _accurate(env.mj_model), first.data, controls)
             converged.append(np.abs(ours - reference)[live].max())
         size = 256
         states = jax.jit(batch.chunked_vmap(env.reset, chunk_size))(jax.random.split(jax.random.key(0), size))
         random_actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
         _, rate = measure_mjx(env, states, random_actions, min(size // len(devices), chunk_size), mesh, repeats)
-        rows.append(dict(task=name, iterations=env.config.solver_iterations, ls_iterations=env.config.ls_iterations,
+        rows.append(dict(task=name, solver=env.config.solver, iterations=env.config.solver_iterations,
+                         ls_iterations=env.config.ls_iterations,
                          contacts="all" if env.max_contacts is None else env.max_contacts,
                          pairs="all" if env.max_geom_pairs is None else env.max_geom_pairs,
                          same=statistics.median(same), converged=statistics.median(converged),
@@ -479,7 +491,9 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
         "with jaxlib 0.10, 103 or more quadrupeds vmapped together per device, sharded over both devices, "
         "deadlock XLA:CPU at the first execution (each intra-op pool thread blocks in a batched LAPACK "
         "Cholesky waiting for tasks queued on that pool; `iap_mjx.envs.dmc.serial_lapack_batch`). "
-        "`--xla_cpu_multi_thread_eigen=false` does not avoid it.",
+        "`--xla_cpu_multi_thread_eigen=false` does not avoid it, nor does the CG solver: MJX factors the "
+        "mass matrix with the same Cholesky (`smooth.factor_m`, also for the Euler integrator's implicit "
+        "damping), Newton only adds its Hessian's (the lowered CG step still calls `lapack_spotrf`).",
         "",
         "Bars (issue 15), from these runs:",
     ]
@@ -501,22 +515,24 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
     if sweep_rows:
         lines += [
             "",
-            "### Solver settings (iterations / line-search iterations / contact slots / geom pairs)",
+            "### Solver settings (solver / iterations / line-search iterations / contact slots / geom pairs)",
             "",
             f"qpos error = max |qpos gap| over {args.sweep_steps} control steps from the env's first state, median of 3 "
-            "episodes, PD targets = standing pose + uniform +-0.3 rad. same = native `mujoco.mj_step` (float64) on the "
-            "same compiled model (same solver settings): float32 noise is what should remain. converged = native "
-            "with 100 / 50 solver iterations. native's own = native on the same model restarted with its joint "
+            "episodes, PD targets = standing pose + uniform +-0.3 rad, walls on. same = native `mujoco.mj_step` (float64) "
+            "on the same compiled model (same solver settings): float32 noise is what should remain. converged = native "
+            "at MuJoCo's defaults (Newton, 100 / 50 iterations). native's own = native on the same model restarted with its joint "
             "angles and velocities 1 float32 ulp up (as the physics section measures dm_control's). Episodes the env "
             "ended early (a fall; ended, of 3) are compared up to that step. Rate: env-steps/s at B=256, "
             "uniform random actions, all devices.",
             "",
-            "| task | iterations / ls / contacts / pairs | vs native, same model | vs native, converged | native's own | ended | env-steps/s |",
+            "| task | solver / iterations / ls / contacts / pairs | vs native, same model | vs native, converged | native's own | ended | env-steps/s |",
             "|---|---|---|---|---|---|---|",
         ]
         for r in sweep_rows:
-            lines.append(f"| {r['task']} | {r['iterations']} / {r['ls_iterations']} / {r['contacts']} / {r['pairs']} | "
+            lines.append(f"| {r['task']} | {r.get('solver', 'newton')} / {r['iterations']} / {r['ls_iterations']} / "
+                         f"{r['contacts']} / {r['pairs']} | "
                          f"{r['same']:.1e} | {r['converged']:.1e} | {r['native_error']:.1e} | {r['ended']} | {r['rate']:,.0f} |")
+        lines += ["", _solver_choice(sweep_rows)]
     if rows:
         lines += [
             "",
@@ -524,7 +540,13 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
             "",
             "env-steps/s = envs x control steps / s (one control step = 5 physics steps). MJX on 1 device "
             f"and on {jax.device_count()} (`shard_map`); native = `mujoco.rollout` on the env's own model (float64, "
-            "same solver settings), same states and controls, 1 and 2 threads. ratio = MJX all devices / native 2 threads.",
+            "same solver settings), same states and controls, 1 and 2 threads. ratio = MJX all devices / native 2 threads. "
+            "The course has one colliding wall, `wall_contact`, which the env keeps on the wall nearest the trunk "
+            "(`QuadrupedWalls.contact_wall_position`; the seen walls do not collide): MJX collides the feet with the "
+            "platform (4 sphere-box pairs) and the robot with that wall (trunk 1 box-box, thighs and calves 8 "
+            "capsule-box, feet 4 sphere-box pairs), and keeps the 8 nearest wall contacts. In `mujoco.rollout` the "
+            "colliding wall stays where the env put it at the start: in 20 control steps from there the trunk cannot "
+            "reach where the env would move it (0.95 m or more from the first wall).",
             "",
             "| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
             "|---|---|---|---|---|---|---|---|",
@@ -563,6 +585,33 @@ def _quadruped_markdown(sweep_rows, rows, long_rows, camera_rows, args) -> str:
             lines.append(f"| {r['task']} | {r['batch']} | {r['steps']} | {r['compile']:.0f} | {r['seconds']:.1f} | "
                          f"{r['rate']:,.0f} | {r['done']} | {r['nan']} | {r['saturated']} | {r['finite']} |")
     return "\n".join(lines) + "\n"
+
+
+def _solver_choice(sweep_rows) -> str:
+    """The rule that picks the quadruped's solver settings from the sweep, applied to its rows,
+    next to what the env runs (``iap_mjx.robots.a1``, its MJCF's ``<option>``)."""
+    from iap_mjx.robots import a1
+
+    floor = min(r["converged"] for r in sweep_rows)
+    accepted = [r for r in sweep_rows if r["converged"] <= 2 * floor]
+    rejected = [r for r in sweep_rows if r["converged"] > 2 * floor]
+    name = lambda r: f"{r.get('solver', 'newton')} {r['iterations']} / {r['ls_iterations']}"  # noqa: E731
+    fastest = max(r["rate"] for r in accepted)
+    tied = [r for r in accepted if r["rate"] >= 0.9 * fastest]
+    pick = min(tied, key=lambda r: (r["iterations"], r["ls_iterations"]))
+    env = f"{a1.SOLVER} {a1.ITERATIONS} / {a1.LS_ITERATIONS}"
+    text = (f"The choice, as for the dm_control tasks: the fastest setting whose error stays at the float32 level of "
+            f"a converged solve. Settings within 2x of the smallest error against native at MuJoCo's defaults "
+            f"({floor:.1e}): {', '.join(name(r) for r in accepted)}. Rates within 10% of the fastest of them "
+            f"({fastest:,.0f} env-steps/s) count as equal (this machine's run-to-run spread); among those, the "
+            f"smallest iteration budget: **{name(pick)}**.")
+    if rejected:
+        ratios = [r["converged"] / floor for r in rejected]
+        text += (f" The other settings leave the solve unconverged: their error is {min(ratios):,.0f}x to "
+                 f"{max(ratios):,.0f}x larger ({', '.join(name(r) for r in rejected)}).")
+    text += (f" The env runs **{env}** (`iap_mjx.robots.a1`: `SOLVER`, `ITERATIONS`, `LS_ITERATIONS`, in its "
+             f"MJCF's `<option>`)" + ("." if env == name(pick) else f", NOT the pick above."))
+    return text
 
 
 QUADRUPED_PARTS = ("sweep", "throughput", "camera", "long")
@@ -609,7 +658,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--batch", nargs="+", type=int, default=[64, 256, 1024])
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
     parser.add_argument("--chunk-size", type=int, default=None,
-                        help="envs vmapped together per device (default 256; --quadruped: 64, at most the "
+                        help="envs vmapped together per device (default 256; --quadruped: 32, at most the "
                              "env's max_chunk_size)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sweep-tasks", nargs="*", default=None, choices=TASKS + QUADRUPED_TASKS)
@@ -631,14 +680,14 @@ def main(argv: list[str] | None = None) -> None:
     args.argv = " ".join(argv) if argv else ""
     if args.quadruped:
         limit = envs.make("quadruped-flat").max_chunk_size
-        args.chunk_size = args.chunk_size or 64
+        args.chunk_size = args.chunk_size or 32
         if limit is not None and args.chunk_size > limit:
             parser.error(f"--chunk-size {args.chunk_size}: the quadruped vmaps at most {limit} envs per device "
                          "(a larger batch deadlocks XLA:CPU; see iap_mjx.envs.dmc.serial_lapack_batch)")
         args.tasks = args.tasks or list(QUADRUPED_TASKS)
         args.sweep_tasks = ["quadruped-walls"] if args.sweep_tasks is None else args.sweep_tasks
-        args.sweep = args.sweep or ["8/4/task/task", "4/4/task/task", "4/2/task/task", "2/2/task/task",
-                                    "8/4/all/all"]
+        args.sweep = args.sweep or ["newton/1/4", "newton/2/4", "newton/4/4", "newton/8/2", "newton/8/4",
+                                    "newton/8/8", "newton/100/50", "cg/8/4", "cg/16/4", "cg/100/50"]
         args.long_tasks = ["quadruped-walls"] if args.long_tasks is None else args.long_tasks
         main_quadruped(args)
         return

@@ -8,6 +8,8 @@ workers do not each compile it.
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -35,6 +37,10 @@ def test_the_robot_is_built_from_the_figures():
     np.testing.assert_allclose(m.jnt_range[1:], a1.JOINT_RANGES, atol=1e-6)
     np.testing.assert_allclose(m.actuator_forcerange, [[-33.5, 33.5]] * 12)
     assert env.control_timestep == pytest.approx(0.02) and m.opt.timestep == pytest.approx(0.004)
+    # the env's solver settings are its MJCF's (the config's defaults equal them)
+    mjcf = mujoco.MjModel.from_xml_string(a1.world_xml()).opt
+    assert (m.opt.solver, m.opt.iterations, m.opt.ls_iterations) == (mjcf.solver, mjcf.iterations, mjcf.ls_iterations)
+    assert (mjcf.solver, mjcf.iterations, mjcf.ls_iterations) == (mujoco.mjtSolver.mjSOL_NEWTON, 8, 4)
     # contacts: the feet with the floor only (no self-collision)
     from mujoco.mjx._src import collision_driver
 
@@ -54,6 +60,7 @@ def test_walls_step_native_parity_reward_and_episode_end(walls):
     """The compiled step, checked three ways (one compile): parity with native MuJoCo, the
     capped-displacement reward, the episode's end."""
     _check_parity_with_native_mujoco(*walls)
+    _check_one_colliding_wall_touches_like_all_walls(*walls)
     _check_reward_is_the_capped_forward_displacement(*walls)
     _check_episode_ends_on_falling_off_or_touching_the_ground(*walls)
 
@@ -81,6 +88,7 @@ def _check_parity_with_native_mujoco(env, reset, step):
         data.ctrl[:] = np.asarray(a1.action_to_targets(action), np.float64)
         for _ in range(env.n_sub_steps):
             mujoco.mj_step(m, data)
+        data.mocap_pos[-1] = np.asarray(env.contact_wall_position(data.qpos[0], data.mocap_pos[:-1]))
         ours.append(np.asarray(state.data.qpos))
         theirs.append(data.qpos.copy())
     ours, theirs = np.array(ours), np.array(theirs)
@@ -89,10 +97,55 @@ def _check_parity_with_native_mujoco(env, reset, step):
     np.testing.assert_allclose(ours, theirs, atol=1e-3)
 
 
+def _all_walls_collide(env) -> mujoco.MjModel:
+    """The env's model with every seen wall colliding as ``wall_contact`` does, and
+    ``wall_contact`` not colliding: the course as native MuJoCo would run it without the env's
+    one colliding wall."""
+    m = copy.deepcopy(env.mj_model)
+    contact = m.geom("wall_contact").id
+    for i in range(env.config.n_walls):
+        wall = m.geom(f"wall{i}").id
+        for field in ("contype", "conaffinity", "condim", "priority"):
+            getattr(m, f"geom_{field}")[wall] = getattr(m, f"geom_{field}")[contact]
+        m.body_contype[m.geom_bodyid[wall]] = m.geom_contype[contact]  # the broad phase's filter
+    m.geom_contype[contact] = m.body_contype[m.geom_bodyid[contact]] = 0
+    return m
+
+
+def _check_one_colliding_wall_touches_like_all_walls(env, reset, step):
+    """The second wall 0.1 m ahead of the trunk's front, the robot pushed into it: MJX (one
+    colliding wall, moved to the nearest) against native MuJoCo with every wall colliding, 40
+    control steps. The native run must touch the wall, and the trajectories agree."""
+    state = reset(jax.random.key(4))
+    walls = np.asarray(env.walls(state.data)).copy()
+    walls[1] = [a1.TRUNK_HALF_SIZE[0] + 0.1 + env.WALL_HALF_SIZE[0], 0.0, env.WALL_HALF_SIZE[2]]
+    data0 = jax.jit(env.forward)(env.place_walls(state.data, walls).replace(
+        qvel=state.data.qvel.at[0].set(1.5)))  # walking into the wall at 1.5 m/s
+    state = state.replace(data=data0)
+    assert int(np.argmin(np.abs(walls[:, 0]))) == 1  # the colliding wall is on wall 1, not wall 0
+    m = _all_walls_collide(env)
+    data = mujoco.MjData(m)
+    data.qpos[:], data.qvel[:] = np.asarray(data0.qpos), np.asarray(data0.qvel)
+    data.mocap_pos[:] = np.asarray(data0.mocap_pos)
+    hold = np.asarray(a1.targets_to_action(a1.HOME_JOINTS), np.float32)
+    touched, ours, theirs = 0, [], []
+    wall_geom = m.geom("wall1").id
+    for _ in range(40):
+        state = step(state, jnp.asarray(hold))
+        data.ctrl[:] = a1.HOME_JOINTS
+        for _ in range(env.n_sub_steps):
+            mujoco.mj_step(m, data)
+            touched += sum(wall_geom in (c.geom1, c.geom2) and c.dist < 0 for c in data.contact[: data.ncon])
+        ours.append(np.asarray(state.data.qpos))
+        theirs.append(data.qpos.copy())
+    assert touched > 0
+    np.testing.assert_allclose(np.array(ours), np.array(theirs), atol=1e-3)
+
+
 def test_walls_are_placed_per_episode_within_the_course(walls):
     env, reset, _ = walls
     states = [reset(jax.random.key(k)) for k in range(8)]
-    positions = np.array([np.asarray(s.data.mocap_pos) for s in states])  # (8, n_walls, 3)
+    positions = np.array([np.asarray(env.walls(s.data)) for s in states])  # (8, n_walls, 3)
     assert positions.shape == (8, env.config.n_walls, 3)
     assert len({tuple(p.round(4).ravel()) for p in positions}) == 8
     half_width, half_length = env.PLATFORM[2], env.WALL_HALF_SIZE[1]
@@ -146,7 +199,7 @@ def test_first_person_camera_sees_the_world_not_the_robot(walls):
     assert pixels.observation_shape == {"pixels": (24, 32, 3), "state": (17,)}
     state = reset(jax.random.key(3))
     wall = np.array([[0.8, 0.0, env.WALL_HALF_SIZE[2]]] + [[5.0 + i, 0.0, 0.25] for i in range(env.config.n_walls - 1)])
-    data = jax.jit(env.forward)(state.data.replace(mocap_pos=jnp.asarray(wall, jnp.float32)))
+    data = jax.jit(env.forward)(env.place_walls(state.data, wall))
     depth, ids = jax.jit(pixels.camera.trace)(data)
     ids = np.asarray(ids)
     robot = {m for m in range(env.mj_model.ngeom) if env.mj_model.geom_group[m] == a1.ROBOT_GROUP}
@@ -178,7 +231,9 @@ def test_task_settings_are_validated_by_the_task_config():
     assert envs.check("quadruped-walls", n_walls=2) == QuadrupedWallsConfig(n_walls=2)
     with pytest.raises(ValueError, match="n_walls"):
         QuadrupedWallsConfig(n_walls=0)
-    assert envs.make("quadruped-walls").max_geom_pairs == 8
+    assert envs.make("quadruped-walls").max_geom_pairs is None
+    with pytest.raises(ValueError, match="solver"):
+        envs.check("quadruped-flat", solver="pgs")
 
 
 def test_max_chunk_size_keeps_the_batched_cholesky_on_its_calling_thread():

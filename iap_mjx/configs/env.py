@@ -11,6 +11,7 @@ import dataclasses
 import os
 
 OBS_MODES = ("state", "pixels", "pixels_depth", "pixels+state")
+SOLVERS = ("newton", "cg")  # QuadrupedConfig.solver: MuJoCo's mjSOL_NEWTON, mjSOL_CG
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,17 +156,24 @@ class QuadrupedConfig(EnvConfig):
         half-width (rad).
       max_geom_pairs: candidate geom pairs MJX runs each collision function on per step (its
         ``max_geom_pairs``: the pairs whose bounding spheres are nearest win; plane pairs are
-        never culled). ``"task"`` is the task's default (the course: 8, so the one wall near
-        the robot keeps all its pairs with the legs), ``"all"`` runs every pair, an int sets
-        it. ``metrics["contact_saturated"]`` also reports an episode in which more pairs of a
-        culled group had overlapping bounding spheres than were kept.
+        never culled). ``"task"`` is the task's default (no culling: the course has one
+        colliding wall, so no group has a pair that cannot touch), ``"all"`` runs every pair,
+        an int sets it. ``metrics["contact_saturated"]`` also reports an episode in which
+        more pairs of a culled group had overlapping bounding spheres than were kept.
+      solver: MuJoCo's constraint solver, ``"newton"`` or ``"cg"``.
+      solver_iterations, ls_iterations: as in ``EnvConfig``; the quadruped's defaults (and
+        ``solver``'s) are its MJCF's (``iap_mjx.robots.a1``: ``SOLVER``, ``ITERATIONS``,
+        ``LS_ITERATIONS``), chosen by the solver sweep in BENCHMARKS.md.
     """
 
+    solver_iterations: int = 8
+    ls_iterations: int = 4
     height: int = 24
     width: int = 32
     v_cap: float = 1.0
     joint_noise: float = 0.05
     max_geom_pairs: int | str = "task"
+    solver: str = "newton"
 
     def __post_init__(self):
         super().__post_init__()
@@ -178,6 +186,8 @@ class QuadrupedConfig(EnvConfig):
                 or self.max_geom_pairs < 1):
             raise ValueError('QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got '
                              f"{self.max_geom_pairs!r}.")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"QuadrupedConfig.solver must be one of {SOLVERS}, got {self.solver!r}.")
 
 
 @dataclasses.dataclass(frozen=True)

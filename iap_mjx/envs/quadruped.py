@@ -99,6 +99,10 @@ class QuadrupedFlat(DmControlEnv):
     def _world_xml(self) -> str:
         return a1.world_xml()
 
+    def _edit_model(self, mj_model: mujoco.MjModel) -> None:
+        mj_model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON,
+                               "cg": mujoco.mjtSolver.mjSOL_CG}[self.config.solver]
+
     def _model_spec(self) -> mujoco.MjSpec:
         spec = mujoco.MjSpec.from_string(self._world_xml())
         if self.max_geom_pairs is not None:
@@ -165,13 +169,15 @@ class QuadrupedWalls(QuadrupedFlat):
     The platform spans x in ``[-1, 10]`` m and ``|y| <= 1`` m, its top the ground at z = 0,
     the floor 0.5 m below. Wall ``i`` (1.2 m long, 0.1 m thick, 0.5 m tall) stands at
     ``x = 1.5 + 2.5 i + U(-0.3, 0.3)`` toward a random side of the platform, leaving a gap of
-    ``U(0.6, 1.0)`` m between its end and the platform's other edge; the robot starts at the origin facing +x, so it must turn to pass each wall. Positions are
-    drawn per episode (``mjx.Data.mocap_pos``); shapes never change.
+    ``U(0.6, 1.0)`` m between its end and the platform's other edge; the robot starts at the
+    origin facing +x, so it must turn to pass each wall. Positions are drawn per episode
+    (``mjx.Data.mocap_pos``); shapes never change. The walls are seen; the one that collides
+    is ``wall_contact``, kept on the wall nearest the trunk (:meth:`contact_wall_position`), so
+    every candidate geom pair can touch and none is culled (``max_geom_pairs`` ``None``).
     """
 
     name = "quadruped-walls"
     default_max_contacts = 8  # wall contacts (condim 1); the four foot contacts are their own group
-    default_max_geom_pairs = 8  # per collision function: the near wall's pairs with the legs
     default_episode_steps = 1000
     config_class = QuadrupedWallsConfig
     PLATFORM = (-1.0, 10.0, 1.0, 0.5)  # x_min, x_max, half-width, drop
@@ -195,7 +201,38 @@ class QuadrupedWalls(QuadrupedFlat):
         # of the platform opposite `side`
         y = side * (gap - half_width + half_length)
         z = jnp.full((n,), self.WALL_HALF_SIZE[2])
-        return data.replace(mocap_pos=jnp.stack([x, y, z], axis=1))
+        return self.place_walls(data, jnp.stack([x, y, z], axis=1))
+
+    def place_walls(self, data: mjx.Data, walls: jax.Array) -> mjx.Data:
+        """``data`` with the walls' centres ``(n_walls, 3)`` set and the colliding wall on the
+        one nearest the trunk (its position stage is not recomputed)."""
+        walls = jnp.asarray(walls, jnp.float32)
+        contact = self.contact_wall_position(data.qpos[0], walls)
+        return data.replace(mocap_pos=jnp.concatenate([walls, contact[None]], axis=0))
+
+    def contact_wall_position(self, x: jax.Array, walls: jax.Array) -> jax.Array:
+        """``(3,)`` where the colliding wall goes: the centre of the wall (of ``walls``,
+        ``(n_walls, 3)``) nearest the trunk's ``x`` along x.
+
+        It gives the contacts that every wall colliding would give. No robot geom reaches
+        further than 0.65 m from the trunk's centre (hip at ``(0.183, 0.047)``, thigh 0.085 m
+        further out, thigh and calf 0.2 m each, foot radius 0.02 m: 0.646 m), so with walls
+        0.1 m thick, wall ``i`` can touch the robot only while ``|x - x_i| < 0.7``; walls
+        stand at least ``WALL_SPACING - 2 WALL_JITTER`` = 1.9 m apart, so then wall ``i`` is
+        the nearest and every other wall is more than 1.2 m away. The env moves the colliding
+        wall after every control step (:meth:`_sync_task`), so it lags the trunk by at most
+        one control step plus one physics step (0.024 s); the switch happens where the trunk
+        is 0.95 m or more from both walls, 0.25 m inside the reach, which covers any trunk
+        speed below 10 m/s (the robot's are a few m/s).
+        """
+        nearest = jnp.argmin(jnp.abs(walls[:, 0] - x))
+        return walls[nearest]
+
+    def _sync_task(self, data: mjx.Data, task_info: dict[str, Any]) -> mjx.Data:
+        """Moves the colliding wall to the wall nearest the trunk (it collides from the next
+        physics step's position stage on)."""
+        del task_info
+        return self.place_walls(data, self.walls(data))
 
     def on_platform(self, data: mjx.Data) -> jax.Array:
         """``()`` bool: the trunk's centre is over the platform."""
@@ -207,5 +244,6 @@ class QuadrupedWalls(QuadrupedFlat):
         return super()._terminated(data) | ~self.on_platform(data)
 
     def walls(self, data: mjx.Data) -> jax.Array:
-        """``(n_walls, 3)`` the walls' centres."""
-        return data.mocap_pos
+        """``(n_walls, 3)`` the walls' centres (``mocap_pos``'s last row is the colliding
+        wall's)."""
+        return data.mocap_pos[: self.config.n_walls]

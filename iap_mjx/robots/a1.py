@@ -17,6 +17,14 @@ walls only. Walls are frictionless (``condim`` 1, taking precedence by ``priorit
 contacts form a contact group of their own that a slot limit can bound without ever dropping
 a foot's contact (``condim`` 3, the foot-ground group). The trunk touching the ground is
 detected geometrically by the env (it ends the episode), not simulated.
+
+The walls the camera sees do not collide. One more wall, ``wall_contact`` (invisible, group
+``CONTACT_GROUP``, alpha 0), does: the env puts it on the wall nearest the trunk along x after
+every control step (:meth:`iap_mjx.envs.quadruped.QuadrupedWalls.contact_wall_position`).
+MJX collides every candidate pair at every step, however far apart (native MuJoCo's broad
+phase skips them), and with three colliding walls two thirds of the wall pairs could never
+touch; one colliding wall gives the same contacts at a third of the collision cost (the
+argument, with the course's distances, is in that method's docstring).
 """
 
 from __future__ import annotations
@@ -60,8 +68,21 @@ ARMATURE = 0.01
 PHYSICS_DT = 0.004
 CONTROL_DT = 0.02
 
+# The constraint solver (MuJoCo's ``opt.solver``, ``opt.iterations``, ``opt.ls_iterations``),
+# chosen by the solver sweep in BENCHMARKS.md (section physics-quadruped; `python
+# benchmarks/physics.py --quadruped --parts sweep`): Newton with 8 / 4 is the smallest budget
+# whose trajectories match native MuJoCo at its defaults (Newton 100 / 50, float64) as closely
+# as 100 / 50 does (float32 noise). Newton with 1, 2 or 4 iterations, or 8 with 2 line-search
+# steps, and CG with 8 or 16, leave the contact solve unconverged: errors thousands of times
+# larger, and the robot falls where the converged one stands. More iterations only cost time.
+SOLVER = "newton"
+ITERATIONS = 8
+LS_ITERATIONS = 4
+_MJCF_SOLVER = {"newton": "Newton", "cg": "CG"}
+
 GROUND_BIT, WALL_BIT = 1, 2
-ROBOT_GROUP, WORLD_GROUP = 1, 0  # geom groups: the first-person camera draws the world only
+# geom groups: the first-person camera draws the world only; nothing draws the contact wall
+ROBOT_GROUP, WORLD_GROUP, CONTACT_GROUP = 1, 0, 3
 
 
 def targets_to_action(targets: jax.Array) -> jax.Array:
@@ -158,7 +179,9 @@ def world_xml(*, platform: tuple[float, float, float, float] | None = None, n_wa
         (the floor is then scenery: nothing collides with it).
       n_walls: boxes of half-size ``wall_half_size`` standing on the platform; each is a
         mocap body (``wall0``, ``wall1``, ...), so an env places them per episode through
-        ``mjx.Data.mocap_pos`` without changing any array shape.
+        ``mjx.Data.mocap_pos`` without changing any array shape. They are seen, not
+        collided: with walls, a last mocap body ``wall_contact`` (the same box, invisible)
+        is the one wall that collides (module docstring).
     """
     defaults, body, actuators, sensors = robot_xml()
     if platform is None:
@@ -174,13 +197,18 @@ def world_xml(*, platform: tuple[float, float, float, float] | None = None, n_wa
     wx, wy, wz = wall_half_size
     walls = "\n".join(
         f'    <body name="wall{i}" mocap="true" pos="{2.0 * (i + 1):g} 0 {wz:g}">'
-        f'<geom name="wall{i}" type="box" size="{wx:g} {wy:g} {wz:g}" contype="{WALL_BIT}" '
-        f'conaffinity="0" condim="1" priority="1" group="{WORLD_GROUP}" rgba="0.75 0.2 0.2 1"/></body>'
+        f'<geom name="wall{i}" type="box" size="{wx:g} {wy:g} {wz:g}" contype="0" '
+        f'conaffinity="0" group="{WORLD_GROUP}" rgba="0.75 0.2 0.2 1"/></body>'
         for i in range(n_walls))
+    if n_walls:
+        walls += (f'\n    <body name="wall_contact" mocap="true" pos="2 0 {wz:g}">'
+                  f'<geom name="wall_contact" type="box" size="{wx:g} {wy:g} {wz:g}" contype="{WALL_BIT}" '
+                  f'conaffinity="0" condim="1" priority="1" group="{CONTACT_GROUP}" rgba="0.75 0.2 0.2 0"/></body>')
     return f"""
 <mujoco model="a1_class_quadruped">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{PHYSICS_DT:g}" integrator="Euler" cone="pyramidal"/>
+  <option timestep="{PHYSICS_DT:g}" integrator="Euler" cone="pyramidal" solver="{_MJCF_SOLVER[SOLVER]}"
+          iterations="{ITERATIONS}" ls_iterations="{LS_ITERATIONS}"/>
   <visual><headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/><map znear="0.01" zfar="50"/></visual>
   <asset>
     <texture name="sky" type="skybox" builtin="gradient" rgb1="0.45 0.6 0.8" rgb2="0.9 0.93 0.97" width="64" height="64"/>
