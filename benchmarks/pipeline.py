@@ -317,7 +317,8 @@ def tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows,
 
     lines = [f"The attention layer alone (patch projections, scores, top-10), L = {num_patches:,}, sharded "
              "over the devices; each device vectorises its whole share (as the rollout does: `vmap` over "
-             "a chunk of episodes) or runs it 4 images at a time (`lax.map`, as `benchmarks/attention.py`):", "",
+             "a chunk of episodes, which the layer scores `batch_chunk` images at a time) or runs it 4 "
+             "images at a time (`lax.map`, as `benchmarks/attention.py`):", "",
              "| kernel | batch | images per group | ms / image | compile s |", "|---|---:|---:|---:|---:|"]
     for label, row in attention_rows:
         lines.append(f"| {label} | {row['batch']} | {row['group']} | {row['ms_per_image']:.3f} | "

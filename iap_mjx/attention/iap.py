@@ -26,9 +26,10 @@ from iap_mjx.attention import features as ft
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
 ROW_KERNELS = ("relu", "hybrid")  # scored from token rows (tokens minor), in chunks under vmap
-# Patches scored together under vmap (batch_chunk=None): at L = 19,200 on 2 cores, chunks of
-# 4 images were 2.7x faster per image than the 32-image vmap (whose intermediates leave the
-# cache) and 1.2x faster than chunks of 2 (BENCHMARKS.md, attention).
+# Patches scored together under vmap (batch_chunk=None). Development runs at L = 19,200 (2 XLA
+# devices, 32 images each inside a scan, as in the rollout; same process): chunks of 4 images
+# took 10-25% less CPU time per image than the whole 32-image share at once, with a third of
+# its page faults, and less than chunks of 2 or 8.
 CHUNK_TOKENS = 80_000
 
 
