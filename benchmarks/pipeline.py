@@ -368,7 +368,7 @@ def bars(args, rows, default_row, attention_rows) -> str:
                        f"(bar {bar}: {verdict(row['ms_per_image'] <= bar)}).")
     if "hybrid (10,5)" in by_label:
         compile_s = by_label["hybrid (10,5)"]["compile_s"]
-        out.append(f"- compile of the whole program (hybrid): {compile_s:.0f} s (bar < 60 s cold: "
+        out.append(f"- compile of the whole program (hybrid): {compile_s:.1f} s (bar < 60 s cold: "
                    f"{verdict(compile_s < 60)}{'' if rows else ''}).")
     return "\n".join(out)
 
