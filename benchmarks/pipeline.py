@@ -317,7 +317,8 @@ def tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows,
 
     lines = [f"The attention layer alone (patch projections, scores, top-10), L = {num_patches:,}, sharded "
              "over the devices; each device vectorises its whole share (as the rollout does: `vmap` over "
-             "a chunk of episodes) or runs it 4 images at a time (`lax.map`, as `benchmarks/attention.py`):", "",
+             "a chunk of episodes, which the layer scores `batch_chunk` images at a time) or runs it 4 "
+             "images at a time (`lax.map`, as `benchmarks/attention.py`):", "",
              "| kernel | batch | images per group | ms / image | compile s |", "|---|---:|---:|---:|---:|"]
     for label, row in attention_rows:
         lines.append(f"| {label} | {row['batch']} | {row['group']} | {row['ms_per_image']:.3f} | "
@@ -367,7 +368,7 @@ def bars(args, rows, default_row, attention_rows) -> str:
                        f"(bar {bar}: {verdict(row['ms_per_image'] <= bar)}).")
     if "hybrid (10,5)" in by_label:
         compile_s = by_label["hybrid (10,5)"]["compile_s"]
-        out.append(f"- compile of the whole program (hybrid): {compile_s:.0f} s (bar < 60 s cold: "
+        out.append(f"- compile of the whole program (hybrid): {compile_s:.1f} s (bar < 60 s cold: "
                    f"{verdict(compile_s < 60)}{'' if rows else ''}).")
     return "\n".join(out)
 

@@ -195,3 +195,78 @@ def test_config_is_hashable_for_static_arguments():
     cfg = iap.AttentionConfig()
     assert hash(cfg) == hash(iap.AttentionConfig())
     assert hash(iap.IAPAttention(cfg, (20, 20, 3))) == hash(iap.IAPAttention(cfg, (20, 20, 3)))
+
+
+@pytest.mark.parametrize("size", [25, 200, 625, 19200])
+def test_top_l_equals_lax_top_k_with_ties(size):
+    """The two-level search returns lax.top_k's indices, ties to the lower index, for sizes
+    that are and are not multiples of the block, with many ties and with none."""
+    rng = np.random.default_rng(size)
+    rows = np.stack([rng.normal(size=size), rng.integers(0, 4, size=size),  # distinct / heavy ties
+                     np.ones(size), np.arange(size), -np.arange(size)]).astype(np.float32)
+    top = jax.jit(jax.vmap(iap.top_l, in_axes=(0, None)), static_argnums=1)
+    for l in (1, 10):
+        np.testing.assert_array_equal(top(jnp.asarray(rows), l), jax.lax.top_k(jnp.asarray(rows), l)[1])
+
+
+@pytest.mark.parametrize("scaling,use_bias,stride", [("eq4", False, None), ("eq5", True, None),
+                                                     ("none", False, 2), ("eq4", True, 2)])
+def test_query_key_rows_are_the_transposed_queries_and_keys(scaling, use_bias, stride):
+    layer = layer_for("hybrid", patch_size=4, stride=stride, scaling=scaling, use_bias=use_bias)
+    params = layer.init(jax.random.PRNGKey(0))
+    if use_bias:
+        params = params.replace(b_q=jnp.arange(4.0) * 0.1, b_k=-jnp.arange(4.0) * 0.1)
+    image = random_image((20, 20, 3), seed=6)
+    q, k = layer.queries_keys(params, image)
+    rows = jax.jit(layer.query_key_rows)(params, image)
+    np.testing.assert_allclose(rows, jnp.concatenate([q, k], axis=1).T, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("kernel", ["hybrid", "relu"])
+def test_layer_scores_equal_the_feature_map_path_at_patch_2(kernel):
+    """The token-row scores of the layer (hybrid: moments and key scores as products; relu)
+    equal linear_scores of the feature maps of queries_keys, and select the same patches,
+    on an image with 2-pixel patches (L = 768) whose pixels have structure as rendered ones do."""
+    cfg = iap.AttentionConfig(kernel=kernel, patch_size=2, top_l=10, m=10, r=5)
+    layer = iap.IAPAttention(cfg, (48, 64, 3))
+    params = layer.init(jax.random.PRNGKey(11))
+    proj = layer.draw_projections(jax.random.PRNGKey(12))
+    yy, xx = np.mgrid[0:48, 0:64] / 48.0
+    image = jnp.asarray(np.stack([np.sin(3 * xx) ** 2, yy, (xx * yy) % 0.3], axis=-1), jnp.float32)
+    image = image + 0.05 * random_image((48, 64, 3), seed=13)
+    q, k = layer.queries_keys(params, image)
+    expected = iap.linear_scores(ft.feature_map(kernel, q, proj, role="query", stabilize=True),
+                                 ft.feature_map(kernel, k, proj, role="key", stabilize=True))
+    scores = jax.jit(layer.scores)(params, proj, image)
+    scale = float(jnp.abs(expected).max())
+    np.testing.assert_allclose(scores, expected, rtol=1e-4, atol=1e-5 * scale)
+    np.testing.assert_array_equal(jax.jit(layer)(params, proj, image).indices,
+                                  jax.lax.top_k(expected, 10)[1])
+
+
+@pytest.mark.parametrize("batched_projections", [False, True])
+def test_vmap_in_chunks_equals_one_image_at_a_time(batched_projections):
+    """Under vmap the layer scores its batch in chunks (here 2 images, 5 images: the last chunk
+    padded); per-image parameters and per-image or shared projections give each image's own
+    result."""
+    layer = layer_for("hybrid", batch_chunk=2)
+    params = layer.init(jax.random.PRNGKey(1))
+    params = jax.tree.map(lambda x: x + 0.1 * jax.random.normal(jax.random.PRNGKey(2), (5,) + x.shape), params)
+    keys = jax.random.split(jax.random.PRNGKey(3), 5)
+    projections = (jax.vmap(layer.draw_projections)(keys) if batched_projections
+                   else layer.draw_projections(keys[0]))
+    images = jax.random.uniform(jax.random.PRNGKey(4), (5, 20, 20, 3))
+    axes = (0, 0 if batched_projections else None, 0)
+    batched = jax.jit(jax.vmap(lambda p, r, x: layer(p, r, x), in_axes=axes))(params, projections, images)
+    for b in range(5):
+        one = jax.tree.map(lambda x: x[b], params)
+        proj = jax.tree.map(lambda x: x[b], projections) if batched_projections else projections
+        single = layer(one, proj, images[b])
+        np.testing.assert_allclose(batched.scores[b], single.scores, rtol=1e-5,
+                                   atol=1e-6 * float(jnp.abs(single.scores).max()))
+        np.testing.assert_array_equal(batched.indices[b], single.indices)
+
+
+def test_batch_chunk_must_be_positive():
+    with pytest.raises(ValueError, match="AttentionConfig.batch_chunk must be a positive integer or None"):
+        iap.AttentionConfig(batch_chunk=0)

@@ -25,6 +25,12 @@ from iap_mjx.attention import features as ft
 
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
+ROW_KERNELS = ("relu", "hybrid")  # scored from token rows (tokens minor), in chunks under vmap
+# Patches scored together under vmap (batch_chunk=None). Development runs at L = 19,200 (2 XLA
+# devices, 32 images each inside a scan, as in the rollout; same process): chunks of 4 images
+# took 10-25% less CPU time per image than the whole 32-image share at once, with a third of
+# its page faults, and less than chunks of 2 or 8.
+CHUNK_TOKENS = 80_000
 
 
 def patch_grid(height: int, width: int, patch_size: int, stride: int) -> tuple[int, int]:
@@ -110,35 +116,94 @@ def linear_scores(query_features: jax.Array, key_features: jax.Array) -> jax.Arr
     return key_features @ jnp.sum(query_features, axis=0)
 
 
-def _weighted_rows(weights: jax.Array, rows: jax.Array) -> jax.Array:
-    """``sum_t weights[t] * rows[t]``: ``weights (n,)``, ``rows (n, L)`` -> ``(L,)``, unrolled.
-
-    For the tiny ``n`` here (``d``, ``r``) a chain of scalar-times-row multiply-adds stays
-    inside one elementwise loop, where a ``dot`` would be its own kernel on XLA CPU.
-    """
-    out = weights[0] * rows[0]
-    for t in range(1, rows.shape[0]):
-        out = out + weights[t] * rows[t]
+def _rows(matrix: jax.Array, x: jax.Array) -> jax.Array:
+    """``matrix (n, d)`` times token rows ``x (..., d, L)`` -> ``(..., n, L)``, as ``d``
+    broadcast multiply-adds (one elementwise loop on XLA CPU, where a dot with inner
+    dimension ``d = 4`` would be its own kernel and a materialised buffer)."""
+    out = matrix[:, 0, None] * x[..., 0:1, :]
+    for e in range(1, x.shape[-2]):
+        out = out + matrix[:, e, None] * x[..., e:e + 1, :]
     return out
 
 
-def _token_parts(x: jax.Array, projections: ft.Projections):
-    """Token-minor ``omega z`` ``(m, L)``, ``|z|^2 / 2`` ``(L,)`` and signs ``(r, L)`` of ``x (L, d)``."""
-    xt = x.T
-    omega, xi = projections.omega, projections.xi
-    projected = jnp.stack([_weighted_rows(omega[j], xt) for j in range(omega.shape[0])])
-    half_sq_norm = 0.5 * jnp.sum(xt * xt, axis=0)
-    signs = jnp.stack([jnp.where(_weighted_rows(xi[s], xt) >= 0, 1.0, -1.0).astype(x.dtype)
-                       for s in range(xi.shape[0])])
-    return projected, half_sq_norm, signs
+def _half_sq_norm(x: jax.Array) -> jax.Array:
+    """``|x|^2 / 2`` of token rows ``x (..., d, L)`` -> ``(..., 1, L)``."""
+    out = x[..., 0:1, :] * x[..., 0:1, :]
+    for e in range(1, x.shape[-2]):
+        out = out + x[..., e:e + 1, :] * x[..., e:e + 1, :]
+    return 0.5 * out
 
 
-def _shift(projected: jax.Array, half_sq_norm: jax.Array, stabilize: bool) -> jax.Array:
-    """One log-shift per set, as :func:`features.stabilizing_shift` for the hybrid map."""
+def _hybrid_shift(x: jax.Array, omega: jax.Array, stabilize: bool) -> jax.Array:
+    """The log-shift of one set, as :func:`features.stabilizing_shift` for the hybrid map:
+    ``max(max_t |x_t|^2/2, max_{t,j} omega_j x_t - |x_t|^2/2)``, ``(..., 1, 1)`` (or 0).
+
+    The per-token maximum over ``j`` is taken before subtracting ``|x|^2/2`` (the same
+    number: rounding is monotone), so only one row per set goes to the reduction."""
     if not stabilize:
-        return jnp.zeros((), projected.dtype)
-    return jax.lax.stop_gradient(
-        jnp.maximum(jnp.max(half_sq_norm), jnp.max(projected - half_sq_norm)))
+        return jnp.zeros((), x.dtype)
+    half_sq_norm = _half_sq_norm(x)
+    top = jnp.max(_rows(omega, x), axis=-2, keepdims=True)
+    per_token = jnp.maximum(half_sq_norm, top - half_sq_norm)
+    return jax.lax.stop_gradient(jnp.max(per_token, axis=-1, keepdims=True))
+
+
+def _trig_and_positive(x: jax.Array, omega: jax.Array, shift: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Unscaled ``[sin; cos](omega x)`` ``(..., 2m, L)`` and the positive features
+    ``exp(omega x - |x|^2/2 - shift)`` ``(..., m, L)`` of token rows ``x (..., d, L)``."""
+    projected = _rows(omega, x)
+    sin, cos = ft.sincos(projected)
+    return (jnp.concatenate([sin, cos], axis=-2),
+            jnp.exp(projected - _half_sq_norm(x) - shift))
+
+
+def _sign_basis(x: jax.Array, xi: jax.Array) -> jax.Array:
+    """``[1; sgn(xi x)]`` of token rows ``x (..., d, L)`` -> ``(..., 1 + r, L)`` (0 maps to +1)."""
+    signs = jnp.where(_rows(xi, x) >= 0, 1.0, -1.0).astype(x.dtype)
+    return jnp.concatenate([jnp.ones_like(signs[..., :1, :]), signs], axis=-2)
+
+
+def hybrid_scores_rows(queries: jax.Array, keys: jax.Array, projections: ft.Projections, *,
+                       stabilize: bool = True) -> jax.Array:
+    """:func:`hybrid_scores` for token rows: ``queries, keys (..., d, L)`` -> ``(..., L)``.
+
+    With ``F = [T, E]`` a token's ``2m`` trigonometric and ``m`` positive features and ``S``
+    its ``r`` signs, one query-key term is ``(T_q.T_k (1 + S_q.S_k / r) + E_q.E_k (1 -
+    S_q.S_k / r)) / 2``; each ``T`` carries the factor ``exp(|x|^2/2 - shift)`` of its token.
+    Summed over queries this needs the moments ``F_Q^T [1, S_Q]`` (``3m x (1 + r)``): two
+    products with inner dimension ``L``, the trigonometric factor moved onto ``[1, S_Q]``
+    (``1 + r`` rows rather than ``2m``). A key's score is then ``[1, S_k] . (exp(|k|^2/2 -
+    shift) W_T^T T_k + W_E^T E_k)`` with ``W`` the sign-and-``1/r``-weighted moments: two more
+    products, then ``1 + r`` multiply-adds per key.
+
+    Layout, for XLA's CPU backend: tokens are the minor axis, every elementwise stage is one
+    loop over ``(features, L)`` (the ``exp`` of the trigonometric factor once per token, not
+    once per feature), and the contractions over ``L`` are dot products; nothing of size
+    ``3m(r + 1) x L`` is built.
+    """
+    omega, xi = projections.omega, projections.xi
+    m, r = omega.shape[0], xi.shape[0]
+    query_shift = _hybrid_shift(queries, omega, stabilize)
+    key_shift = _hybrid_shift(keys, omega, stabilize)
+
+    trig, positive = _trig_and_positive(queries, omega, query_shift)
+    basis = _sign_basis(queries, xi)
+    trig_basis = jnp.exp(_half_sq_norm(queries) - query_shift) * basis
+    trig_moments = jnp.einsum("...fl,...sl->...fs", trig, trig_basis)  # (..., 2m, 1 + r)
+    positive_moments = jnp.einsum("...fl,...sl->...fs", positive, basis)  # (..., m, 1 + r)
+    sign_weights = jnp.concatenate([jnp.ones(1), jnp.full(r, 1.0 / r)]).astype(trig.dtype)
+    trig_weights = trig_moments * sign_weights
+    positive_weights = positive_moments * (sign_weights * jnp.concatenate([jnp.ones(1), -jnp.ones(r)]))
+
+    trig, positive = _trig_and_positive(keys, omega, key_shift)
+    per_sign = (jnp.exp(_half_sq_norm(keys) - key_shift)
+                * jnp.einsum("...fs,...fl->...sl", trig_weights, trig)
+                + jnp.einsum("...fs,...fl->...sl", positive_weights, positive))  # (..., 1 + r, L)
+    basis = _sign_basis(keys, xi)
+    scores = per_sign[..., 0, :]
+    for s in range(1, r + 1):
+        scores = scores + basis[..., s, :] * per_sign[..., s, :]
+    return scores / (2.0 * m)
 
 
 def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projections, *,
@@ -146,17 +211,8 @@ def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projectio
     """The hybrid kernel's linear scores without building the ``3m(r+1)`` features.
 
     Equal to ``linear_scores(feature_map("hybrid", Q, query), feature_map("hybrid", K, key))``
-    (up to float rounding) but in ``O(L m r)`` with ``m + r`` transcendentals per token. With
-    ``F = [T, E]`` a token's ``2m`` trigonometric and ``m`` positive features and ``S`` its
-    ``r`` signs, one query-key term is ``(T_q.T_k (1 + S_q.S_k / r) + E_q.E_k (1 - S_q.S_k / r)) / 2``.
-    Summed over queries this needs only ``G = F_Q^T [1, S_Q]`` (``3m x (1 + r)``, one product
-    with inner dimension ``L``); each key's score is then ``F_k . (G' [1, S_k])`` with ``G'``
-    the sign-and-``1/r``-weighted ``G``.
-
-    Layout, for XLA's CPU backend: tokens are the minor axis (``(features, L)`` rows) and the
-    tiny contractions (over ``d`` and ``r``) are unrolled multiply-adds, so each side is a
-    couple of elementwise loops over ``L`` rather than ~20 small kernels; measured 2.4x
-    faster than the feature-major layout at ``L = 2500`` (``BENCHMARKS.md``, attention).
+    (up to float rounding) but in ``O(L m r)`` with ``m + r`` transcendentals per token; see
+    :func:`hybrid_scores_rows`, which this calls on the transposed inputs.
 
     Args:
       queries, keys: ``(L, d)``.
@@ -166,34 +222,51 @@ def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projectio
     Returns:
       ``(L,)`` scores.
     """
-    m, r = projections.omega.shape[0], projections.xi.shape[0]
+    return hybrid_scores_rows(queries.T, keys.T, projections, stabilize=stabilize)
 
-    def features(x: jax.Array) -> tuple[list[jax.Array], jax.Array]:
-        """``[sin, cos, positive]`` blocks ``(m, L)`` with magnitudes, and signs ``(r, L)``."""
-        projected, half_sq_norm, signs = _token_parts(x, projections)
-        shift = _shift(projected, half_sq_norm, stabilize)
-        sin, cos = ft.sincos(projected)
-        trig_scale = jnp.exp(half_sq_norm - shift)
-        return [sin * trig_scale, cos * trig_scale, jnp.exp(projected - half_sq_norm - shift)], signs
 
-    q_blocks, q_signs = features(queries)
-    basis = jnp.concatenate([jnp.ones_like(q_signs[:1]), q_signs], axis=0)  # (1 + r, L)
-    moments = jnp.concatenate(q_blocks, axis=0) @ basis.T  # (3m, 1 + r)
-    weights = jnp.concatenate([jnp.ones(2 * m), -jnp.ones(m)]).astype(moments.dtype) / r
-    constant, linear = moments[:, 0], moments[:, 1:] * weights[:, None]
+def relu_scores_rows(queries: jax.Array, keys: jax.Array) -> jax.Array:
+    """``linear_scores`` of the ReLU features for token rows ``queries, keys (..., d, L)`` -> ``(..., L)``."""
+    query_sums = jnp.sum(jax.nn.relu(queries) + ft.RELU_EPSILON, axis=-1, keepdims=True)  # (..., d, 1)
+    key_features = jax.nn.relu(keys) + ft.RELU_EPSILON
+    scores = key_features[..., 0, :] * query_sums[..., 0, :]
+    for e in range(1, keys.shape[-2]):
+        scores = scores + key_features[..., e, :] * query_sums[..., e, :]
+    return scores
 
-    k_blocks, k_signs = features(keys)
-    scores = jnp.zeros(keys.shape[:1], keys.dtype)
-    for b, block in enumerate(k_blocks):
-        for j in range(m):
-            row = b * m + j
-            scores = scores + block[j] * (constant[row] + _weighted_rows(linear[row], k_signs))
-    return scores / (2.0 * m)
+
+TOP_L_BLOCK = 128  # scores per block of top_l's two-level search
 
 
 def top_l(scores: jax.Array, l: int) -> jax.Array:
-    """Indices ``(l,)`` of the ``l`` largest scores, best first; ties go to the lower index."""
-    return jax.lax.top_k(scores, l)[1]
+    """Indices ``(l,)`` of the ``l`` largest of the finite ``scores (L,)``, best first; ties go
+    to the lower index: the same indices as ``jax.lax.top_k(scores, l)[1]``.
+
+    Two levels: the maxima of blocks of :data:`TOP_L_BLOCK` consecutive scores (one vectorised
+    pass over ``L``), then ``l`` rounds that each take the first block holding the largest
+    remaining score and the first position of that score in the block (earlier picks masked),
+    ``O(L + l (L / b + l b))`` in all. Inside a loop (the rollout's ``scan``) XLA's CPU backend
+    lowers ``lax.top_k`` to a full stable sort of ``L`` with a comparator call per comparison,
+    which at ``L = 19,200`` cost several milliseconds per image.
+    """
+    size = scores.shape[-1]
+    block = min(size, TOP_L_BLOCK)
+    n_blocks = -(-size // block)
+    if n_blocks * block != size:  # padding at the end is never picked while finite scores remain
+        scores = jnp.concatenate([scores, jnp.full((n_blocks * block - size,), -jnp.inf, scores.dtype)])
+    blocks = scores.reshape(n_blocks, block)
+    block_max = jnp.max(blocks, axis=1)
+    positions = jnp.arange(block)
+    picked = []
+    for _ in range(l):
+        b = jnp.argmax(block_max)
+        row = blocks[b]
+        for earlier in picked:
+            row = jnp.where(b * block + positions == earlier, -jnp.inf, row)
+        picked.append(b * block + jnp.argmax(row))
+        row = jnp.where(positions == picked[-1] - b * block, -jnp.inf, row)
+        block_max = block_max.at[b].set(jnp.max(row))
+    return jnp.stack(picked).astype(jnp.int32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,6 +287,10 @@ class AttentionConfig:
       row_normalize: brute force only: softmax each row (Tang et al.'s AttentionAgent).
       use_bias: affine ``x W + b`` queries/keys instead of linear.
       redraw_projections: draw new random projections every episode instead of once.
+      batch_chunk: ``relu``/``hybrid`` under ``vmap``: images scored together per step of a
+        loop over the batch; ``None`` picks as many as hold about :data:`CHUNK_TOKENS` patches
+        (4 images at ``L = 19,200``, a whole batch of 100x100 images with 4-pixel patches).
+        Changes speed only, never results.
     """
 
     patch_size: int = 4
@@ -229,6 +306,7 @@ class AttentionConfig:
     row_normalize: bool = False
     use_bias: bool = False
     redraw_projections: bool = False
+    batch_chunk: int | None = None
 
     def __post_init__(self):
         if self.kernel not in KERNELS:
@@ -241,6 +319,9 @@ class AttentionConfig:
                 raise ValueError(f"AttentionConfig.{name} must be a positive integer, got {value!r}")
         if self.stride is not None and (not isinstance(self.stride, int) or self.stride <= 0):
             raise ValueError(f"AttentionConfig.stride must be a positive integer or None, got {self.stride!r}")
+        if self.batch_chunk is not None and (not isinstance(self.batch_chunk, int)
+                                             or isinstance(self.batch_chunk, bool) or self.batch_chunk <= 0):
+            raise ValueError(f"AttentionConfig.batch_chunk must be a positive integer or None, got {self.batch_chunk!r}")
         if not self.eq5_scale > 0:
             raise ValueError(f"AttentionConfig.eq5_scale must be positive, got {self.eq5_scale!r}")
         if self.row_normalize and self.kernel != "brute":
@@ -374,15 +455,103 @@ class IAPAttention:
             return cfg.eq5_scale * u / jnp.maximum(norm, 1e-12)
         return u
 
+    def query_key_rows(self, params: AttentionParams, image: jax.Array) -> jax.Array:
+        """``image (H, W, C)`` -> queries and keys as token rows ``(2d, L)`` (queries first),
+        input scaling applied: :meth:`queries_keys` transposed, without the transpose.
+
+        Non-overlapping patches: one ``dot_general`` of ``[W_Q | W_K]`` reshaped to ``(p, p*C,
+        2d)`` with the image reshaped to ``(rows, p, cols, p*C)``, contracting the patch pixels
+        and leaving the tokens minor. Overlapping patches: the strided convolution of
+        :meth:`queries_keys` with channel-major output.
+        """
+        cfg = self.config
+        p, channels, d = cfg.patch_size, self.image_shape[2], cfg.d_qk
+        rows, cols = self.grid
+        weights = jnp.concatenate([params.w_q, params.w_k], axis=1)  # (c, 2d)
+        image = image.astype(weights.dtype)
+        if cfg.step == p:
+            tiles = image[: rows * p, : cols * p].reshape(rows, p, cols, p * channels)
+            projected = jax.lax.dot_general(weights.reshape(p, p * channels, 2 * d), tiles,
+                                            (((0, 1), (1, 3)), ((), ())))  # (2d, rows, cols)
+        else:
+            projected = jax.lax.conv_general_dilated(
+                image[None], weights.reshape(p, p, channels, 2 * d),
+                window_strides=(cfg.step, cfg.step), padding="VALID",
+                dimension_numbers=("NHWC", "HWIO", "NCHW"))[0]
+        projected = projected.reshape(2 * d, self.num_patches)
+        if params.b_q is not None:
+            projected = projected + jnp.concatenate([params.b_q, params.b_k])[:, None]
+        return jnp.concatenate([self.scale_rows(projected[:d]), self.scale_rows(projected[d:])])
+
+    def scale_rows(self, u: jax.Array) -> jax.Array:
+        """:meth:`scale_inputs` for token rows ``u (d, L)``."""
+        cfg = self.config
+        if cfg.scaling == "eq4":
+            return u * cfg.d_qk ** -0.25
+        if cfg.scaling == "eq5":
+            norm = jnp.linalg.norm(u, axis=0, keepdims=True)
+            return cfg.eq5_scale * u / jnp.maximum(norm, 1e-12)
+        return u
+
+    @property
+    def batch_chunk(self) -> int:
+        """Images scored together under ``vmap`` (``config.batch_chunk`` or from :data:`CHUNK_TOKENS`)."""
+        if self.config.batch_chunk is not None:
+            return self.config.batch_chunk
+        return max(1, CHUNK_TOKENS // self.num_patches)
+
+    def _row_scores(self, params: AttentionParams, projections: ft.Projections,
+                    image: jax.Array) -> jax.Array:
+        """ReLU or hybrid scores ``(L,)`` of one image from its token rows."""
+        d = self.config.d_qk
+        rows = self.query_key_rows(params, image)
+        if self.config.kernel == "relu":
+            return relu_scores_rows(rows[:d], rows[d:])
+        return hybrid_scores_rows(rows[:d], rows[d:], projections, stabilize=True)
+
+    def _chunked_row_scores(self):
+        """:meth:`_row_scores`, whose ``vmap`` over a batch loops over chunks of
+        :attr:`batch_chunk` images (a ``vmap`` inside a ``lax.map``), so that each chunk's
+        ``(features, L)`` intermediates stay in cache."""
+        batched = jax.custom_batching.custom_vmap(self._row_scores)
+
+        @batched.def_vmap
+        def _rule(axis_size, in_batched, params, projections, image):
+            args, in_batched = (params, projections, image), tuple(in_batched)
+            chunk = min(self.batch_chunk, axis_size)
+            n_chunks = -(-axis_size // chunk)
+            padded = n_chunks * chunk
+
+            def split(x, is_batched):
+                if not is_batched:
+                    return None
+                if padded != axis_size:
+                    x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
+                return x.reshape((n_chunks, chunk) + x.shape[1:])
+
+            chunks = jax.tree.map(split, args, in_batched)
+            shared = jax.tree.map(lambda x, b: None if b else x, args, in_batched)
+
+            def one_chunk(part):
+                merged = jax.tree.map(lambda c, x, b: c if b else x, part, shared, in_batched,
+                                      is_leaf=lambda x: x is None)
+                axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
+                return jax.vmap(self._row_scores, in_axes=axes)(*merged)
+
+            out = jax.lax.map(one_chunk, chunks)
+            return out.reshape((padded,) + out.shape[2:])[:axis_size], True
+
+        return batched
+
     def scores(self, params: AttentionParams, projections: ft.Projections,
                image: jax.Array) -> jax.Array:
         """Every patch's score ``(L,)`` for one image ``(H, W, C)``."""
         cfg = self.config
+        if cfg.kernel in ROW_KERNELS:
+            return self._chunked_row_scores()(params, projections, image)
         queries, keys = self.queries_keys(params, image)
         if cfg.kernel == "brute":
             return brute_scores(queries, keys, row_normalize=cfg.row_normalize)
-        if cfg.kernel == "hybrid":
-            return hybrid_scores(queries, keys, projections, stabilize=True)
         q_features = ft.feature_map(cfg.kernel, queries, projections, role="query", stabilize=True)
         k_features = ft.feature_map(cfg.kernel, keys, projections, role="key", stabilize=True)
         return linear_scores(q_features, k_features)
