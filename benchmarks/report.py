@@ -50,19 +50,8 @@ def compile_and_time(fn: Callable, *args: Any, repeats: int = 5,
     start = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_seconds = time.perf_counter() - start
-    jax.block_until_ready(compiled(*args))
-    once = time.perf_counter()
-    jax.block_until_ready(compiled(*args))
-    per_call = max(time.perf_counter() - once, 1e-6)
-    calls = max(1, int(min_seconds / per_call))
-    samples = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(calls):
-            out = compiled(*args)
-        jax.block_until_ready(out)
-        samples.append((time.perf_counter() - start) / calls)
-    return compile_seconds, statistics.median(samples), compiled
+    times = interleaved_times([compiled], [args], rounds=repeats, min_seconds=min_seconds)
+    return compile_seconds, statistics.median(row[0] for row in times), compiled
 
 
 def interleaved_times(compiled: Sequence[Callable], args: Sequence[tuple], *, rounds: int = 9,

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from iap_mjx import chunks
 from iap_mjx.attention import features as ft
 
 KERNELS = ("brute",) + ft.KINDS
@@ -518,18 +519,7 @@ class IAPAttention:
         @batched.def_vmap
         def _rule(axis_size, in_batched, params, projections, image):
             args, in_batched = (params, projections, image), tuple(in_batched)
-            chunk = min(self.batch_chunk, axis_size)
-            n_chunks = -(-axis_size // chunk)
-            padded = n_chunks * chunk
-
-            def split(x, is_batched):
-                if not is_batched:
-                    return None
-                if padded != axis_size:
-                    x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
-                return x.reshape((n_chunks, chunk) + x.shape[1:])
-
-            chunks = jax.tree.map(split, args, in_batched)
+            per_image = jax.tree.map(lambda x, b: x if b else None, args, in_batched)
             shared = jax.tree.map(lambda x, b: None if b else x, args, in_batched)
 
             def one_chunk(part):
@@ -538,8 +528,7 @@ class IAPAttention:
                 axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
                 return jax.vmap(self._row_scores, in_axes=axes)(*merged)
 
-            out = jax.lax.map(one_chunk, chunks)
-            return out.reshape((padded,) + out.shape[2:])[:axis_size], True
+            return chunks.map_chunks(one_chunk, per_image, self.batch_chunk, axis_size), True
 
         return batched
 

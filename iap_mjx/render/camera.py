@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from iap_mjx import chunks
 from iap_mjx.render import intersect
 from iap_mjx.render import scene as scene_lib
 from iap_mjx.render import sky as sky_lib
@@ -320,21 +321,11 @@ class Camera:
             flags = tuple(in_batched[:3]) + (in_batched[4],) + (() if shared_sky else (True,))
             args = jax.tree.map(
                 lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
-            chunk = min(self.config.batch_chunk, axis_size)
-            n_chunks = -(-axis_size // chunk)
-            padded = n_chunks * chunk
-
-            def split(x):
-                if padded != axis_size:
-                    x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
-                return x.reshape((n_chunks, chunk) + x.shape[1:])
-
             def one_chunk(a):
                 sky = sky_texture if shared_sky else a[4]
                 return self._program(a[0], a[1], a[2], sky, a[3], colour, batched=True)
 
-            out = jax.lax.map(one_chunk, jax.tree.map(split, args))
-            out = jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:axis_size], out)
+            out = chunks.map_chunks(one_chunk, args, self.config.batch_chunk, axis_size)
             return out, jax.tree.map(lambda _: True, out)
 
         self._kernels[colour] = batched

@@ -1,0 +1,42 @@
+"""Running a batched computation as a loop over chunks of the batch (lowest layer: jax only).
+
+On XLA's CPU backend a ``vmap`` over a large batch materialises every intermediate for the
+whole batch, which leaves the cache; a loop (``lax.map``) over chunks of a few rows keeps each
+chunk's intermediates in it. The camera and the attention layer both batch this way inside
+their ``custom_vmap`` rules.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+
+
+def map_chunks(fn: Callable[[Any], Any], args: Any, chunk: int, axis_size: int) -> Any:
+    """``fn`` over consecutive chunks of ``chunk`` rows of ``args``, concatenated.
+
+    Args:
+      fn: takes a pytree like ``args`` whose leaves have a leading axis of ``chunk`` rows and
+        returns a pytree whose leaves have that leading axis.
+      args: a pytree whose leaves share the leading (batch) axis ``axis_size`` (``None``
+        leaves are passed through as ``None``).
+      chunk: rows per call of ``fn`` (capped at ``axis_size``); a last partial chunk is
+        padded by repeating the batch's last row, and the padding's outputs are dropped.
+      axis_size: the batch size.
+
+    Returns:
+      ``fn``'s outputs with leading axis ``axis_size``.
+    """
+    chunk = min(chunk, axis_size)
+    n_chunks = -(-axis_size // chunk)
+    padded = n_chunks * chunk
+
+    def split(x):
+        if padded != axis_size:
+            x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
+        return x.reshape((n_chunks, chunk) + x.shape[1:])
+
+    out = jax.lax.map(fn, jax.tree.map(split, args))
+    return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:axis_size], out)
