@@ -179,27 +179,36 @@ class Components:
     signs: jax.Array | None
 
 
-# pi/2 split in three float32 parts (Cody-Waite): n * _PIO2_HI is exact for |n| < 2^15.
-_PIO2_HI = 1.5703125
-_PIO2_MID = 4.837512969970703125e-4
-_PIO2_LO = 7.54978995489188216e-8
+# pi split in three float32 parts (Cody-Waite): n * _PI_HI is exact for |n| < 2^16.
+_PI_HI = 3.140625
+_PI_MID = 9.67502593994140625e-4
+_PI_LO = 1.509957990978376432e-7
 
 
 def sincos(x: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``(sin(x), cos(x))`` with plain multiply-adds that XLA's CPU backend vectorises.
 
-    Cody-Waite reduction to ``[-pi/4, pi/4]`` and Cephes' minimax polynomials: within 1e-7 of
-    the true values for ``|x| < 1e3`` (``jnp.sin``'s error is 3e-8), and about 6x faster than
-    ``jnp.sin`` plus ``jnp.cos`` on XLA CPU, where they are the cost of the trig features.
+    Cody-Waite reduction to ``x = n pi + r``, ``|r| <= pi/2``; Taylor polynomials of ``sin r``
+    (to ``r^11``) and ``cos r`` (to ``r^12``), then ``(-1)^n`` applied by flipping the sign bit
+    (no quadrant selects). Within 2e-7 of the true values for ``|x| < 1e3`` (``jnp.sin``'s
+    error is 3e-8), and several times faster than ``jnp.sin`` plus ``jnp.cos`` on XLA CPU,
+    where they are the cost of the trigonometric features.
     """
-    n = jnp.round(x * (2.0 / math.pi))
-    reduced = ((x - n * _PIO2_HI) - n * _PIO2_MID) - n * _PIO2_LO
-    z = reduced * reduced
-    sin = ((-1.9515295891e-4 * z + 8.3321608736e-3) * z - 1.6666654611e-1) * z * reduced + reduced
-    cos = ((2.443315711809948e-5 * z - 1.388731625493765e-3) * z + 4.166664568298827e-2) * z * z - 0.5 * z + 1.0
-    quadrant = n.astype(jnp.int32) & 3
-    return (jnp.where(quadrant == 0, sin, jnp.where(quadrant == 1, cos, jnp.where(quadrant == 2, -sin, -cos))),
-            jnp.where(quadrant == 0, cos, jnp.where(quadrant == 1, -sin, jnp.where(quadrant == 2, -cos, sin))))
+    n = jnp.round(x * (1.0 / math.pi))
+    r = ((x - n * _PI_HI) - n * _PI_MID) - n * _PI_LO
+    z = r * r
+    sin = r + r * z * (-1.6666666666e-1 + z * (8.3333333333e-3 + z * (-1.9841269841e-4 + z * (
+        2.7557319223e-6 + z * -2.5052108385e-8))))
+    cos = 1.0 + z * (-0.5 + z * (4.1666666666e-2 + z * (-1.3888888888e-3 + z * (
+        2.4801587301e-5 + z * (-2.7557319223e-7 + z * 2.0876756987e-9)))))
+    width = jnp.finfo(x.dtype).bits
+    int_dtype = jnp.dtype(f"int{width}")
+    sign_bit = jax.lax.shift_left(n.astype(int_dtype), jnp.asarray(width - 1, int_dtype))  # (-1)^n
+
+    def times_sign(v):
+        return jax.lax.bitcast_convert_type(jax.lax.bitcast_convert_type(v, int_dtype) ^ sign_bit, v.dtype)
+
+    return times_sign(sin), times_sign(cos)
 
 
 def signs_of(x: jax.Array, xi: jax.Array) -> jax.Array:

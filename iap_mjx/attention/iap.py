@@ -31,7 +31,7 @@ ROW_KERNELS = ("relu", "hybrid")  # scored from token rows (tokens minor), in ch
 # devices, 32 images each inside a scan, as in the rollout; same process): chunks of 4 images
 # took 10-25% less CPU time per image than the whole 32-image share at once, with a third of
 # its page faults, and less than chunks of 2 or 8.
-CHUNK_TOKENS = 80_000
+CHUNK_TOKENS = 40_000
 
 
 def patch_grid(height: int, width: int, patch_size: int, stride: int) -> tuple[int, int]:
@@ -135,33 +135,79 @@ def _half_sq_norm(x: jax.Array) -> jax.Array:
     return 0.5 * out
 
 
-def _hybrid_shift(x: jax.Array, omega: jax.Array, stabilize: bool) -> jax.Array:
+def _row_max(x: jax.Array) -> jax.Array:
+    """Maximum over the rows of ``x (..., n, L)`` -> ``(..., 1, L)``, as one elementwise loop."""
+    out = x[..., 0:1, :]
+    for i in range(1, x.shape[-2]):
+        out = jnp.maximum(out, x[..., i:i + 1, :])
+    return out
+
+
+def _hybrid_shift(half_sq_norm: jax.Array, projected: jax.Array, stabilize: bool) -> jax.Array:
     """The log-shift of one set, as :func:`features.stabilizing_shift` for the hybrid map:
     ``max(max_t |x_t|^2/2, max_{t,j} omega_j x_t - |x_t|^2/2)``, ``(..., 1, 1)`` (or 0).
 
+    Args:
+      half_sq_norm: ``(..., 1, L)`` ``|x_t|^2 / 2``.
+      projected: ``(..., m, L)`` ``omega x_t``.
+
     The per-token maximum over ``j`` is taken before subtracting ``|x|^2/2`` (the same
-    number: rounding is monotone), so only one row per set goes to the reduction."""
+    number: rounding is monotone), so only one row per set goes to the reduction over ``L``."""
     if not stabilize:
-        return jnp.zeros((), x.dtype)
-    half_sq_norm = _half_sq_norm(x)
-    top = jnp.max(_rows(omega, x), axis=-2, keepdims=True)
-    per_token = jnp.maximum(half_sq_norm, top - half_sq_norm)
+        return jnp.zeros((), half_sq_norm.dtype)
+    per_token = jnp.maximum(half_sq_norm, _row_max(projected) - half_sq_norm)
     return jax.lax.stop_gradient(jnp.max(per_token, axis=-1, keepdims=True))
 
 
-def _trig_and_positive(x: jax.Array, omega: jax.Array, shift: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Unscaled ``[sin; cos](omega x)`` ``(..., 2m, L)`` and the positive features
-    ``exp(omega x - |x|^2/2 - shift)`` ``(..., m, L)`` of token rows ``x (..., d, L)``."""
-    projected = _rows(omega, x)
+def _sign_rows(x: jax.Array, xi: jax.Array) -> list[jax.Array]:
+    """``sgn(xi_s x)`` of token rows ``x (..., d, L)``: ``r`` rows ``(..., 1, L)`` in ``{-1, +1}`` (0 maps to +1)."""
+    return [jnp.where(_rows(xi[s:s + 1], x) >= 0, 1.0, -1.0).astype(x.dtype) for s in range(xi.shape[0])]
+
+
+def _query_moments(queries: jax.Array, projections: ft.Projections, stabilize: bool) -> jax.Array:
+    """``F_Q^T [1, S_Q]`` ``(..., 3m, 1 + r)``: the features ``F = [e sin(omega q); e cos(omega q);
+    exp(omega q - |q|^2/2 - shift)]`` (``e = exp(|q|^2/2 - shift)``, ``(..., 3m, L)``) summed over
+    the queries against ``[1; signs]``, one product with inner dimension ``L``."""
+    omega, xi = projections.omega, projections.xi
+    half_sq_norm = _half_sq_norm(queries)
+    projected = _rows(omega, queries)
+    shift = _hybrid_shift(half_sq_norm, projected, stabilize)
     sin, cos = ft.sincos(projected)
-    return (jnp.concatenate([sin, cos], axis=-2),
-            jnp.exp(projected - _half_sq_norm(x) - shift))
+    trig_scale = jnp.exp(half_sq_norm - shift)
+    features = jnp.concatenate([trig_scale * sin, trig_scale * cos,
+                                jnp.exp(projected - (half_sq_norm + shift))], axis=-2)
+    basis = jnp.concatenate([jnp.ones_like(half_sq_norm)] + _sign_rows(queries, xi), axis=-2)
+    return jnp.einsum("...fl,...sl->...fs", features, basis)
 
 
-def _sign_basis(x: jax.Array, xi: jax.Array) -> jax.Array:
-    """``[1; sgn(xi x)]`` of token rows ``x (..., d, L)`` -> ``(..., 1 + r, L)`` (0 maps to +1)."""
-    signs = jnp.where(_rows(xi, x) >= 0, 1.0, -1.0).astype(x.dtype)
-    return jnp.concatenate([jnp.ones_like(signs[..., :1, :]), signs], axis=-2)
+def _key_scores(keys: jax.Array, weights: jax.Array, projections: ft.Projections,
+                stabilize: bool) -> jax.Array:
+    """``sum_f F_k,f sum_s weights_fs [1, S_k]_s`` for token rows ``keys (..., d, L)`` and
+    ``weights (..., 3m, 1 + r)`` -> ``(..., L)``.
+
+    Written as ``m`` rounds of elementwise operations on ``(..., 1, L)`` rows, one per
+    projection ``omega_j``: XLA's CPU backend makes them one loop over the keys, in which
+    ``sin``, ``cos`` and ``exp`` of ``omega_j k`` share their argument and nothing of size
+    ``3m x L`` is written to memory."""
+    omega, xi = projections.omega, projections.xi
+    m = omega.shape[0]
+    half_sq_norm = _half_sq_norm(keys)
+    shift = _hybrid_shift(half_sq_norm, _rows(omega, keys), stabilize)
+    signs = _sign_rows(keys, xi)
+
+    def signed_weight(f):  # (..., 1, L): weights[f] . [1, S_k]
+        out = weights[..., f, 0, None, None]
+        for s, sign in enumerate(signs):
+            out = out + weights[..., f, s + 1, None, None] * sign
+        return out
+
+    trig, positive = 0.0, 0.0
+    for j in range(m):
+        projected = _rows(omega[j:j + 1], keys)
+        sin, cos = ft.sincos(projected)
+        trig = trig + sin * signed_weight(j) + cos * signed_weight(m + j)
+        positive = positive + jnp.exp(projected - (half_sq_norm + shift)) * signed_weight(2 * m + j)
+    return (jnp.exp(half_sq_norm - shift) * trig + positive)[..., 0, :]
 
 
 def hybrid_scores_rows(queries: jax.Array, keys: jax.Array, projections: ft.Projections, *,
@@ -171,40 +217,21 @@ def hybrid_scores_rows(queries: jax.Array, keys: jax.Array, projections: ft.Proj
     With ``F = [T, E]`` a token's ``2m`` trigonometric and ``m`` positive features and ``S``
     its ``r`` signs, one query-key term is ``(T_q.T_k (1 + S_q.S_k / r) + E_q.E_k (1 -
     S_q.S_k / r)) / 2``; each ``T`` carries the factor ``exp(|x|^2/2 - shift)`` of its token.
-    Summed over queries this needs the moments ``F_Q^T [1, S_Q]`` (``3m x (1 + r)``): two
-    products with inner dimension ``L``, the trigonometric factor moved onto ``[1, S_Q]``
-    (``1 + r`` rows rather than ``2m``). A key's score is then ``[1, S_k] . (exp(|k|^2/2 -
-    shift) W_T^T T_k + W_E^T E_k)`` with ``W`` the sign-and-``1/r``-weighted moments: two more
-    products, then ``1 + r`` multiply-adds per key.
+    Summed over queries this needs the moments ``F_Q^T [1, S_Q]`` (``3m x (1 + r)``, one
+    product with inner dimension ``L``). A key's score is then ``F_k . W [1, S_k]``, with
+    ``W`` the moments weighted by the sign term's ``1`` and ``+-1/r``: ``3m (1 + r)``
+    multiply-adds per key, computed with the key's features in one loop (:func:`_key_scores`).
 
-    Layout, for XLA's CPU backend: tokens are the minor axis, every elementwise stage is one
-    loop over ``(features, L)`` (the ``exp`` of the trigonometric factor once per token, not
-    once per feature), and the contractions over ``L`` are dot products; nothing of size
-    ``3m(r + 1) x L`` is built.
+    Layout, for XLA's CPU backend: tokens are the minor axis, so every elementwise stage is a
+    loop over ``L``; ``sin`` and ``cos`` are :func:`features.sincos` (multiply-adds).
     """
-    omega, xi = projections.omega, projections.xi
-    m, r = omega.shape[0], xi.shape[0]
-    query_shift = _hybrid_shift(queries, omega, stabilize)
-    key_shift = _hybrid_shift(keys, omega, stabilize)
-
-    trig, positive = _trig_and_positive(queries, omega, query_shift)
-    basis = _sign_basis(queries, xi)
-    trig_basis = jnp.exp(_half_sq_norm(queries) - query_shift) * basis
-    trig_moments = jnp.einsum("...fl,...sl->...fs", trig, trig_basis)  # (..., 2m, 1 + r)
-    positive_moments = jnp.einsum("...fl,...sl->...fs", positive, basis)  # (..., m, 1 + r)
-    sign_weights = jnp.concatenate([jnp.ones(1), jnp.full(r, 1.0 / r)]).astype(trig.dtype)
-    trig_weights = trig_moments * sign_weights
-    positive_weights = positive_moments * (sign_weights * jnp.concatenate([jnp.ones(1), -jnp.ones(r)]))
-
-    trig, positive = _trig_and_positive(keys, omega, key_shift)
-    per_sign = (jnp.exp(_half_sq_norm(keys) - key_shift)
-                * jnp.einsum("...fs,...fl->...sl", trig_weights, trig)
-                + jnp.einsum("...fs,...fl->...sl", positive_weights, positive))  # (..., 1 + r, L)
-    basis = _sign_basis(keys, xi)
-    scores = per_sign[..., 0, :]
-    for s in range(1, r + 1):
-        scores = scores + basis[..., s, :] * per_sign[..., s, :]
-    return scores / (2.0 * m)
+    m, r = projections.omega.shape[0], projections.xi.shape[0]
+    moments = _query_moments(queries, projections, stabilize)
+    sign_weights = jnp.concatenate([jnp.ones(1), jnp.full(r, 1.0 / r)]).astype(moments.dtype)
+    positive_sign = jnp.concatenate([jnp.ones(1), -jnp.ones(r)]).astype(moments.dtype)
+    weights = moments * sign_weights
+    weights = jnp.concatenate([weights[..., :2 * m, :], weights[..., 2 * m:, :] * positive_sign], axis=-2)
+    return _key_scores(keys, weights, projections, stabilize) / (2.0 * m)
 
 
 def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projections, *,
@@ -458,22 +485,21 @@ class IAPAttention:
 
     def query_key_rows(self, params: AttentionParams, image: jax.Array) -> jax.Array:
         """``image (H, W, C)`` -> queries and keys as token rows ``(2d, L)`` (queries first),
-        input scaling applied: :meth:`queries_keys` transposed, without the transpose.
+        input scaling applied: :meth:`queries_keys`, transposed.
 
-        Non-overlapping patches: one ``dot_general`` of ``[W_Q | W_K]`` reshaped to ``(p, p*C,
-        2d)`` with the image reshaped to ``(rows, p, cols, p*C)``, contracting the patch pixels
-        and leaving the tokens minor. Overlapping patches: the strided convolution of
+        Non-overlapping patches: the ``(L, c) @ (c, 2d)`` product of :meth:`queries_keys`,
+        then one transpose of its ``(L, 2d)`` result. (On XLA CPU at ``L = 19,200`` this was
+        faster than a product with the tokens minor, for which XLA transposes the whole image
+        into ``(c, L)`` planes.) Overlapping patches: the strided convolution of
         :meth:`queries_keys` with channel-major output.
         """
         cfg = self.config
         p, channels, d = cfg.patch_size, self.image_shape[2], cfg.d_qk
-        rows, cols = self.grid
         weights = jnp.concatenate([params.w_q, params.w_k], axis=1)  # (c, 2d)
         image = image.astype(weights.dtype)
         if cfg.step == p:
-            tiles = image[: rows * p, : cols * p].reshape(rows, p, cols, p * channels)
-            projected = jax.lax.dot_general(weights.reshape(p, p * channels, 2 * d), tiles,
-                                            (((0, 1), (1, 3)), ((), ())))  # (2d, rows, cols)
+            patches, _ = extract_patches(image, p, p)
+            projected = (patches @ weights).T
         else:
             projected = jax.lax.conv_general_dilated(
                 image[None], weights.reshape(p, p, channels, 2 * d),
