@@ -26,7 +26,7 @@ from iap_mjx import runtime  # noqa: E402
 runtime.set_host_device_count()  # no persistent compilation cache: compile times are cold
 
 import jax  # noqa: E402
-from jax.sharding import Mesh, PartitionSpec  # noqa: E402
+from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
 
 import report  # noqa: E402
 from iap_mjx.attention import AttentionConfig, IAPAttention  # noqa: E402
@@ -67,6 +67,21 @@ def brute_bytes_per_image(num_patches: int) -> int:
     return 2 * num_patches * num_patches * 4
 
 
+def sharded(batch: int) -> bool:
+    """Whether a batch is split over the devices (``batched_forward`` with ``shard_map``)."""
+    devices = jax.devices()
+    return batch > 1 and len(devices) > 1 and batch % len(devices) == 0
+
+
+def place_images(images: jax.Array) -> jax.Array:
+    """``images (B, ...)`` split over the devices as ``batched_forward`` shards them, so the
+    timed calls do not include copying half of the batch to the other device (in the rollout,
+    each device renders its own images)."""
+    if not sharded(images.shape[0]):
+        return images
+    return jax.device_put(images, NamedSharding(Mesh(jax.devices(), ("batch",)), PartitionSpec("batch")))
+
+
 def batched_forward(layer: IAPAttention, batch: int, chunk: int):
     """``images (B, H, W, C) -> top-l indices (B, l)``, sharded over devices, ``chunk`` at a time."""
 
@@ -76,10 +91,9 @@ def batched_forward(layer: IAPAttention, batch: int, chunk: int):
 
         return jax.lax.map(one, images, batch_size=chunk)
 
-    devices = jax.devices()
-    if batch == 1 or len(devices) == 1 or batch % len(devices):
+    if not sharded(batch):
         return forward
-    mesh = Mesh(devices, ("batch",))
+    mesh = Mesh(jax.devices(), ("batch",))
     spec = PartitionSpec("batch")
     return jax.shard_map(forward, mesh=mesh, in_specs=(PartitionSpec(), PartitionSpec(), spec),
                          out_specs=spec)
@@ -107,7 +121,7 @@ def measure(size_label, shape, patch, kernel_label, options, batch, done: list[R
             row.note = f"chunks of {chunk} images"
     params = layer.init(jax.random.PRNGKey(0))
     projections = layer.draw_projections(jax.random.PRNGKey(1))
-    images = jax.random.uniform(jax.random.PRNGKey(2), (batch, *shape))
+    images = place_images(jax.random.uniform(jax.random.PRNGKey(2), (batch, *shape)))
     fn = batched_forward(layer, batch, chunk)
     compile_s, seconds, compiled = report.compile_and_time(
         fn, params, projections, images, repeats=3 if batch == 1 else 2, min_seconds=0.3)
@@ -181,7 +195,9 @@ def main() -> int:
             f"Measured on {report.machine_line()}. Command: `{command}`.\n\n"
             f"The whole layer (patch projections, scores, top-{TOP_L}) for one 100x100 or 240x320 RGB "
             f"image, `d_qk = {D_QK}`, random weights; batch 256 sharded over the XLA CPU devices with "
-            f"`shard_map`, batch 1 on one device; each device runs its share {CHUNK} images at a time "
+            f"`shard_map` (the images placed on their devices before timing, as the rollout renders them there; "
+            "earlier versions of this table also timed copying half the batch to the second device), "
+            f"batch 1 on one device; each device runs its share {CHUNK} images at a time "
             f"(`lax.map` with `batch_size={CHUNK}`: at L = 19200 this was 1.6x faster than vectorising "
             "the whole share, whose working set leaves the cache). Steady-state time per image (median of timed "
             "repeats after a warm-up; compile time apart); \"x faster than brute\" divides the "

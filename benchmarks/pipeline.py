@@ -137,7 +137,7 @@ def work_attention(job: dict) -> dict:
     layer = IAPAttention(AttentionConfig(**job["options"]), shape)
     batch = job["batch"]
     group = job["group"] or max(1, batch // len(jax.devices()))
-    images = jax.random.uniform(jax.random.PRNGKey(2), (batch, *shape))
+    images = attention_bench.place_images(jax.random.uniform(jax.random.PRNGKey(2), (batch, *shape)))
     params = layer.init(jax.random.PRNGKey(0))
     projections = layer.draw_projections(jax.random.PRNGKey(1))
     fn = attention_bench.batched_forward(layer, batch, group)
@@ -316,7 +316,8 @@ def tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows,
         parts.append("\n".join(lines))
 
     lines = [f"The attention layer alone (patch projections, scores, top-10), L = {num_patches:,}, sharded "
-             "over the devices; each device vectorises its whole share (as the rollout does: `vmap` over "
+             "over the devices (the images placed on their devices before timing, as the rollout renders "
+             "them there); each device vectorises its whole share (as the rollout does: `vmap` over "
              "a chunk of episodes, which the layer scores `batch_chunk` images at a time) or runs it 4 "
              "images at a time (`lax.map`, as `benchmarks/attention.py`):", "",
              "| kernel | batch | images per group | ms / image | compile s |", "|---|---:|---:|---:|---:|"]
