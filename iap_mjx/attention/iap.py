@@ -28,9 +28,9 @@ KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
 ROW_KERNELS = ("relu", "hybrid")  # scored from token rows (tokens minor), in chunks under vmap
 # Patches scored together under vmap (batch_chunk=None). Development runs at L = 19,200 (2 XLA
-# devices, 32 images each inside a scan, as in the rollout; same process): chunks of 4 images
-# took 10-25% less CPU time per image than the whole 32-image share at once, with a third of
-# its page faults, and less than chunks of 2 or 8.
+# devices, batch 64 in groups of 4 as in benchmarks/attention.py; same process): chunks of 2 images
+# took 0.66x the CPU time per image of the previous scoring code, chunks of 3 0.87x, chunks of 4
+# 0.79x.
 CHUNK_TOKENS = 40_000
 
 
