@@ -316,9 +316,10 @@ class AttentionConfig:
       use_bias: affine ``x W + b`` queries/keys instead of linear.
       redraw_projections: draw new random projections every episode instead of once.
       batch_chunk: ``relu``/``hybrid`` under ``vmap``: images scored together per step of a
-        loop over the batch; ``None`` picks as many as hold about :data:`CHUNK_TOKENS` patches
-        (4 images at ``L = 19,200``, a whole batch of 100x100 images with 4-pixel patches).
-        Changes speed only, never results.
+        loop over the batch (at most half the batch, so the loop has two steps or more);
+        ``None`` picks as many as hold about :data:`CHUNK_TOKENS` patches (2 images at
+        ``L = 19,200``, 64 of 100x100 images with 4-pixel patches). Changes speed only, never
+        results.
     """
 
     patch_size: int = 4
@@ -538,8 +539,8 @@ class IAPAttention:
 
     def _chunked_row_scores(self):
         """:meth:`_row_scores`, whose ``vmap`` over a batch loops over chunks of
-        :attr:`batch_chunk` images (a ``vmap`` inside a ``lax.map``), so that each chunk's
-        ``(features, L)`` intermediates stay in cache."""
+        :attr:`batch_chunk` images, at most half the batch (a ``vmap`` inside a ``lax.map``),
+        so that each chunk's ``(features, L)`` intermediates stay in cache."""
         batched = jax.custom_batching.custom_vmap(self._row_scores)
 
         @batched.def_vmap
@@ -554,7 +555,12 @@ class IAPAttention:
                 axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
                 return jax.vmap(self._row_scores, in_axes=axes)(*merged)
 
-            return chunks.map_chunks(one_chunk, per_image, self.batch_chunk, axis_size), True
+            # At least two chunks: with the whole batch in one step (a loop of one trip is
+            # removed), XLA's CPU backend fused the scores' computation into both consumers in
+            # top_l, computing it twice (dev run at 100x100, L = 625, 16 images per device:
+            # 1.5x the time of two chunks of 8).
+            chunk = min(self.batch_chunk, -(-axis_size // 2))
+            return chunks.map_chunks(one_chunk, per_image, chunk, axis_size), True
 
         return batched
 
