@@ -53,3 +53,30 @@ def test_background_image_replaces_the_sky_and_config_is_validated():
         Camera(model, camera_id=model.ncam)
     assert hash(Camera(model, height=24, width=32)) == hash(cam)
     assert Camera(model, height=24, width=32) == cam
+
+
+def test_a_non_finite_pose_blanks_its_own_image_only():
+    """Under ``vmap`` (chunks of 2), images whose camera pose is NaN or inf see nothing (depth
+    at the far plane, id -1, black), and the finite images of the same chunks are drawn as
+    they are alone; a chunk with no finite pose too. With a skybox texture, whose lookup by
+    ray direction must not read outside the texture for a non-finite pose."""
+    states = render_compare.suite_states("walker", "walk", n_states=6, seed=1)
+    model = states[0][0]
+    batch = jax.tree.map(lambda *x: jnp.stack(x), *[mjx.put_data(m, d) for m, d in states])
+    bad = (1, 2, 3, 4)  # chunks: (good, bad), (bad, bad), (bad, good)
+    cam_xpos = batch.cam_xpos.at[1].set(jnp.nan).at[3, :, 0].set(jnp.inf)
+    cam_xmat = batch.cam_xmat.at[2].set(jnp.nan).at[4, :, 1, 1].set(-jnp.inf)
+    batch = batch.replace(cam_xpos=cam_xpos, cam_xmat=cam_xmat)
+    sky = jnp.asarray(np.random.default_rng(0).integers(0, 256, (8, 8, 3), dtype=np.uint8))
+    cam = Camera(model, height=20, width=24, batch_chunk=2)
+    render = lambda d: cam.render_ids(d, sky_texture=sky)  # noqa: E731
+    rgb, depth, ids = (np.asarray(a) for a in jax.jit(jax.vmap(render))(batch))
+    for i in bad:
+        assert np.all(rgb[i] == 0.0) and np.all(depth[i] == np.float32(cam.zfar)) and np.all(ids[i] == -1), i
+    single = jax.jit(render)
+    for i in (0, 5):
+        want = single(jax.tree.map(lambda x: x[i], batch))
+        assert (np.asarray(want[2]) >= 0).any(), "the walker should be on screen"
+        np.testing.assert_allclose(rgb[i], want[0], atol=1e-5)
+        np.testing.assert_allclose(depth[i], want[1], rtol=1e-6)
+        np.testing.assert_array_equal(ids[i], want[2])

@@ -337,13 +337,17 @@ class Camera:
         depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
         more (tile, geom) pairs than the budget, dense tracing.
 
-        The trace ends in a ``lax.cond`` (on the camera pose being finite; a non-finite pose
-        sees nothing): its results are materialised once, where XLA would otherwise fuse the
-        nearest-hit selection into every shading consumer and redo it many times.
+        The trace ends in a ``lax.cond`` (on some camera pose of the batch being finite): its
+        results are materialised once, where XLA would otherwise fuse the nearest-hit
+        selection into every shading consumer and redo it many times. An image whose camera
+        pose is not finite sees nothing (depth ``zfar``, id ``-1``, black), whatever the other
+        images of its batch.
         """
         lift = jax.vmap if batched else (lambda f: f)
         frames = lift(self._frames)(poses)
-        finite = jnp.all(jnp.isfinite(poses["cam_pos"])) & jnp.all(jnp.isfinite(poses["cam_mat"]))
+        seen = (jnp.all(jnp.isfinite(poses["cam_pos"]), axis=-1)
+                & jnp.all(jnp.isfinite(poses["cam_mat"]), axis=(-2, -1)))  # () or (C,) per image
+        finite = jnp.any(seen)
         shape = jnp.shape(poses["cam_pos"])[:-1] + (self.config.height, self.config.width)
 
         def nothing():
@@ -369,32 +373,36 @@ class Camera:
         if self._culled_groups:
             keys, overflow = lift(self._trace_culled_keys)(frames)
             depth_p, best_p = jax.lax.cond(
-                jnp.any(overflow) | ~finite,
+                jnp.any(overflow & seen) | ~finite,
                 lambda: jax.lax.cond(finite, dense, padded_of(nothing)),
                 padded_of(lambda: lift(self._decode_image)(keys)))
         else:
             depth_p, best_p = jax.lax.cond(finite, dense, padded_of(nothing))
-        depth = depth_p[..., 1:-1, 1:-1]
+        # a non-finite image of a traced batch: nothing seen (its own trace, a search with NaN
+        # or inf poses, is not relied on)
+        seen_px = seen[..., None, None]
+        depth = jnp.where(seen_px, depth_p[..., 1:-1, 1:-1], jnp.float32(self.scene.zfar))
         best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
-        ids = jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best]
+        ids = jnp.where(seen_px, jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best], -1)
         if not colour:
             return None, depth, ids
         # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
         # CPU loops do not vectorise). The light (normals, lights) and a skybox texture's
         # texels are materialised, then the colour and composition in planes (fused into the
-        # interleaved output they would run per element, unvectorised). A non-finite pose
-        # gives a black image.
+        # interleaved output they would run per element, unvectorised).
         padded = (depth_p, best_p)
         if self.config.shading == "flat":
             light = (jnp.ones_like(depth),)
         else:
             light = self._stage(lambda: lift(self._light)(poses, padded), finite)
         if background.size == 0 and sky_texture.size != 0:
-            texels = self._stage(lambda: self._skybox(poses["cam_mat"], sky_texture, sky_frame), finite)
+            # a non-finite pose's directions would index outside the texture stack
+            safe_mat = jnp.where(seen[..., None, None], poses["cam_mat"], 0.0)
+            texels = self._stage(lambda: self._skybox(safe_mat, sky_texture, sky_frame), finite)
             background = tuple(sky_lib.unpack_rgb(texels))
         planes = self._stage(lambda: lift(self._compose)(
             poses, lift(self._colour)(frames, padded, geom_rgb), light, best_p, background), finite)
-        return jnp.stack(planes, axis=-1), depth, ids
+        return jnp.where(seen_px[..., None], jnp.stack(planes, axis=-1), 0.0), depth, ids
 
     @staticmethod
     def _stage(fn, pred):
