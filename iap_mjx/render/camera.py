@@ -631,8 +631,10 @@ class Camera:
             for k in np.flatnonzero(sc.checker):
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
                 v = origin[k, 1] + depth * (x * r_cam[k, 0, 1] + y * r_cam[k, 1, 1] - r_cam[k, 2, 1])
-                odd = ((_floor_int(u * sc.checker_scale[k, 0])
-                        + _floor_int(v * sc.checker_scale[k, 1])) & 1) == 1
+                squares = [c * sc.checker_scale[k, i] for i, c in enumerate((u, v))]
+                squares = [c + sc.checker_offset[k, i] if sc.checker_offset[k, i] else c
+                           for i, c in enumerate(squares)]
+                odd = ((_floor_int(squares[0]) + _floor_int(squares[1])) & 1) == 1
                 mine = best == k
                 if geom_rgb.size == 0:
                     tints = [sc.checker_rgb[k, :, c] for c in range(3)]

@@ -45,10 +45,14 @@ class Scene:
         over the sky behind it.
       checker: ``(G,)`` bool, geom is a plane with a 2-D texture drawn as a 2x2 checker.
       checker_rgb: ``(G, 2, 3)`` float32, the two checker colours (texture quadrant centres,
-        times the material colour).
+        times the material colour): square ``(i, j)`` of the checker (``i = floor(x *
+        checker_scale[0] + checker_offset[0])``, ``j`` likewise along y) shows the first
+        when ``i + j`` is even, the second when it is odd.
       checker_texture: ``(G, 2, 3)`` float32, the texture's two colours alone (MuJoCo
         multiplies them by the geom's colour, so a changed colour tints the checker).
-      checker_scale: ``(G, 2)`` float32, texture repeats per unit length along local x, y.
+      checker_scale: ``(G, 2)`` float32, checker squares per unit length along local x, y.
+      checker_offset: ``(G, 2)`` float32, where the texture's origin falls, in squares from
+        the plane's centre along x, y (it shifts the checker's phase).
       light_mode: ``(L,)`` int, mjtCamLight: 0 fixed to ``light_bodyid`` (position and
         direction in the body frame), 1 tracking the body's position, 2 tracking its subtree's
         centre of mass (both keep ``light_offset`` and ``light_dirs`` in the world frame);
@@ -77,6 +81,7 @@ class Scene:
     checker_rgb: np.ndarray
     checker_texture: np.ndarray
     checker_scale: np.ndarray
+    checker_offset: np.ndarray
     light_mode: np.ndarray
     light_bodyid: np.ndarray
     light_offset: np.ndarray
@@ -156,7 +161,7 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     Geoms of unsupported types (meshes, heightfields, SDFs) are skipped.
     """
     ids, types, sizes, rgbs, alphas = [], [], [], [], []
-    checker, checker_rgb, checker_texture, checker_scale = [], [], [], []
+    checker, checker_rgb, checker_texture, checker_scale, checker_offset = [], [], [], [], []
     for g in range(m.ngeom):
         gtype = int(m.geom_type[g])
         if int(m.geom_group[g]) not in geom_groups or not _geom_alpha_visible(m, g):
@@ -177,23 +182,30 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         )
         checker.append(is_checker)
         if is_checker:
+            # As measured with mujoco.Renderer (tests/test_render_mujoco.py), per axis: with
+            # texuniform (or an infinite size), a 2x2 checker's squares are 1 / texrepeat long
+            # and the texture's origin is texrepeat * size squares from the centre; without,
+            # texrepeat textures span the plane from its corner (squares size / texrepeat
+            # long, the origin texrepeat squares away). The texture's rows run against local
+            # y, so the square at the origin shows its bottom-left quadrant.
             img = _texture_rgb(m, tex)
             h, w = img.shape[:2]
-            texture = np.stack([img[h // 4, w // 4], img[h // 4, 3 * w // 4]])
+            texture = np.stack([img[3 * h // 4, w // 4], img[3 * h // 4, 3 * w // 4]])
             colours = texture * rgba[None, :3]
             repeat = np.asarray(m.mat_texrepeat[matid], np.float32)
-            if bool(m.mat_texuniform[matid]):
-                scale = repeat
-            else:
-                extent = np.where(m.geom_size[g, :2] > 0, 2 * m.geom_size[g, :2], 1.0)
-                scale = repeat / extent.astype(np.float32)
+            size = np.asarray(m.geom_size[g, :2], np.float32)
+            spread = (size > 0) & (not bool(m.mat_texuniform[matid]))
+            scale = np.where(spread, repeat / np.where(spread, size, 1.0), repeat)
+            offset = np.where(spread, repeat, repeat * size) * np.array([1.0, -1.0], np.float32)
             checker_rgb.append(colours.astype(np.float32))
             checker_texture.append(texture.astype(np.float32))
             checker_scale.append(scale.astype(np.float32))
+            checker_offset.append(offset.astype(np.float32))
         else:
             checker_rgb.append(np.zeros((2, 3), np.float32))
             checker_texture.append(np.zeros((2, 3), np.float32))
             checker_scale.append(np.ones(2, np.float32))
+            checker_offset.append(np.zeros(2, np.float32))
 
     light_active = np.asarray(m.light_active, bool) if m.nlight else np.zeros(0, bool)
     lights = np.flatnonzero(light_active)
@@ -216,6 +228,7 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         checker_rgb=np.asarray(checker_rgb, np.float32).reshape(-1, 2, 3),
         checker_texture=np.asarray(checker_texture, np.float32).reshape(-1, 2, 3),
         checker_scale=np.asarray(checker_scale, np.float32).reshape(-1, 2),
+        checker_offset=np.asarray(checker_offset, np.float32).reshape(-1, 2),
         light_mode=light_mode,
         light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
         light_offset=np.where(
