@@ -51,8 +51,9 @@ class Scene:
       checker_texture: ``(G, 2, 3)`` float32, the texture's two colours alone (MuJoCo
         multiplies them by the geom's colour, so a changed colour tints the checker).
       checker_scale: ``(G, 2)`` float32, checker squares per unit length along local x, y.
-      checker_offset: ``(G, 2)`` float32, where the texture's origin falls, in squares from
-        the plane's centre along x, y (it shifts the checker's phase).
+      checker_offset: ``(G, 2)`` float32 in [0, 2), where the texture's origin falls, in
+        squares from the plane's centre along x, y, modulo the pattern's two squares (it
+        shifts the checker's phase).
       light_mode: ``(L,)`` int, mjtCamLight: 0 fixed to ``light_bodyid`` (position and
         direction in the body frame), 1 tracking the body's position, 2 tracking its subtree's
         centre of mass (both keep ``light_offset`` and ``light_dirs`` in the world frame);
@@ -197,6 +198,7 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
             spread = (size > 0) & (not bool(m.mat_texuniform[matid]))
             scale = np.where(spread, repeat / np.where(spread, size, 1.0), repeat)
             offset = np.where(spread, repeat, repeat * size) * np.array([1.0, -1.0], np.float32)
+            offset = np.mod(offset, 2.0)  # the pattern repeats every two squares
             checker_rgb.append(colours.astype(np.float32))
             checker_texture.append(texture.astype(np.float32))
             checker_scale.append(scale.astype(np.float32))
