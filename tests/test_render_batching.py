@@ -80,3 +80,23 @@ def test_a_non_finite_pose_blanks_its_own_image_only():
         np.testing.assert_allclose(rgb[i], want[0], atol=1e-5)
         np.testing.assert_allclose(depth[i], want[1], rtol=1e-6)
         np.testing.assert_array_equal(ids[i], want[2])
+
+
+@pytest.mark.parametrize("camera, height, width, match", [
+    ('projection="orthographic" fovy="2"', 48, 64, "only perspective cameras"),
+    ('focal=".01 .01" sensorsize=".02 .015" resolution="64 48"', 48, 48, "width / height equal to the sensor"),
+    ('focal=".01 .012" sensorsize=".02 .015" resolution="64 48"', 48, 64, "equal focal lengths"),
+    ('focal=".01 .01" principal=".001 0" sensorsize=".02 .015" resolution="64 48"', 48, 64, "principal"),
+])
+def test_cameras_drawn_otherwise_by_mujoco_are_refused(camera, height, width, match):
+    """An orthographic camera, or intrinsics whose frustum is not the ``cam_fovy`` one at the
+    image's aspect ratio, would be drawn differently from MuJoCo's renderer: a clear error
+    before anything compiles (a sensor of the image's aspect ratio is accepted)."""
+    import mujoco
+
+    xml = f'<mujoco><worldbody><geom type="sphere" size=".1"/><camera pos="0 0 2" {camera}/></worldbody></mujoco>'
+    model = mujoco.MjModel.from_xml_string(xml)
+    with pytest.raises(ValueError, match=match):
+        Camera(model, height=height, width=width)
+    if "sensorsize" in camera and "principal" not in camera and '".01 .01"' in camera:
+        Camera(model, height=48, width=64)

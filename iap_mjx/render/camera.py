@@ -133,6 +133,7 @@ class Camera:
         self.config = CameraConfig(camera_id=camera_id, height=height, width=width, **config)
         if camera_id >= mj_model.ncam:
             raise ValueError(f"camera_id must be < the model's ncam={mj_model.ncam}, got {camera_id}")
+        _check_projection(mj_model, camera_id, height, width)
         self.scene = scene_lib.build_scene(mj_model, self.config.geom_groups)
         self.fovy = float(mj_model.cam_fovy[camera_id])
         self.zfar = float(self.scene.zfar)
@@ -720,6 +721,24 @@ class Camera:
         inv_len = jax.lax.rsqrt(x * x + y * y + 1.0)
         z = (x * cam_mat[2, 0] + y * cam_mat[2, 1] - cam_mat[2, 2]) * inv_len
         return [jnp.clip(sc.sky_mid[c] + sc.sky_slope[c] * z, 0.0, 1.0) for c in range(3)]
+
+
+def _check_projection(mj_model: mujoco.MjModel, camera_id: int, height: int, width: int) -> None:
+    """Refuses model cameras this camera would draw differently from MuJoCo's renderer: it
+    draws a perspective frustum from ``cam_fovy`` and the image's aspect ratio."""
+    projection = int(mj_model.cam_projection[camera_id])
+    if projection != int(mujoco.mjtProjection.mjPROJ_PERSPECTIVE):
+        raise ValueError(f"camera_id={camera_id} has projection {mujoco.mjtProjection(projection).name}; "
+                         "only perspective cameras (mjPROJ_PERSPECTIVE) are supported")
+    sensor = np.asarray(mj_model.cam_sensorsize[camera_id], np.float64)
+    if np.any(sensor > 0):  # intrinsics (focal, principal, sensorsize) set the frustum
+        fx, fy, cx, cy = (float(v) for v in mj_model.cam_intrinsic[camera_id])
+        if not (fx == fy and cx == 0 and cy == 0
+                and math.isclose(sensor[0] / sensor[1], width / height, rel_tol=1e-6)):
+            raise ValueError(
+                f"camera_id={camera_id} has intrinsics (sensorsize {tuple(sensor)}, focal {(fx, fy)}, "
+                f"principal {(cx, cy)}): supported only with equal focal lengths, principal (0, 0) "
+                f"and width / height equal to the sensor's {sensor[0] / sensor[1]:.6g}, got {width}x{height}")
 
 
 def _floor_int(a):
