@@ -85,3 +85,42 @@ def test_checker_floor_matches_mujoco_renderer():
         mujoco_white = ref["rgb"][0, camera_id][..., 0] > 127
         agreement = float(np.mean((ours_white == mujoco_white)[plane]))
         assert agreement >= 0.97, (camera_id, agreement)
+
+
+ALPHA_XML = """
+<mujoco>
+  <asset>
+    <material name="opaque" rgba="0 1 0 1"/>
+    <material name="clear" rgba="0 1 0 0"/>
+  </asset>
+  <worldbody>
+    <light pos="0 0 3" dir="0 0 -1" directional="true"/>
+    <geom type="plane" size="0 0 1" rgba=".2 .3 .4 1"/>
+    <geom type="box" size=".3 .3 .3" pos="-.4 0 .3" rgba="1 0 0 1"/>
+    <geom type="box" size=".3 .3 .3" pos=".4 0 .3" rgba="0 0 1 1"/>
+    <geom name="hidden" type="box" size=".2 .2 .2" pos="-.4 -1 .5" material="opaque" rgba="1 1 0 0"/>
+    <geom name="shown" type="box" size=".2 .2 .2" pos=".4 -1 .5" material="clear" rgba="1 1 0 1"/>
+    <camera pos="0 -3 1.5" xyaxes="1 0 0 0 .5 1" fovy="45"/>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_geom_visibility_follows_the_colour_mujoco_draws():
+    """A geom is drawn unless the rgba MuJoCo's renderer gives it (the material's only while
+    the geom keeps the default rgba) has alpha 0: a geom of rgba alpha 0 with an opaque
+    material is not drawn, one of rgba alpha 1 with a clear material is (``mj_ray`` tests
+    the material's alpha alone, and sees the other way round). Segmentation against MuJoCo's
+    renderer."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(ALPHA_XML)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    ref = render_compare.reference_frames("alpha", [(model, data)], [0], SIZE, SIZE, xml=ALPHA_XML)
+    cam = Camera(model, height=SIZE, width=SIZE)
+    _, ids = (np.asarray(a) for a in _trace(cam, mjx.put_data(model, data)))
+    ref_ids = ref["segmentation"][0, 0]
+    hidden, shown = (mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in ("hidden", "shown"))
+    assert np.sum(ref_ids == shown) > 50 and not np.any(ref_ids == hidden)
+    assert float(np.mean(ids == ref_ids)) >= MIN_SEGMENTATION_AGREEMENT

@@ -41,8 +41,9 @@ class Scene:
       geom_rgb: ``(G, 3)`` float32, the colour MuJoCo's renderer uses (material colour when the
         geom keeps the default rgba, as ``mjv`` does).
       geom_alpha: ``(G,)`` float32 in (0, 1], the opacity from the same rgba (geoms of alpha 0
-        are not drawn at all, as ``mj_ray`` skips them); a partly transparent geom is drawn
-        over the sky behind it.
+        are not drawn at all, as MuJoCo's renderer shows them; ``mj_ray`` differs when the
+        geom's and its material's alpha disagree: it tests the material's alone); a partly
+        transparent geom is drawn over the sky behind it (not over the geoms behind it).
       checker: ``(G,)`` bool, geom is a plane with a 2-D texture drawn as a 2x2 checker.
       checker_rgb: ``(G, 2, 3)`` float32, the two checker colours (texture quadrant centres,
         times the material colour): square ``(i, j)`` of the checker (``i = floor(x *
@@ -109,19 +110,13 @@ class Scene:
 
 
 def _geom_colour(m: mujoco.MjModel, geom: int) -> np.ndarray:
+    """``(4,)`` float32, the rgba MuJoCo's renderer draws ``geom`` with: its material's if it
+    has one and keeps the default rgba (compared exactly, as ``mjv`` does), else its own."""
     rgba = np.asarray(m.geom_rgba[geom], np.float32)
     matid = int(m.geom_matid[geom])
-    if matid >= 0 and np.allclose(rgba, _DEFAULT_GEOM_RGBA):
+    if matid >= 0 and np.array_equal(rgba, _DEFAULT_GEOM_RGBA):
         rgba = np.asarray(m.mat_rgba[matid], np.float32)
     return rgba
-
-
-def _geom_alpha_visible(m: mujoco.MjModel, geom: int) -> bool:
-    """mj_ray's rule: a geom with a transparent material or rgba is not hit."""
-    matid = int(m.geom_matid[geom])
-    if matid >= 0:
-        return float(m.mat_rgba[matid, 3]) != 0.0
-    return float(m.geom_rgba[geom, 3]) != 0.0
 
 
 def _texture_rgb(m: mujoco.MjModel, tex: int) -> np.ndarray:
@@ -165,11 +160,11 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     checker, checker_rgb, checker_texture, checker_scale, checker_offset = [], [], [], [], []
     for g in range(m.ngeom):
         gtype = int(m.geom_type[g])
-        if int(m.geom_group[g]) not in geom_groups or not _geom_alpha_visible(m, g):
-            continue
-        if gtype not in SUPPORTED_TYPES:
+        if int(m.geom_group[g]) not in geom_groups or gtype not in SUPPORTED_TYPES:
             continue
         rgba = _geom_colour(m, g)
+        if rgba[3] == 0.0:
+            continue
         ids.append(g)
         types.append(gtype)
         sizes.append(np.asarray(m.geom_size[g], np.float32))
