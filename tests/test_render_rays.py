@@ -10,6 +10,7 @@ from __future__ import annotations
 
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
@@ -154,3 +155,20 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
     np.testing.assert_array_equal(np.asarray(want[1])[0], np.asarray(single[1]))
     np.testing.assert_allclose(np.asarray(want[0]), np.asarray(got[0]), rtol=DEPTH_RTOL)
     np.testing.assert_allclose(np.asarray(want[0])[0], np.asarray(single[0]), rtol=DEPTH_RTOL)
+
+
+def test_first_pairs_lists_the_first_true_entries_sorted():
+    """``_first_pairs`` against ``np.flatnonzero``: the first ``budget`` true entries in order,
+    the valid mask, and a list that stays sorted through its empty slots (the tile scatter
+    is told its indices are sorted)."""
+    from iap_mjx.render.camera import _first_pairs
+
+    rng = np.random.default_rng(0)
+    first_pairs = jax.jit(_first_pairs, static_argnums=1)
+    for n, budget, density in ((700, 64, 0.05), (700, 16, 0.05), (97, 40, 0.2), (128, 8, 0.0)):
+        overlap = rng.uniform(size=n) < density
+        pair, valid = (np.asarray(a) for a in first_pairs(jnp.asarray(overlap), budget))
+        want = np.flatnonzero(overlap)[:budget]
+        np.testing.assert_array_equal(valid, np.arange(budget) < len(want))
+        np.testing.assert_array_equal(pair[valid], want)
+        assert np.all(np.diff(pair) >= 0), (n, budget, pair)

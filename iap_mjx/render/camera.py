@@ -751,9 +751,10 @@ def _floor_int(a):
 def _first_pairs(overlap, budget: int):
     """The indices of the first ``budget`` true entries of ``overlap`` ``(P,)`` bool, in order,
     ``(budget,)`` int32, and which of those slots hold one (``(budget,)`` bool; empty slots
-    hold 0). Ranks come from a prefix sum done as two small triangular matmuls (exact for
-    counts below 2**24; a sort-based ``top_k`` or XLA's ``cumsum`` costs several times more
-    on CPU), then one scatter."""
+    hold ``P - 1``, so the list stays sorted, as the tile scatter promises XLA). Ranks come
+    from a prefix sum done as two small triangular matmuls (exact for counts below 2**24; a
+    sort-based ``top_k`` or XLA's ``cumsum`` costs several times more on CPU), then one
+    scatter."""
     n = overlap.shape[0]
     row = next(r for r in (64, 32, 16, 8, 4, 2, 1) if n % r == 0)
     x = overlap.astype(jnp.float32).reshape(n // row, row)
@@ -761,7 +762,7 @@ def _first_pairs(overlap, budget: int):
     before = jnp.asarray(np.tril(np.ones((n // row,) * 2, np.float32), -1)) @ jnp.sum(x, axis=1)
     rank = (within + before[:, None]).reshape(n).astype(jnp.int32) - 1
     slot = jnp.where(overlap, rank, budget)  # past the end: dropped
-    pair = jnp.zeros(budget, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    pair = jnp.full(budget, n - 1, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
     return pair, jnp.arange(budget) < jnp.sum(overlap)
 
 
