@@ -146,7 +146,7 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
                     batch_chunk=2, tile=8)
     assert culled._culled_groups, "walker's capsules should be culled"
     frames = jax.vmap(culled._frames)(jax.vmap(culled._poses)(batch))
-    _, _, overflow = jax.jit(jax.vmap(culled._trace_culled))(frames)
+    _, overflow = jax.jit(jax.vmap(culled._trace_culled_keys))(frames)
     assert bool(np.all(overflow)) == overflows, "the test should reach the intended path"
     want = jax.jit(jax.vmap(dense.trace))(batch)
     got = jax.jit(jax.vmap(culled.trace))(batch)

@@ -51,7 +51,7 @@ class CameraConfig:
       height, width: image size in pixels.
       geom_groups: geom groups drawn (MuJoCo's renderer shows 0, 1, 2 by default).
       shading: ``"lambert"`` (ambient + headlight + the model's directional, spot and point
-        lights, without shadows, specular or attenuation)
+        lights, without shadows, specular, emission or attenuation)
         or ``"flat"`` (the geom colour as is).
       sky: where no geom is hit: ``"skybox"`` (a vertical gradient fitted to the model's skybox
         texture) or ``"color"`` (``background_color``). A per-call ``background`` image given
@@ -59,8 +59,9 @@ class CameraConfig:
       background_color: RGB in [0, 1] for ``sky="color"``.
       checker_floor: draw textured planes as dm_control's 2x2 checker (else flat material colour).
       batch_chunk: under ``vmap``, images rendered together per step of the loop over the batch
-        (small enough for the intermediates to stay in cache); ``None`` (default): 4 up to
-        10,000 pixels per image, fewer for larger images (one from 40,000 pixels).
+        (small enough for the intermediates to stay in cache); ``None`` (default):
+        ``40,000 // pixels`` per image, between 1 and 4 (4 up to 10,000 pixels, 1 above
+        20,000).
       tile: side in pixels of the square screen tiles used for culling.
       cull_pairs_per_tile: budget of (tile, geom) pairs per culled type group, per tile on
         average (types with at least 3 geoms, planes excepted, are traced only on the tiles
@@ -125,7 +126,10 @@ class Camera:
         metres;
       - a pixel whose ray hits nothing closer than the far plane (``vis.map.zfar * extent``, as
         MuJoCo's renderer clips) gets the background colour and depth equal to the far plane
-        ``self.zfar`` (finite, so depth is safe to feed to a network).
+        ``self.zfar`` (finite, so depth is safe to feed to a network);
+      - there is no near plane: a surface closer than ``vis.map.znear * extent``, which
+        MuJoCo's renderer clips away, is drawn (as ``mj_ray`` sees it); surfaces are seen
+        from outside only (a camera inside a geom does not see that geom).
     """
 
     def __init__(self, mj_model: mujoco.MjModel, camera_id: int = 0, height: int = 100,
@@ -442,12 +446,6 @@ class Camera:
             for k in range(len(self.scene.geom_ids))]
         return jnp.min(jnp.stack(keys), axis=0)
 
-    def _trace_culled(self, frames):
-        """:meth:`_trace_culled_keys` decoded: depth and geom index ``(H, W)`` and ``overflow``."""
-        keys, overflow = self._trace_culled_keys(frames)
-        depth, best = self._decode_image(keys)
-        return depth, best, overflow
-
     def _decode_image(self, keys):
         """Keys of the image padded to whole tiles -> depth and geom index ``(H, W)``."""
         cfg = self.config
@@ -525,6 +523,9 @@ class Camera:
         ends = centre[:, None, :] + jnp.asarray([1.0, -1.0])[None, :, None] * half * axis[:, None, :]
         near = -ends[..., 2] - radius
         far = -ends[..., 2] + radius
+        # a sphere within 1e-6 m of the camera plane counts as reaching it (its projected
+        # box would be unbounded); boxes grow by 1e-4 in image coordinates (about 1e-4 rad,
+        # far above the float32 rounding of the bounds) so rounding never culls a hit
         crosses = jnp.any(near <= 1e-6, axis=1) & jnp.any(far > 0.0, axis=1)
         behind = jnp.all(far <= 0.0, axis=1)
         safe_near = jnp.maximum(near, 1e-6)

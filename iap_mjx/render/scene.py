@@ -71,7 +71,7 @@ class Scene:
       headlight_diffuse: ``(3,)`` float32 (zero if the headlight is off).
       sky_mid, sky_slope: ``(3,)`` float32, sky colour ``mid + slope * z`` for a world ray
         direction with unit ``z`` (fitted to the model's skybox texture; flat if it has none).
-      znear, zfar: the clip planes of MuJoCo's renderer in metres (``vis.map`` times extent).
+      zfar: the far clip plane of MuJoCo's renderer in metres (``vis.map.zfar`` times extent).
     """
 
     geom_ids: np.ndarray
@@ -96,7 +96,6 @@ class Scene:
     headlight_diffuse: np.ndarray
     sky_mid: np.ndarray
     sky_slope: np.ndarray
-    znear: float
     zfar: float
 
     def digest(self) -> str:
@@ -246,6 +245,5 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         headlight_diffuse=np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),
         sky_mid=sky_mid,
         sky_slope=sky_slope,
-        znear=float(m.vis.map.znear) * extent,
         zfar=float(m.vis.map.zfar) * extent,
     )
