@@ -100,3 +100,31 @@ def test_cameras_drawn_otherwise_by_mujoco_are_refused(camera, height, width, ma
         Camera(model, height=height, width=width)
     if "sensorsize" in camera and "principal" not in camera and '".01 .01"' in camera:
         Camera(model, height=48, width=64)
+
+
+def test_bad_settings_and_inputs_are_refused_with_the_setting_named():
+    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    cam = Camera(model, height=24, width=32)
+    with pytest.raises(ValueError, match="background must be floats"):
+        cam.render(mjx.put_data(model, data), background=jnp.zeros((24, 32, 3), jnp.uint8))
+    for setting, value in (("cull_pairs_per_tile", float("nan")), ("cull_pairs_per_tile", float("inf")),
+                           ("geom_groups", 1), ("background_color", (0.0, 0.5, 255.0))):
+        with pytest.raises(ValueError, match=setting):
+            Camera(model, **{setting: value})
+
+
+def test_a_sky_row_outside_the_stack_is_clamped():
+    """``sky_texture=(stack, row)`` with a row past either end draws the end row (the texel
+    gather trusts its indices: unclamped, it would read outside the stack)."""
+    from iap_mjx.render import sky
+
+    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    frames = np.random.default_rng(2).integers(0, 256, (3, 8, 8, 3), dtype=np.uint8)
+    stack = sky.pack_rgb(jnp.asarray(frames))
+    cam = Camera(model, height=12, width=16)
+    draw = jax.jit(lambda d, r: cam.render(d, sky_texture=(stack, r))[0])
+    mx_data = mjx.put_data(model, data)
+    first, last = (np.asarray(draw(mx_data, jnp.int32(r))) for r in (0, 2))
+    assert not np.array_equal(first, last), "the sky should be on screen"
+    np.testing.assert_array_equal(np.asarray(draw(mx_data, jnp.int32(-5))), first)
+    np.testing.assert_array_equal(np.asarray(draw(mx_data, jnp.int32(1000))), last)

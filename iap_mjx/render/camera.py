@@ -88,12 +88,14 @@ class CameraConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
-        if not all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups):
-            raise ValueError(f"geom_groups must be ints in 0..5, got {self.geom_groups!r}")
+        if not (isinstance(self.geom_groups, (tuple, list))
+                and all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups)):
+            raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
         if not isinstance(self.tile, int) or self.tile < 1:
             raise ValueError(f"tile must be a positive int, got {self.tile!r}")
-        if not isinstance(self.cull_pairs_per_tile, (int, float)) or self.cull_pairs_per_tile < 0:
-            raise ValueError(f"cull_pairs_per_tile must be a number >= 0, got {self.cull_pairs_per_tile!r}")
+        if (not isinstance(self.cull_pairs_per_tile, (int, float))
+                or not math.isfinite(self.cull_pairs_per_tile) or self.cull_pairs_per_tile < 0):
+            raise ValueError(f"cull_pairs_per_tile must be a finite number >= 0, got {self.cull_pairs_per_tile!r}")
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, 40_000 // (self.height * self.width))))
         if not isinstance(self.batch_chunk, int) or self.batch_chunk < 1:
@@ -102,8 +104,9 @@ class CameraConfig:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.sky not in SKIES:
             raise ValueError(f"sky must be one of {SKIES}, got {self.sky!r}")
-        if len(self.background_color) != 3:
-            raise ValueError(f"background_color must be 3 floats, got {self.background_color!r}")
+        if not (isinstance(self.background_color, (tuple, list)) and len(self.background_color) == 3
+                and all(isinstance(c, (int, float)) and 0 <= c <= 1 for c in self.background_color)):
+            raise ValueError(f"background_color must be 3 numbers in [0, 1], got {self.background_color!r}")
         object.__setattr__(self, "geom_groups", tuple(self.geom_groups))
         object.__setattr__(self, "background_color", tuple(float(c) for c in self.background_color))
 
@@ -213,7 +216,7 @@ class Camera:
         Args:
           data: an ``mjx.Data`` after kinematics (``geom_xpos``, ``geom_xmat``, ``cam_xpos``,
             ``cam_xmat``; ``xpos``, ``xmat``, ``subtree_com`` of the lights' bodies).
-          background: optional ``(H, W, 3)`` image in [0, 1] shown where nothing is hit
+          background: optional ``(H, W, 3)`` float image in [0, 1] shown where nothing is hit
             (e.g. a Distracting Control Suite frame); replaces the sky.
           geom_rgb: optional ``(G, 3)`` colours replacing the model's (colour perturbations),
             one row per ``self.geom_ids`` entry; a checker floor's texture is multiplied by
@@ -223,8 +226,8 @@ class Camera:
             the distraction layer keeps its frames), seen by ray direction on every face of
             the cube as MuJoCo draws a square skybox texture (``sky.py``); replaces the sky
             (``background`` wins). Or a pair ``(stack, row)``: packed frames ``(N, S * S)``
-            int32 and the ``()`` int32 row shown (under ``vmap``, an unbatched stack is read
-            in place, never copied per image).
+            int32 and the ``()`` int32 row shown, clamped to ``[0, N)`` (under ``vmap``, an
+            unbatched stack is read in place, never copied per image).
 
         Returns:
           rgb ``(H, W, 3)`` float32 in [0, 1] and depth ``(H, W)`` float32 in metres.
@@ -241,9 +244,10 @@ class Camera:
         cfg = self.config
         if background is None:
             background = jnp.zeros((0,), jnp.float32)
-        elif tuple(background.shape) != (cfg.height, cfg.width, 3):
-            raise ValueError(
-                f"background must have shape {(cfg.height, cfg.width, 3)}, got {background.shape}")
+        elif (tuple(background.shape) != (cfg.height, cfg.width, 3)
+              or not jnp.issubdtype(background.dtype, jnp.floating)):
+            raise ValueError(f"background must be floats in [0, 1] of shape {(cfg.height, cfg.width, 3)}, "
+                             f"got {background.dtype} {background.shape}")
         if geom_rgb is None:
             geom_rgb = jnp.zeros((0,), jnp.float32)
         elif tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
@@ -261,7 +265,8 @@ class Camera:
             if jnp.shape(sky_frame) != ():
                 raise ValueError(f"sky_texture (stack, row): the row must be a scalar int, got shape "
                                  f"{jnp.shape(sky_frame)}")
-            sky_frame = jnp.asarray(sky_frame, jnp.int32)
+            # clamped: the texel gather trusts its indices (a row past the stack reads past it)
+            sky_frame = jnp.clip(jnp.asarray(sky_frame, jnp.int32), 0, sky_texture.shape[0] - 1)
         elif sky_texture is None:
             sky_texture = jnp.zeros((0, 1), jnp.int32)
         elif (sky_texture.ndim == 3 and sky_texture.shape[0] == sky_texture.shape[1]
