@@ -172,3 +172,46 @@ def test_first_pairs_lists_the_first_true_entries_sorted():
         np.testing.assert_array_equal(valid, np.arange(budget) < len(want))
         np.testing.assert_array_equal(pair[valid], want)
         assert np.all(np.diff(pair) >= 0), (n, budget, pair)
+
+
+LIGHTS_XML = """
+<mujoco>
+  <worldbody>
+    <light name="world" pos="0 0 3" dir="0 .3 -1"/>
+    <body name="arm" pos=".2 0 1">
+      <joint type="ball"/>
+      <geom type="capsule" size=".05 .3" fromto="0 0 0 .6 0 0" mass="1"/>
+      <light name="fixed" mode="fixed" pos=".1 .2 .3" dir="1 0 -1"/>
+      <light name="track" mode="track" pos=".1 .2 .3" dir="0 1 -1"/>
+      <light name="trackcom" mode="trackcom" pos=".1 .2 .3" dir="1 1 -1"/>
+      <light name="target" mode="targetbody" target="hand" pos="0 .2 .3" dir="0 0 -1"/>
+      <light name="targetcom" mode="targetbodycom" target="arm" pos=".2 0 .5" dir="0 0 -1"/>
+      <light name="no_target" mode="targetbody" pos="-.1 0 .2" dir="0 1 0"/>
+      <body name="hand" pos=".6 0 0">
+        <joint type="hinge" axis="0 1 0"/>
+        <geom type="sphere" size=".1" mass=".5"/>
+      </body>
+    </body>
+    <camera pos="0 -3 1.5" xyaxes="1 0 0 0 .5 1"/>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_lights_are_placed_as_mj_camlight_places_them():
+    """Every light mode (fixed, tracking the body or its subtree's centre of mass, aimed at a
+    target body or its subtree's centre of mass, a target mode without a target) at random
+    poses: the camera's light positions and directions are MuJoCo's ``light_xpos`` and
+    ``light_xdir`` (from ``mj_forward``), in the camera frame."""
+    model = mujoco.MjModel.from_xml_string(LIGHTS_XML)
+    cam = Camera(model)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        data = mujoco.MjData(model)
+        quat = rng.normal(size=4)
+        data.qpos[:] = np.concatenate([quat / np.linalg.norm(quat), rng.uniform(-1, 1, 1)])
+        mujoco.mj_forward(model, data)
+        position, direction = (np.asarray(a) for a in cam._lights(cam._poses(mjx.put_data(model, data))))
+        rot = data.cam_xmat[0].reshape(3, 3)
+        np.testing.assert_allclose(position, (data.light_xpos - data.cam_xpos[0]) @ rot, atol=1e-5)
+        np.testing.assert_allclose(direction, data.light_xdir @ rot, atol=1e-5)

@@ -305,6 +305,9 @@ class Camera:
             "light_body_pos": data.xpos[jnp.asarray(sc.light_bodyid)],
             "light_body_mat": data.xmat[jnp.asarray(sc.light_bodyid)],
             "light_body_com": data.subtree_com[jnp.asarray(sc.light_bodyid)],
+            **({"light_target_pos": data.xpos[jnp.asarray(sc.light_targetbodyid)],
+                "light_target_com": data.subtree_com[jnp.asarray(sc.light_targetbodyid)]}
+               if np.any(sc.light_mode >= 3) else {}),
         }
 
     def _batchable(self, colour: bool):
@@ -704,13 +707,18 @@ class Camera:
             return jnp.zeros((0, 3)), jnp.zeros((0, 3))
         mats = poses["light_body_mat"]
         offset = jnp.asarray(sc.light_offset)
-        fixed = jnp.asarray(sc.light_mode == 0)[:, None]
+        mode = sc.light_mode
+        fixed = jnp.asarray((mode == 0) | (mode >= 3))[:, None]  # placed in the body frame
         world_pos = jnp.where(
             fixed, poses["light_body_pos"] + jnp.einsum("lij,lj->li", mats, offset),
-            jnp.where(jnp.asarray(sc.light_mode == 2)[:, None], poses["light_body_com"],
+            jnp.where(jnp.asarray(mode == 2)[:, None], poses["light_body_com"],
                       poses["light_body_pos"]) + offset)
         world_dir = jnp.where(fixed, jnp.einsum("lij,lj->li", mats, jnp.asarray(sc.light_dirs)),
                               jnp.asarray(sc.light_dirs))
+        if np.any(mode >= 3):  # aimed at the target body (3) or its subtree's centre of mass (4)
+            target = jnp.where(jnp.asarray(mode == 4)[:, None], poses["light_target_com"],
+                               poses["light_target_pos"])
+            world_dir = jnp.where(jnp.asarray(mode >= 3)[:, None], target - world_pos, world_dir)
         world_dir = world_dir / jnp.linalg.norm(world_dir, axis=-1, keepdims=True)
         cam_mat = poses["cam_mat"]
         return (world_pos - poses["cam_pos"]) @ cam_mat, world_dir @ cam_mat

@@ -55,14 +55,18 @@ class Scene:
       checker_offset: ``(G, 2)`` float32 in [0, 2), where the texture's origin falls, in
         squares from the plane's centre along x, y, modulo the pattern's two squares (it
         shifts the checker's phase).
-      light_mode: ``(L,)`` int, mjtCamLight: 0 fixed to ``light_bodyid`` (position and
-        direction in the body frame), 1 tracking the body's position, 2 tracking its subtree's
-        centre of mass (both keep ``light_offset`` and ``light_dirs`` in the world frame);
-        target modes are drawn as tracking modes.
+      light_mode: ``(L,)`` int, mjtCamLight as ``mj_camlight`` reads it: 0 fixed to
+        ``light_bodyid`` (position and direction in the body frame), 1 tracking the body's
+        position, 2 tracking its subtree's centre of mass (both keep ``light_offset`` and
+        ``light_dirs`` in the world frame), 3 and 4 placed as 0 and aimed at
+        ``light_targetbodyid`` or its subtree's centre of mass (a target mode without a
+        target body is 0).
       light_bodyid: ``(L,)`` int.
-      light_offset: ``(L, 3)`` float32, position in the body frame (mode 0) or offset in the
-        world frame from the body (mode 1) or subtree centre of mass (mode 2).
-      light_dirs: ``(L, 3)`` float32, direction the light shines (body frame for mode 0).
+      light_targetbodyid: ``(L,)`` int, the body modes 3 and 4 aim at (0 for other modes).
+      light_offset: ``(L, 3)`` float32, position in the body frame (modes 0, 3, 4) or offset
+        in the world frame from the body (mode 1) or subtree centre of mass (mode 2).
+      light_dirs: ``(L, 3)`` float32, direction the light shines (body frame for mode 0;
+        unused by modes 3 and 4).
       light_directional: ``(L,)`` bool; other lights are spot lights with
         ``light_cos_cutoff`` ``(L,)`` and ``light_exponent`` ``(L,)`` (a point light has a
         cutoff of 180 degrees). Attenuation is ignored.
@@ -86,6 +90,7 @@ class Scene:
     checker_offset: np.ndarray
     light_mode: np.ndarray
     light_bodyid: np.ndarray
+    light_targetbodyid: np.ndarray
     light_offset: np.ndarray
     light_dirs: np.ndarray
     light_directional: np.ndarray
@@ -209,9 +214,11 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     ambient = np.asarray(headlight.ambient, np.float32) * float(bool(headlight.active))
     ambient = ambient + np.asarray(m.light_ambient[lights], np.float32).sum(0) if lights.size else ambient
     light_type = np.asarray(m.light_type[lights], np.int32)
-    # target modes (3, 4) drawn as the corresponding tracking modes
     light_mode = np.asarray(m.light_mode[lights], np.int32)
-    light_mode = np.where(light_mode >= 3, light_mode - 2, light_mode).astype(np.int32)
+    light_target = np.asarray(m.light_targetbodyid[lights], np.int32)
+    aimed = light_mode >= int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY)
+    light_mode = np.where(aimed & (light_target < 0), 0, light_mode).astype(np.int32)
+    in_body_frame = (light_mode == 0) | (light_mode >= 3)
     sky_mid, sky_slope = _sky(m)
     extent = float(m.stat.extent)
     return Scene(
@@ -227,11 +234,12 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         checker_offset=np.asarray(checker_offset, np.float32).reshape(-1, 2),
         light_mode=light_mode,
         light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
+        light_targetbodyid=np.where(light_mode >= 3, light_target, 0).astype(np.int32),
         light_offset=np.where(
-            (light_mode == 0)[:, None], m.light_pos[lights],
+            in_body_frame[:, None], m.light_pos[lights],
             np.where((light_mode == 2)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
         ).astype(np.float32).reshape(-1, 3),
-        light_dirs=np.where((light_mode == 0)[:, None], m.light_dir[lights],
+        light_dirs=np.where(in_body_frame[:, None], m.light_dir[lights],
                             m.light_dir0[lights]).astype(np.float32).reshape(-1, 3),
         light_directional=light_type == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL),
         light_cos_cutoff=np.where(
