@@ -17,16 +17,8 @@ import pytest
 from mujoco import mjx
 
 from iap_mjx.render import Camera
-from iap_mjx.viz.render_compare import suite_states
+from iap_mjx.viz.render_compare import TASKS, suite_states
 
-TASKS = [
-    ("cheetah", "run"),
-    ("walker", "walk"),
-    ("cartpole", "swingup"),
-    ("ball_in_cup", "catch"),
-    ("reacher", "easy"),
-    ("finger", "spin"),
-]
 VISIBLE_GROUPS = np.array([1, 1, 1, 0, 0, 0], np.uint8)
 DEPTH_RTOL = 1e-4
 MIN_AGREEMENT = 0.995

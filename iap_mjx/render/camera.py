@@ -506,9 +506,11 @@ class Camera:
 
     def _tile_overlap(self, frames, members):
         """``(tiles, len(members))`` bool: may the geom cover a pixel centre of the tile?
-        Each geom is bounded by spheres (the two end spheres of a capsule or cylinder, one
-        sphere otherwise), each sphere by a conservative box in image coordinates
-        ``x / -z, y / -z``; a geom reaching the camera plane covers everything."""
+        Each geom is bounded by one sphere, or (capsule, cylinder) by the convex hull of its
+        two end spheres (the capsule, which holds the cylinder); each sphere by a conservative
+        box in image coordinates ``x / -z, y / -z``, and the hull by the box around its
+        spheres' boxes (in front of the camera, a convex hull projects into the hull of the
+        projections); a geom reaching the camera plane covers everything."""
         sc = self.scene
         idx = jnp.asarray(members)
         centre = frames["centre"][idx]
