@@ -10,22 +10,15 @@ from __future__ import annotations
 
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
 from mujoco import mjx
 
 from iap_mjx.render import Camera
-from iap_mjx.viz.render_compare import suite_states
+from iap_mjx.viz.render_compare import TASKS, suite_states
 
-TASKS = [
-    ("cheetah", "run"),
-    ("walker", "walk"),
-    ("cartpole", "swingup"),
-    ("ball_in_cup", "catch"),
-    ("reacher", "easy"),
-    ("finger", "spin"),
-]
 VISIBLE_GROUPS = np.array([1, 1, 1, 0, 0, 0], np.uint8)
 DEPTH_RTOL = 1e-4
 MIN_AGREEMENT = 0.995
@@ -145,7 +138,7 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
                     batch_chunk=2, tile=8)
     assert culled._culled_groups, "walker's capsules should be culled"
     frames = jax.vmap(culled._frames)(jax.vmap(culled._poses)(batch))
-    _, _, overflow = jax.jit(jax.vmap(culled._trace_culled))(frames)
+    _, overflow = jax.jit(jax.vmap(culled._trace_culled_keys))(frames)
     assert bool(np.all(overflow)) == overflows, "the test should reach the intended path"
     want = jax.jit(jax.vmap(dense.trace))(batch)
     got = jax.jit(jax.vmap(culled.trace))(batch)
@@ -154,3 +147,63 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
     np.testing.assert_array_equal(np.asarray(want[1])[0], np.asarray(single[1]))
     np.testing.assert_allclose(np.asarray(want[0]), np.asarray(got[0]), rtol=DEPTH_RTOL)
     np.testing.assert_allclose(np.asarray(want[0])[0], np.asarray(single[0]), rtol=DEPTH_RTOL)
+
+
+def test_first_pairs_lists_the_first_true_entries_sorted():
+    """``_first_pairs`` against ``np.flatnonzero``: the first ``budget`` true entries in order,
+    the valid mask, and a list that stays sorted through its empty slots (the tile scatter
+    is told its indices are sorted)."""
+    from iap_mjx.render.camera import _first_pairs
+
+    rng = np.random.default_rng(0)
+    first_pairs = jax.jit(_first_pairs, static_argnums=1)
+    for n, budget, density in ((700, 64, 0.05), (700, 16, 0.05), (97, 40, 0.2), (128, 8, 0.0)):
+        overlap = rng.uniform(size=n) < density
+        pair, valid = (np.asarray(a) for a in first_pairs(jnp.asarray(overlap), budget))
+        want = np.flatnonzero(overlap)[:budget]
+        np.testing.assert_array_equal(valid, np.arange(budget) < len(want))
+        np.testing.assert_array_equal(pair[valid], want)
+        assert np.all(np.diff(pair) >= 0), (n, budget, pair)
+
+
+LIGHTS_XML = """
+<mujoco>
+  <worldbody>
+    <light name="world" pos="0 0 3" dir="0 .3 -1"/>
+    <body name="arm" pos=".2 0 1">
+      <joint type="ball"/>
+      <geom type="capsule" size=".05 .3" fromto="0 0 0 .6 0 0" mass="1"/>
+      <light name="fixed" mode="fixed" pos=".1 .2 .3" dir="1 0 -1"/>
+      <light name="track" mode="track" pos=".1 .2 .3" dir="0 1 -1"/>
+      <light name="trackcom" mode="trackcom" pos=".1 .2 .3" dir="1 1 -1"/>
+      <light name="target" mode="targetbody" target="hand" pos="0 .2 .3" dir="0 0 -1"/>
+      <light name="targetcom" mode="targetbodycom" target="arm" pos=".2 0 .5" dir="0 0 -1"/>
+      <light name="no_target" mode="targetbody" pos="-.1 0 .2" dir="0 1 0"/>
+      <body name="hand" pos=".6 0 0">
+        <joint type="hinge" axis="0 1 0"/>
+        <geom type="sphere" size=".1" mass=".5"/>
+      </body>
+    </body>
+    <camera pos="0 -3 1.5" xyaxes="1 0 0 0 .5 1"/>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_lights_are_placed_as_mj_camlight_places_them():
+    """Every light mode (fixed, tracking the body or its subtree's centre of mass, aimed at a
+    target body or its subtree's centre of mass, a target mode without a target) at random
+    poses: the camera's light positions and directions are MuJoCo's ``light_xpos`` and
+    ``light_xdir`` (from ``mj_forward``), in the camera frame."""
+    model = mujoco.MjModel.from_xml_string(LIGHTS_XML)
+    cam = Camera(model)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        data = mujoco.MjData(model)
+        quat = rng.normal(size=4)
+        data.qpos[:] = np.concatenate([quat / np.linalg.norm(quat), rng.uniform(-1, 1, 1)])
+        mujoco.mj_forward(model, data)
+        position, direction = (np.asarray(a) for a in cam._lights(cam._poses(mjx.put_data(model, data))))
+        rot = data.cam_xmat[0].reshape(3, 3)
+        np.testing.assert_allclose(position, (data.light_xpos - data.cam_xpos[0]) @ rot, atol=1e-5)
+        np.testing.assert_allclose(direction, data.light_xdir @ rot, atol=1e-5)

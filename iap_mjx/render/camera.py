@@ -51,7 +51,7 @@ class CameraConfig:
       height, width: image size in pixels.
       geom_groups: geom groups drawn (MuJoCo's renderer shows 0, 1, 2 by default).
       shading: ``"lambert"`` (ambient + headlight + the model's directional, spot and point
-        lights, without shadows, specular or attenuation)
+        lights, without shadows, specular, emission or attenuation)
         or ``"flat"`` (the geom colour as is).
       sky: where no geom is hit: ``"skybox"`` (a vertical gradient fitted to the model's skybox
         texture) or ``"color"`` (``background_color``). A per-call ``background`` image given
@@ -59,8 +59,9 @@ class CameraConfig:
       background_color: RGB in [0, 1] for ``sky="color"``.
       checker_floor: draw textured planes as dm_control's 2x2 checker (else flat material colour).
       batch_chunk: under ``vmap``, images rendered together per step of the loop over the batch
-        (small enough for the intermediates to stay in cache); ``None`` (default): 4 up to
-        10,000 pixels per image, fewer for larger images (one from 40,000 pixels).
+        (small enough for the intermediates to stay in cache); ``None`` (default):
+        ``40,000 // pixels`` per image, between 1 and 4 (4 up to 10,000 pixels, 1 above
+        20,000).
       tile: side in pixels of the square screen tiles used for culling.
       cull_pairs_per_tile: budget of (tile, geom) pairs per culled type group, per tile on
         average (types with at least 3 geoms, planes excepted, are traced only on the tiles
@@ -87,12 +88,14 @@ class CameraConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
-        if not all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups):
-            raise ValueError(f"geom_groups must be ints in 0..5, got {self.geom_groups!r}")
+        if not (isinstance(self.geom_groups, (tuple, list))
+                and all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups)):
+            raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
         if not isinstance(self.tile, int) or self.tile < 1:
             raise ValueError(f"tile must be a positive int, got {self.tile!r}")
-        if not isinstance(self.cull_pairs_per_tile, (int, float)) or self.cull_pairs_per_tile < 0:
-            raise ValueError(f"cull_pairs_per_tile must be a number >= 0, got {self.cull_pairs_per_tile!r}")
+        if (not isinstance(self.cull_pairs_per_tile, (int, float))
+                or not math.isfinite(self.cull_pairs_per_tile) or self.cull_pairs_per_tile < 0):
+            raise ValueError(f"cull_pairs_per_tile must be a finite number >= 0, got {self.cull_pairs_per_tile!r}")
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, 40_000 // (self.height * self.width))))
         if not isinstance(self.batch_chunk, int) or self.batch_chunk < 1:
@@ -101,8 +104,9 @@ class CameraConfig:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.sky not in SKIES:
             raise ValueError(f"sky must be one of {SKIES}, got {self.sky!r}")
-        if len(self.background_color) != 3:
-            raise ValueError(f"background_color must be 3 floats, got {self.background_color!r}")
+        if not (isinstance(self.background_color, (tuple, list)) and len(self.background_color) == 3
+                and all(isinstance(c, (int, float)) and 0 <= c <= 1 for c in self.background_color)):
+            raise ValueError(f"background_color must be 3 numbers in [0, 1], got {self.background_color!r}")
         object.__setattr__(self, "geom_groups", tuple(self.geom_groups))
         object.__setattr__(self, "background_color", tuple(float(c) for c in self.background_color))
 
@@ -125,7 +129,10 @@ class Camera:
         metres;
       - a pixel whose ray hits nothing closer than the far plane (``vis.map.zfar * extent``, as
         MuJoCo's renderer clips) gets the background colour and depth equal to the far plane
-        ``self.zfar`` (finite, so depth is safe to feed to a network).
+        ``self.zfar`` (finite, so depth is safe to feed to a network);
+      - there is no near plane: a surface closer than ``vis.map.znear * extent``, which
+        MuJoCo's renderer clips away, is drawn (as ``mj_ray`` sees it); surfaces are seen
+        from outside only (a camera inside a geom does not see that geom).
     """
 
     def __init__(self, mj_model: mujoco.MjModel, camera_id: int = 0, height: int = 100,
@@ -133,6 +140,7 @@ class Camera:
         self.config = CameraConfig(camera_id=camera_id, height=height, width=width, **config)
         if camera_id >= mj_model.ncam:
             raise ValueError(f"camera_id must be < the model's ncam={mj_model.ncam}, got {camera_id}")
+        _check_projection(mj_model, camera_id, height, width)
         self.scene = scene_lib.build_scene(mj_model, self.config.geom_groups)
         self.fovy = float(mj_model.cam_fovy[camera_id])
         self.zfar = float(self.scene.zfar)
@@ -208,7 +216,7 @@ class Camera:
         Args:
           data: an ``mjx.Data`` after kinematics (``geom_xpos``, ``geom_xmat``, ``cam_xpos``,
             ``cam_xmat``; ``xpos``, ``xmat``, ``subtree_com`` of the lights' bodies).
-          background: optional ``(H, W, 3)`` image in [0, 1] shown where nothing is hit
+          background: optional ``(H, W, 3)`` float image in [0, 1] shown where nothing is hit
             (e.g. a Distracting Control Suite frame); replaces the sky.
           geom_rgb: optional ``(G, 3)`` colours replacing the model's (colour perturbations),
             one row per ``self.geom_ids`` entry; a checker floor's texture is multiplied by
@@ -218,8 +226,8 @@ class Camera:
             the distraction layer keeps its frames), seen by ray direction on every face of
             the cube as MuJoCo draws a square skybox texture (``sky.py``); replaces the sky
             (``background`` wins). Or a pair ``(stack, row)``: packed frames ``(N, S * S)``
-            int32 and the ``()`` int32 row shown (under ``vmap``, an unbatched stack is read
-            in place, never copied per image).
+            int32 and the ``()`` int32 row shown, clamped to ``[0, N)`` (under ``vmap``, an
+            unbatched stack is read in place, never copied per image).
 
         Returns:
           rgb ``(H, W, 3)`` float32 in [0, 1] and depth ``(H, W)`` float32 in metres.
@@ -236,9 +244,10 @@ class Camera:
         cfg = self.config
         if background is None:
             background = jnp.zeros((0,), jnp.float32)
-        elif tuple(background.shape) != (cfg.height, cfg.width, 3):
-            raise ValueError(
-                f"background must have shape {(cfg.height, cfg.width, 3)}, got {background.shape}")
+        elif (tuple(background.shape) != (cfg.height, cfg.width, 3)
+              or not jnp.issubdtype(background.dtype, jnp.floating)):
+            raise ValueError(f"background must be floats in [0, 1] of shape {(cfg.height, cfg.width, 3)}, "
+                             f"got {background.dtype} {background.shape}")
         if geom_rgb is None:
             geom_rgb = jnp.zeros((0,), jnp.float32)
         elif tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
@@ -256,7 +265,8 @@ class Camera:
             if jnp.shape(sky_frame) != ():
                 raise ValueError(f"sky_texture (stack, row): the row must be a scalar int, got shape "
                                  f"{jnp.shape(sky_frame)}")
-            sky_frame = jnp.asarray(sky_frame, jnp.int32)
+            # clamped: the texel gather trusts its indices (a row past the stack reads past it)
+            sky_frame = jnp.clip(jnp.asarray(sky_frame, jnp.int32), 0, sky_texture.shape[0] - 1)
         elif sky_texture is None:
             sky_texture = jnp.zeros((0, 1), jnp.int32)
         elif (sky_texture.ndim == 3 and sky_texture.shape[0] == sky_texture.shape[1]
@@ -295,6 +305,9 @@ class Camera:
             "light_body_pos": data.xpos[jnp.asarray(sc.light_bodyid)],
             "light_body_mat": data.xmat[jnp.asarray(sc.light_bodyid)],
             "light_body_com": data.subtree_com[jnp.asarray(sc.light_bodyid)],
+            **({"light_target_pos": data.xpos[jnp.asarray(sc.light_targetbodyid)],
+                "light_target_com": data.subtree_com[jnp.asarray(sc.light_targetbodyid)]}
+               if np.any(sc.light_mode >= 3) else {}),
         }
 
     def _batchable(self, colour: bool):
@@ -337,13 +350,17 @@ class Camera:
         depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
         more (tile, geom) pairs than the budget, dense tracing.
 
-        The trace ends in a ``lax.cond`` (on the camera pose being finite; a non-finite pose
-        sees nothing): its results are materialised once, where XLA would otherwise fuse the
-        nearest-hit selection into every shading consumer and redo it many times.
+        The trace ends in a ``lax.cond`` (on some camera pose of the batch being finite): its
+        results are materialised once, where XLA would otherwise fuse the nearest-hit
+        selection into every shading consumer and redo it many times. An image whose camera
+        pose is not finite sees nothing (depth ``zfar``, id ``-1``, black), whatever the other
+        images of its batch.
         """
         lift = jax.vmap if batched else (lambda f: f)
         frames = lift(self._frames)(poses)
-        finite = jnp.all(jnp.isfinite(poses["cam_pos"])) & jnp.all(jnp.isfinite(poses["cam_mat"]))
+        seen = (jnp.all(jnp.isfinite(poses["cam_pos"]), axis=-1)
+                & jnp.all(jnp.isfinite(poses["cam_mat"]), axis=(-2, -1)))  # () or (C,) per image
+        finite = jnp.any(seen)
         shape = jnp.shape(poses["cam_pos"])[:-1] + (self.config.height, self.config.width)
 
         def nothing():
@@ -369,32 +386,36 @@ class Camera:
         if self._culled_groups:
             keys, overflow = lift(self._trace_culled_keys)(frames)
             depth_p, best_p = jax.lax.cond(
-                jnp.any(overflow) | ~finite,
+                jnp.any(overflow & seen) | ~finite,
                 lambda: jax.lax.cond(finite, dense, padded_of(nothing)),
                 padded_of(lambda: lift(self._decode_image)(keys)))
         else:
             depth_p, best_p = jax.lax.cond(finite, dense, padded_of(nothing))
-        depth = depth_p[..., 1:-1, 1:-1]
+        # a non-finite image of a traced batch: nothing seen (its own trace, a search with NaN
+        # or inf poses, is not relied on)
+        seen_px = seen[..., None, None]
+        depth = jnp.where(seen_px, depth_p[..., 1:-1, 1:-1], jnp.float32(self.scene.zfar))
         best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
-        ids = jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best]
+        ids = jnp.where(seen_px, jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best], -1)
         if not colour:
             return None, depth, ids
         # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
         # CPU loops do not vectorise). The light (normals, lights) and a skybox texture's
         # texels are materialised, then the colour and composition in planes (fused into the
-        # interleaved output they would run per element, unvectorised). A non-finite pose
-        # gives a black image.
+        # interleaved output they would run per element, unvectorised).
         padded = (depth_p, best_p)
         if self.config.shading == "flat":
             light = (jnp.ones_like(depth),)
         else:
             light = self._stage(lambda: lift(self._light)(poses, padded), finite)
         if background.size == 0 and sky_texture.size != 0:
-            texels = self._stage(lambda: self._skybox(poses["cam_mat"], sky_texture, sky_frame), finite)
+            # a non-finite pose's directions would index outside the texture stack
+            safe_mat = jnp.where(seen[..., None, None], poses["cam_mat"], 0.0)
+            texels = self._stage(lambda: self._skybox(safe_mat, sky_texture, sky_frame), finite)
             background = tuple(sky_lib.unpack_rgb(texels))
         planes = self._stage(lambda: lift(self._compose)(
             poses, lift(self._colour)(frames, padded, geom_rgb), light, best_p, background), finite)
-        return jnp.stack(planes, axis=-1), depth, ids
+        return jnp.where(seen_px[..., None], jnp.stack(planes, axis=-1), 0.0), depth, ids
 
     @staticmethod
     def _stage(fn, pred):
@@ -432,12 +453,6 @@ class Camera:
             jnp.broadcast_to(self._key(self._intersect_static(k, r_cam, origin, x, y), k), shape)
             for k in range(len(self.scene.geom_ids))]
         return jnp.min(jnp.stack(keys), axis=0)
-
-    def _trace_culled(self, frames):
-        """:meth:`_trace_culled_keys` decoded: depth and geom index ``(H, W)`` and ``overflow``."""
-        keys, overflow = self._trace_culled_keys(frames)
-        depth, best = self._decode_image(keys)
-        return depth, best, overflow
 
     def _decode_image(self, keys):
         """Keys of the image padded to whole tiles -> depth and geom index ``(H, W)``."""
@@ -491,9 +506,11 @@ class Camera:
 
     def _tile_overlap(self, frames, members):
         """``(tiles, len(members))`` bool: may the geom cover a pixel centre of the tile?
-        Each geom is bounded by spheres (the two end spheres of a capsule or cylinder, one
-        sphere otherwise), each sphere by a conservative box in image coordinates
-        ``x / -z, y / -z``; a geom reaching the camera plane covers everything."""
+        Each geom is bounded by one sphere, or (capsule, cylinder) by the convex hull of its
+        two end spheres (the capsule, which holds the cylinder); each sphere by a conservative
+        box in image coordinates ``x / -z, y / -z``, and the hull by the box around its
+        spheres' boxes (in front of the camera, a convex hull projects into the hull of the
+        projections); a geom reaching the camera plane covers everything."""
         sc = self.scene
         idx = jnp.asarray(members)
         centre = frames["centre"][idx]
@@ -516,6 +533,9 @@ class Camera:
         ends = centre[:, None, :] + jnp.asarray([1.0, -1.0])[None, :, None] * half * axis[:, None, :]
         near = -ends[..., 2] - radius
         far = -ends[..., 2] + radius
+        # a sphere within 1e-6 m of the camera plane counts as reaching it (its projected
+        # box would be unbounded); boxes grow by 1e-4 in image coordinates (about 1e-4 rad,
+        # far above the float32 rounding of the bounds) so rounding never culls a hit
         crosses = jnp.any(near <= 1e-6, axis=1) & jnp.any(far > 0.0, axis=1)
         behind = jnp.all(far <= 0.0, axis=1)
         safe_near = jnp.maximum(near, 1e-6)
@@ -623,8 +643,10 @@ class Camera:
             for k in np.flatnonzero(sc.checker):
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
                 v = origin[k, 1] + depth * (x * r_cam[k, 0, 1] + y * r_cam[k, 1, 1] - r_cam[k, 2, 1])
-                odd = ((_floor_int(u * sc.checker_scale[k, 0])
-                        + _floor_int(v * sc.checker_scale[k, 1])) & 1) == 1
+                squares = [c * sc.checker_scale[k, i] for i, c in enumerate((u, v))]
+                squares = [c + sc.checker_offset[k, i] if sc.checker_offset[k, i] else c
+                           for i, c in enumerate(squares)]
+                odd = ((_floor_int(squares[0]) + _floor_int(squares[1])) & 1) == 1
                 mine = best == k
                 if geom_rgb.size == 0:
                     tints = [sc.checker_rgb[k, :, c] for c in range(3)]
@@ -687,13 +709,18 @@ class Camera:
             return jnp.zeros((0, 3)), jnp.zeros((0, 3))
         mats = poses["light_body_mat"]
         offset = jnp.asarray(sc.light_offset)
-        fixed = jnp.asarray(sc.light_mode == 0)[:, None]
+        mode = sc.light_mode
+        fixed = jnp.asarray((mode == 0) | (mode >= 3))[:, None]  # placed in the body frame
         world_pos = jnp.where(
             fixed, poses["light_body_pos"] + jnp.einsum("lij,lj->li", mats, offset),
-            jnp.where(jnp.asarray(sc.light_mode == 2)[:, None], poses["light_body_com"],
+            jnp.where(jnp.asarray(mode == 2)[:, None], poses["light_body_com"],
                       poses["light_body_pos"]) + offset)
         world_dir = jnp.where(fixed, jnp.einsum("lij,lj->li", mats, jnp.asarray(sc.light_dirs)),
                               jnp.asarray(sc.light_dirs))
+        if np.any(mode >= 3):  # aimed at the target body (3) or its subtree's centre of mass (4)
+            target = jnp.where(jnp.asarray(mode == 4)[:, None], poses["light_target_com"],
+                               poses["light_target_pos"])
+            world_dir = jnp.where(jnp.asarray(mode >= 3)[:, None], target - world_pos, world_dir)
         world_dir = world_dir / jnp.linalg.norm(world_dir, axis=-1, keepdims=True)
         cam_mat = poses["cam_mat"]
         return (world_pos - poses["cam_pos"]) @ cam_mat, world_dir @ cam_mat
@@ -712,6 +739,24 @@ class Camera:
         return [jnp.clip(sc.sky_mid[c] + sc.sky_slope[c] * z, 0.0, 1.0) for c in range(3)]
 
 
+def _check_projection(mj_model: mujoco.MjModel, camera_id: int, height: int, width: int) -> None:
+    """Refuses model cameras this camera would draw differently from MuJoCo's renderer: it
+    draws a perspective frustum from ``cam_fovy`` and the image's aspect ratio."""
+    projection = int(mj_model.cam_projection[camera_id])
+    if projection != int(mujoco.mjtProjection.mjPROJ_PERSPECTIVE):
+        raise ValueError(f"camera_id={camera_id} has projection {mujoco.mjtProjection(projection).name}; "
+                         "only perspective cameras (mjPROJ_PERSPECTIVE) are supported")
+    sensor = np.asarray(mj_model.cam_sensorsize[camera_id], np.float64)
+    if np.any(sensor > 0):  # intrinsics (focal, principal, sensorsize) set the frustum
+        fx, fy, cx, cy = (float(v) for v in mj_model.cam_intrinsic[camera_id])
+        if not (fx == fy and cx == 0 and cy == 0
+                and math.isclose(sensor[0] / sensor[1], width / height, rel_tol=1e-6)):
+            raise ValueError(
+                f"camera_id={camera_id} has intrinsics (sensorsize {tuple(sensor)}, focal {(fx, fy)}, "
+                f"principal {(cx, cy)}): supported only with equal focal lengths, principal (0, 0) "
+                f"and width / height equal to the sensor's {sensor[0] / sensor[1]:.6g}, got {width}x{height}")
+
+
 def _floor_int(a):
     """``floor(a)`` as int32 (a truncating conversion and a fix-up: vectorises on CPU, where
     ``jnp.floor`` may not)."""
@@ -722,9 +767,10 @@ def _floor_int(a):
 def _first_pairs(overlap, budget: int):
     """The indices of the first ``budget`` true entries of ``overlap`` ``(P,)`` bool, in order,
     ``(budget,)`` int32, and which of those slots hold one (``(budget,)`` bool; empty slots
-    hold 0). Ranks come from a prefix sum done as two small triangular matmuls (exact for
-    counts below 2**24; a sort-based ``top_k`` or XLA's ``cumsum`` costs several times more
-    on CPU), then one scatter."""
+    hold ``P - 1``, so the list stays sorted, as the tile scatter promises XLA). Ranks come
+    from a prefix sum done as two small triangular matmuls (exact for counts below 2**24; a
+    sort-based ``top_k`` or XLA's ``cumsum`` costs several times more on CPU), then one
+    scatter."""
     n = overlap.shape[0]
     row = next(r for r in (64, 32, 16, 8, 4, 2, 1) if n % r == 0)
     x = overlap.astype(jnp.float32).reshape(n // row, row)
@@ -732,7 +778,7 @@ def _first_pairs(overlap, budget: int):
     before = jnp.asarray(np.tril(np.ones((n // row,) * 2, np.float32), -1)) @ jnp.sum(x, axis=1)
     rank = (within + before[:, None]).reshape(n).astype(jnp.int32) - 1
     slot = jnp.where(overlap, rank, budget)  # past the end: dropped
-    pair = jnp.zeros(budget, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
+    pair = jnp.full(budget, n - 1, jnp.int32).at[slot].set(jnp.arange(n, dtype=jnp.int32), mode="drop")
     return pair, jnp.arange(budget) < jnp.sum(overlap)
 
 

@@ -41,22 +41,32 @@ class Scene:
       geom_rgb: ``(G, 3)`` float32, the colour MuJoCo's renderer uses (material colour when the
         geom keeps the default rgba, as ``mjv`` does).
       geom_alpha: ``(G,)`` float32 in (0, 1], the opacity from the same rgba (geoms of alpha 0
-        are not drawn at all, as ``mj_ray`` skips them); a partly transparent geom is drawn
-        over the sky behind it.
+        are not drawn at all, as MuJoCo's renderer shows them; ``mj_ray`` differs when the
+        geom's and its material's alpha disagree: it tests the material's alone); a partly
+        transparent geom is drawn over the sky behind it (not over the geoms behind it).
       checker: ``(G,)`` bool, geom is a plane with a 2-D texture drawn as a 2x2 checker.
       checker_rgb: ``(G, 2, 3)`` float32, the two checker colours (texture quadrant centres,
-        times the material colour).
+        times the material colour): square ``(i, j)`` of the checker (``i = floor(x *
+        checker_scale[0] + checker_offset[0])``, ``j`` likewise along y) shows the first
+        when ``i + j`` is even, the second when it is odd.
       checker_texture: ``(G, 2, 3)`` float32, the texture's two colours alone (MuJoCo
         multiplies them by the geom's colour, so a changed colour tints the checker).
-      checker_scale: ``(G, 2)`` float32, texture repeats per unit length along local x, y.
-      light_mode: ``(L,)`` int, mjtCamLight: 0 fixed to ``light_bodyid`` (position and
-        direction in the body frame), 1 tracking the body's position, 2 tracking its subtree's
-        centre of mass (both keep ``light_offset`` and ``light_dirs`` in the world frame);
-        target modes are drawn as tracking modes.
+      checker_scale: ``(G, 2)`` float32, checker squares per unit length along local x, y.
+      checker_offset: ``(G, 2)`` float32 in [0, 2), where the texture's origin falls, in
+        squares from the plane's centre along x, y, modulo the pattern's two squares (it
+        shifts the checker's phase).
+      light_mode: ``(L,)`` int, mjtCamLight as ``mj_camlight`` reads it: 0 fixed to
+        ``light_bodyid`` (position and direction in the body frame), 1 tracking the body's
+        position, 2 tracking its subtree's centre of mass (both keep ``light_offset`` and
+        ``light_dirs`` in the world frame), 3 and 4 placed as 0 and aimed at
+        ``light_targetbodyid`` or its subtree's centre of mass (a target mode without a
+        target body is 0).
       light_bodyid: ``(L,)`` int.
-      light_offset: ``(L, 3)`` float32, position in the body frame (mode 0) or offset in the
-        world frame from the body (mode 1) or subtree centre of mass (mode 2).
-      light_dirs: ``(L, 3)`` float32, direction the light shines (body frame for mode 0).
+      light_targetbodyid: ``(L,)`` int, the body modes 3 and 4 aim at (0 for other modes).
+      light_offset: ``(L, 3)`` float32, position in the body frame (modes 0, 3, 4) or offset
+        in the world frame from the body (mode 1) or subtree centre of mass (mode 2).
+      light_dirs: ``(L, 3)`` float32, direction the light shines (body frame for mode 0;
+        unused by modes 3 and 4).
       light_directional: ``(L,)`` bool; other lights are spot lights with
         ``light_cos_cutoff`` ``(L,)`` and ``light_exponent`` ``(L,)`` (a point light has a
         cutoff of 180 degrees). Attenuation is ignored.
@@ -65,7 +75,7 @@ class Scene:
       headlight_diffuse: ``(3,)`` float32 (zero if the headlight is off).
       sky_mid, sky_slope: ``(3,)`` float32, sky colour ``mid + slope * z`` for a world ray
         direction with unit ``z`` (fitted to the model's skybox texture; flat if it has none).
-      znear, zfar: the clip planes of MuJoCo's renderer in metres (``vis.map`` times extent).
+      zfar: the far clip plane of MuJoCo's renderer in metres (``vis.map.zfar`` times extent).
     """
 
     geom_ids: np.ndarray
@@ -77,8 +87,10 @@ class Scene:
     checker_rgb: np.ndarray
     checker_texture: np.ndarray
     checker_scale: np.ndarray
+    checker_offset: np.ndarray
     light_mode: np.ndarray
     light_bodyid: np.ndarray
+    light_targetbodyid: np.ndarray
     light_offset: np.ndarray
     light_dirs: np.ndarray
     light_directional: np.ndarray
@@ -89,7 +101,6 @@ class Scene:
     headlight_diffuse: np.ndarray
     sky_mid: np.ndarray
     sky_slope: np.ndarray
-    znear: float
     zfar: float
 
     def digest(self) -> str:
@@ -103,19 +114,13 @@ class Scene:
 
 
 def _geom_colour(m: mujoco.MjModel, geom: int) -> np.ndarray:
+    """``(4,)`` float32, the rgba MuJoCo's renderer draws ``geom`` with: its material's if it
+    has one and keeps the default rgba (compared exactly, as ``mjv`` does), else its own."""
     rgba = np.asarray(m.geom_rgba[geom], np.float32)
     matid = int(m.geom_matid[geom])
-    if matid >= 0 and np.allclose(rgba, _DEFAULT_GEOM_RGBA):
+    if matid >= 0 and np.array_equal(rgba, _DEFAULT_GEOM_RGBA):
         rgba = np.asarray(m.mat_rgba[matid], np.float32)
     return rgba
-
-
-def _geom_alpha_visible(m: mujoco.MjModel, geom: int) -> bool:
-    """mj_ray's rule: a geom with a transparent material or rgba is not hit."""
-    matid = int(m.geom_matid[geom])
-    if matid >= 0:
-        return float(m.mat_rgba[matid, 3]) != 0.0
-    return float(m.geom_rgba[geom, 3]) != 0.0
 
 
 def _texture_rgb(m: mujoco.MjModel, tex: int) -> np.ndarray:
@@ -156,14 +161,14 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     Geoms of unsupported types (meshes, heightfields, SDFs) are skipped.
     """
     ids, types, sizes, rgbs, alphas = [], [], [], [], []
-    checker, checker_rgb, checker_texture, checker_scale = [], [], [], []
+    checker, checker_rgb, checker_texture, checker_scale, checker_offset = [], [], [], [], []
     for g in range(m.ngeom):
         gtype = int(m.geom_type[g])
-        if int(m.geom_group[g]) not in geom_groups or not _geom_alpha_visible(m, g):
-            continue
-        if gtype not in SUPPORTED_TYPES:
+        if int(m.geom_group[g]) not in geom_groups or gtype not in SUPPORTED_TYPES:
             continue
         rgba = _geom_colour(m, g)
+        if rgba[3] == 0.0:
+            continue
         ids.append(g)
         types.append(gtype)
         sizes.append(np.asarray(m.geom_size[g], np.float32))
@@ -177,23 +182,31 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         )
         checker.append(is_checker)
         if is_checker:
+            # As measured with mujoco.Renderer (tests/test_render_mujoco.py), per axis: with
+            # texuniform (or an infinite size), a 2x2 checker's squares are 1 / texrepeat long
+            # and the texture's origin is texrepeat * size squares from the centre; without,
+            # texrepeat textures span the plane from its corner (squares size / texrepeat
+            # long, the origin texrepeat squares away). The texture's rows run against local
+            # y, so the square at the origin shows its bottom-left quadrant.
             img = _texture_rgb(m, tex)
             h, w = img.shape[:2]
-            texture = np.stack([img[h // 4, w // 4], img[h // 4, 3 * w // 4]])
+            texture = np.stack([img[3 * h // 4, w // 4], img[3 * h // 4, 3 * w // 4]])
             colours = texture * rgba[None, :3]
             repeat = np.asarray(m.mat_texrepeat[matid], np.float32)
-            if bool(m.mat_texuniform[matid]):
-                scale = repeat
-            else:
-                extent = np.where(m.geom_size[g, :2] > 0, 2 * m.geom_size[g, :2], 1.0)
-                scale = repeat / extent.astype(np.float32)
+            size = np.asarray(m.geom_size[g, :2], np.float32)
+            spread = (size > 0) & (not bool(m.mat_texuniform[matid]))
+            scale = np.where(spread, repeat / np.where(spread, size, 1.0), repeat)
+            offset = np.where(spread, repeat, repeat * size) * np.array([1.0, -1.0], np.float32)
+            offset = np.mod(offset, 2.0)  # the pattern repeats every two squares
             checker_rgb.append(colours.astype(np.float32))
             checker_texture.append(texture.astype(np.float32))
             checker_scale.append(scale.astype(np.float32))
+            checker_offset.append(offset.astype(np.float32))
         else:
             checker_rgb.append(np.zeros((2, 3), np.float32))
             checker_texture.append(np.zeros((2, 3), np.float32))
             checker_scale.append(np.ones(2, np.float32))
+            checker_offset.append(np.zeros(2, np.float32))
 
     light_active = np.asarray(m.light_active, bool) if m.nlight else np.zeros(0, bool)
     lights = np.flatnonzero(light_active)
@@ -201,9 +214,11 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     ambient = np.asarray(headlight.ambient, np.float32) * float(bool(headlight.active))
     ambient = ambient + np.asarray(m.light_ambient[lights], np.float32).sum(0) if lights.size else ambient
     light_type = np.asarray(m.light_type[lights], np.int32)
-    # target modes (3, 4) drawn as the corresponding tracking modes
     light_mode = np.asarray(m.light_mode[lights], np.int32)
-    light_mode = np.where(light_mode >= 3, light_mode - 2, light_mode).astype(np.int32)
+    light_target = np.asarray(m.light_targetbodyid[lights], np.int32)
+    aimed = light_mode >= int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY)
+    light_mode = np.where(aimed & (light_target < 0), 0, light_mode).astype(np.int32)
+    in_body_frame = (light_mode == 0) | (light_mode >= 3)
     sky_mid, sky_slope = _sky(m)
     extent = float(m.stat.extent)
     return Scene(
@@ -216,13 +231,15 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         checker_rgb=np.asarray(checker_rgb, np.float32).reshape(-1, 2, 3),
         checker_texture=np.asarray(checker_texture, np.float32).reshape(-1, 2, 3),
         checker_scale=np.asarray(checker_scale, np.float32).reshape(-1, 2),
+        checker_offset=np.asarray(checker_offset, np.float32).reshape(-1, 2),
         light_mode=light_mode,
         light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
+        light_targetbodyid=np.where(light_mode >= 3, light_target, 0).astype(np.int32),
         light_offset=np.where(
-            (light_mode == 0)[:, None], m.light_pos[lights],
+            in_body_frame[:, None], m.light_pos[lights],
             np.where((light_mode == 2)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
         ).astype(np.float32).reshape(-1, 3),
-        light_dirs=np.where((light_mode == 0)[:, None], m.light_dir[lights],
+        light_dirs=np.where(in_body_frame[:, None], m.light_dir[lights],
                             m.light_dir0[lights]).astype(np.float32).reshape(-1, 3),
         light_directional=light_type == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL),
         light_cos_cutoff=np.where(
@@ -236,6 +253,5 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         headlight_diffuse=np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),
         sky_mid=sky_mid,
         sky_slope=sky_slope,
-        znear=float(m.vis.map.znear) * extent,
         zfar=float(m.vis.map.zfar) * extent,
     )

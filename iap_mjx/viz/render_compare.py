@@ -68,7 +68,8 @@ def _render_reference(request: dict) -> dict:
     ``cam_xpos``/``cam_xmat`` per state written into the data of every requested camera)."""
     import mujoco
 
-    model = _suite_model(str(request["domain"]))
+    model = (mujoco.MjModel.from_xml_string(str(request["xml"])) if "xml" in request
+             else _suite_model(str(request["domain"])))
     height, width = int(request["height"]), int(request["width"])
     renderer = mujoco.Renderer(model, height, width)
     data = mujoco.MjData(model)
@@ -108,10 +109,12 @@ def _render_reference(request: dict) -> dict:
 
 
 def reference_frames(domain: str, states, camera_ids, height: int,
-                     width: int, distractions: dict | None = None) -> dict[str, np.ndarray]:
-    """MuJoCo's own frames of ``states`` (``(model, data)`` pairs of dm_control's ``domain``;
-    each model's geom positions and sizes and site colours are applied, as tasks edit them at
-    reset: reacher moves its target, finger hides two sites) from each of ``camera_ids``.
+                     width: int, distractions: dict | None = None,
+                     xml: str | None = None) -> dict[str, np.ndarray]:
+    """MuJoCo's own frames of ``states`` (``(model, data)`` pairs of dm_control's ``domain``,
+    or of the model compiled from ``xml`` if given; each model's geom positions and sizes and
+    site colours are applied, as tasks edit them at reset: reacher moves its target, finger
+    hides two sites) from each of ``camera_ids``.
 
     ``distractions`` (optional) holds per-state arrays applied as the Distracting Control
     Suite applies them before rendering: ``mat_rgba`` ``(N, nmat, 4)``, ``sky`` ``(N, S, S,
@@ -132,6 +135,7 @@ def reference_frames(domain: str, states, camera_ids, height: int,
                  site_rgba=np.stack([np.asarray(m.site_rgba) for m, _ in states]),
                  qpos=np.stack([np.asarray(d.qpos, np.float64) for _, d in states]),
                  camera_ids=np.asarray(camera_ids, np.int32), height=height, width=width,
+                 **({} if xml is None else {"xml": xml}),
                  **{k: np.asarray(v) for k, v in (distractions or {}).items()})
         env = dict(os.environ, MUJOCO_GL=GL_BACKEND, PYOPENGL_PLATFORM=GL_BACKEND)
         proc = subprocess.run(
