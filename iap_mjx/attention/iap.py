@@ -488,11 +488,12 @@ class IAPAttention:
         """``image (H, W, C)`` -> queries and keys as token rows ``(2d, L)`` (queries first),
         input scaling applied: :meth:`queries_keys`, transposed.
 
-        Non-overlapping patches: the ``(L, c) @ (c, 2d)`` product of :meth:`queries_keys`,
-        then one transpose of its ``(L, 2d)`` result. (On XLA CPU at ``L = 19,200`` this was
-        faster than a product with the tokens minor, for which XLA transposes the whole image
-        into ``(c, L)`` planes.) Overlapping patches: the strided convolution of
-        :meth:`queries_keys` with channel-major output.
+        Non-overlapping patches: the patches of :meth:`queries_keys` ``(L, c)`` contracted
+        with ``[W_Q | W_K]^T`` on ``c``, giving ``(2d, L)`` directly. (On XLA CPU at ``L =
+        19,200`` this was faster than ``(patches @ W).T``, which writes ``(L, 2d)`` and then
+        transposes it, and than a product with the image reshaped to ``(rows, p, cols, p*C)``,
+        for which XLA transposes the whole image into ``(c, L)`` planes.) Overlapping patches:
+        the strided convolution of :meth:`queries_keys` with channel-major output.
         """
         cfg = self.config
         p, channels, d = cfg.patch_size, self.image_shape[2], cfg.d_qk
@@ -500,7 +501,7 @@ class IAPAttention:
         image = image.astype(weights.dtype)
         if cfg.step == p:
             patches, _ = extract_patches(image, p, p)
-            projected = (patches @ weights).T
+            projected = jax.lax.dot_general(weights.T, patches, (((1,), (1,)), ((), ())))  # (2d, L)
         else:
             projected = jax.lax.conv_general_dilated(
                 image[None], weights.reshape(p, p, channels, 2 * d),
