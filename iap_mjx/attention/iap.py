@@ -524,7 +524,8 @@ class IAPAttention:
 
     @property
     def batch_chunk(self) -> int:
-        """Images scored together under ``vmap`` (``config.batch_chunk`` or from :data:`CHUNK_TOKENS`)."""
+        """Images scored together under ``vmap`` (``config.batch_chunk`` or from :data:`CHUNK_TOKENS`),
+        before the chunk rule's cap at half the batch."""
         if self.config.batch_chunk is not None:
             return self.config.batch_chunk
         return max(1, CHUNK_TOKENS // self.num_patches)
