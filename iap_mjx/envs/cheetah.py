@@ -40,8 +40,7 @@ class CheetahRun(DmControlEnv):
         sample = jax.random.uniform(key, (model.nq,), minval=lower, maxval=upper)
         qpos = jnp.where(limited, sample, jnp.asarray(model.qpos0, jnp.float32))
         data = mjx.make_data(model).replace(qpos=qpos)
-        data = self._settle(self.forward(data), _SETTLE_STEPS)
-        return self.forward(data), {}
+        return self._settle(data, _SETTLE_STEPS), {}
 
     def speed(self, data: mjx.Data) -> jax.Array:
         """Forward speed of the torso subtree's centre of mass, ``()``."""

@@ -36,6 +36,7 @@ from mujoco.mjx._src import collision_driver
 
 from iap_mjx.configs.env import EnvConfig
 from iap_mjx.envs.base import State
+from iap_mjx.loops import batched_like
 
 DM_CONTROL_EPISODE_STEPS = 1000
 
@@ -55,6 +56,12 @@ def physics_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     the result has it too, at the new ``qpos``/``qvel``. The state trajectory is
     ``mjx.step``'s.
     """
+    return position_velocity_stage(model, dynamics_stage(model, data))
+
+
+def dynamics_stage(model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    """MuJoCo's ``mj_step2``: actuation, acceleration, constraint solve, integration (the
+    position/velocity stage at the old state must be computed)."""
     data = mjx.fwd_actuation(model, data)
     data = mjx.fwd_acceleration(model, data)
     if data._impl.efc_J.size == 0:  # no constraints in this model: nothing to solve
@@ -66,7 +73,7 @@ def physics_step(model: mjx.Model, data: mjx.Data) -> mjx.Data:
         data = mjx.rungekutta4(model, data)
     else:
         data = mjx.euler(model, data)
-    return position_velocity_stage(model, data)
+    return data
 
 
 def _select(pred: jax.Array, on_true: Any, on_false: Any) -> Any:
@@ -226,9 +233,8 @@ class DmControlEnv:
             data = self._sync_task(data, state.info)
             return (data, saturated), self.step_reward(before, data)
 
-        (data, saturated), rewards = jax.lax.scan(
-            control_step, (data, jnp.zeros((), bool)), length=self.config.action_repeat
-        )
+        carry = batched_like((data, jnp.zeros((), bool)), data.qpos)
+        (data, saturated), rewards = jax.lax.scan(control_step, carry, length=self.config.action_repeat)
         reward = jnp.sum(rewards)
 
         bad = ~self._state_is_good(data)
@@ -351,8 +357,22 @@ class DmControlEnv:
         return jnp.all(jnp.isfinite(state)) & jnp.all(jnp.abs(state) <= self.config.max_abs_state)
 
     def _settle(self, data: mjx.Data, n_steps: int) -> mjx.Data:
-        """``n_steps`` physics steps with zero control (cheetah's ``physics.step(nstep=200)``)."""
-        return jax.lax.fori_loop(0, n_steps, lambda _, d: physics_step(self.mjx_model, d), data)
+        """``n_steps`` physics steps with zero control from ``data`` (its position/velocity
+        stage not computed), then that stage: cheetah's ``physics.step(nstep=200)`` and the
+        ``mj_forward`` of dm_control's reset, whose stage the last step has computed.
+
+        One loop of ``n_steps + 1`` rounds, each the position/velocity stage then the dynamics
+        (kept in all rounds but the last), so the program holds one copy of each stage, not a
+        forward pass before the loop as well: the last round's dynamics, one step in
+        ``n_steps + 1``, is discarded.
+        """
+        model = self.mjx_model
+
+        def round_(i, d):
+            d = position_velocity_stage(model, d)
+            return _select(i < n_steps, dynamics_stage(model, d), d)
+
+        return jax.lax.fori_loop(0, n_steps + 1, round_, batched_like(data, data.qpos))
 
     def _id(self, obj: mujoco.mjtObj, name: str) -> int:
         index = mujoco.mj_name2id(self.mj_model, obj, name)

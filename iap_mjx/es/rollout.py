@@ -20,6 +20,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from iap_mjx.es.normalizer import ObsStats, normalize
+from iap_mjx.loops import batched_like
 from iap_mjx.policies.base import Policy
 
 POP_AXIS = "pop"
@@ -97,7 +98,7 @@ def run_episode(
 
     one = jnp.ones((), jnp.float32)
     zero = jnp.zeros((), jnp.float32)
-    carry = (state, policy_state, zero, one, zero, zeros, zeros)
+    carry = batched_like((state, policy_state, zero, one, zero, zeros, zeros), key)
     carry, steps_alive = jax.lax.scan(step, carry, None, length=env.episode_length)
     final, _, ret, _, bad, obs_sum, obs_sq_sum = carry
     saturated = (final.metrics["contact_saturated"] > 0).astype(jnp.float32) \

@@ -1,0 +1,76 @@
+"""``loops.batched_like``: same values, every leaf batched under ``vmap`` (zero-size ones too)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from iap_mjx.loops import batched_like
+
+# The kinds of leaves an MJX data carry holds: floats, ints, bools, scalars and zero-size arrays.
+LEAVES = {
+    "float": jnp.arange(6, dtype=jnp.float32).reshape(2, 3),
+    "int": jnp.arange(4, dtype=jnp.int32),
+    "bool": jnp.array([True, False]),
+    "scalar": jnp.float32(2.5),
+    "empty": jnp.zeros((0, 3), jnp.float32),
+    "empty_int": jnp.zeros((0,), jnp.int32),
+}
+
+
+def test_values_shapes_and_dtypes_are_unchanged():
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    out = jax.vmap(lambda k: batched_like(LEAVES, k))(keys)
+    for name, leaf in LEAVES.items():
+        assert out[name].shape == (3,) + leaf.shape, name
+        assert out[name].dtype == leaf.dtype, name
+        np.testing.assert_array_equal(out[name], np.broadcast_to(leaf, (3,) + leaf.shape))
+
+
+def test_nan_in_the_reference_still_selects_the_values():
+    out = batched_like(LEAVES["float"], jnp.float32(jnp.nan))
+    np.testing.assert_array_equal(out, LEAVES["float"])
+
+
+@pytest.mark.parametrize("name", sorted(LEAVES))
+def test_every_leaf_is_batched_under_vmap(name):
+    """``out_axes=None`` (an unbatched output) is refused exactly when the leaf is batched."""
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    leaf = LEAVES[name]
+    # control: the unmarked leaf is unbatched, so out_axes=None is accepted
+    jax.vmap(lambda k: leaf, out_axes=None)(keys)
+    with pytest.raises(ValueError, match="out_axes"):
+        jax.vmap(lambda k: batched_like(leaf, k), out_axes=None)(keys)
+
+
+def test_a_marked_carry_is_batched_in_one_pass():
+    """A scan under ``vmap`` whose carry starts unbatched is batched twice by JAX (the carry
+    becomes batched in the body); marked up front, once."""
+    from jax._src.interpreters import batching
+
+    calls = []
+    original = batching.batch_jaxpr
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    def episode(key, mark):
+        carry = (jnp.zeros(()), key)
+        if mark:
+            carry = batched_like(carry, key)
+        return jax.lax.scan(lambda c, _: ((c[0] + c[1][0], c[1]), None), carry, length=3)[0][0]
+
+    keys = jax.random.split(jax.random.PRNGKey(0), 3).astype(jnp.float32)
+    counts = {}
+    for mark in (False, True):
+        calls.clear()
+        batching.batch_jaxpr = counting
+        try:
+            jax.make_jaxpr(jax.vmap(lambda k: episode(k, mark)))(keys)
+        finally:
+            batching.batch_jaxpr = original
+        counts[mark] = len(calls)
+    assert counts == {False: 2, True: 1}
