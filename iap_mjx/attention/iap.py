@@ -135,11 +135,21 @@ def _half_sq_norm(x: jax.Array) -> jax.Array:
     return 0.5 * out
 
 
+def _larger(a: jax.Array, b: jax.Array) -> jax.Array:
+    """``max(a, b)`` elementwise as compare-and-select (the same number for non-NaN inputs).
+
+    With ``jnp.maximum`` XLA's CPU backend (jax 0.10) hands the maxima of :func:`_row_max` to a
+    YNNPACK elementwise kernel and first copies each of its rows out: at ``L = 19,200`` that was
+    13% of the hybrid layer's CPU time (profile of ``benchmarks/attention.py``'s batch 64); a
+    select stays in XLA's own loop, fused with the rows' computation."""
+    return jnp.where(a > b, a, b)
+
+
 def _row_max(x: jax.Array) -> jax.Array:
     """Maximum over the rows of ``x (..., n, L)`` -> ``(..., 1, L)``, as one elementwise loop."""
     out = x[..., 0:1, :]
     for i in range(1, x.shape[-2]):
-        out = jnp.maximum(out, x[..., i:i + 1, :])
+        out = _larger(x[..., i:i + 1, :], out)
     return out
 
 
@@ -155,7 +165,7 @@ def _hybrid_shift(half_sq_norm: jax.Array, projected: jax.Array, stabilize: bool
     number: rounding is monotone), so only one row per set goes to the reduction over ``L``."""
     if not stabilize:
         return jnp.zeros((), half_sq_norm.dtype)
-    per_token = jnp.maximum(half_sq_norm, _row_max(projected) - half_sq_norm)
+    per_token = _larger(_row_max(projected) - half_sq_norm, half_sq_norm)
     return jax.lax.stop_gradient(jnp.max(per_token, axis=-1, keepdims=True))
 
 

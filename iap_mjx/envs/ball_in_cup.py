@@ -9,6 +9,7 @@ from dm_control.suite import ball_in_cup
 from mujoco import mjx
 
 from iap_mjx.envs.dmc import DmControlEnv
+from iap_mjx.loops import batched_like
 
 
 class BallInCupCatch(DmControlEnv):
@@ -55,7 +56,7 @@ class BallInCupCatch(DmControlEnv):
             return key, place(sub)
 
         key, sub = jax.random.split(key)
-        _, data = jax.lax.while_loop(lambda c: penetrating(c[1]), redraw, (key, place(sub)))
+        _, data = jax.lax.while_loop(lambda c: penetrating(c[1]), redraw, batched_like((key, place(sub)), key))
         return data, {}
 
     def ball_to_target(self, data: mjx.Data) -> jax.Array:

@@ -20,6 +20,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
 from iap_mjx.envs.base import State
+from iap_mjx.loops import batched_like
 
 BATCH_AXIS = "batch"
 
@@ -91,7 +92,8 @@ def rollout(
             return (state, total + state.reward), None
 
         first = env.reset(key)
-        (last, total), _ = jax.lax.scan(body, (first, jnp.zeros((), jnp.float32)), length=length)
+        carry = batched_like((first, jnp.zeros((), jnp.float32)), key)
+        (last, total), _ = jax.lax.scan(body, carry, length=length)
         return {
             "return": total,
             "done": last.done,

@@ -9,6 +9,7 @@ from dm_control.suite import finger
 from mujoco import mjx
 
 from iap_mjx.envs.dmc import DmControlEnv, randomize_limited_and_rotational_joints
+from iap_mjx.loops import batched_like
 
 _SPIN_VELOCITY = 15.0
 _HINGE_DAMPING = 0.03
@@ -105,9 +106,8 @@ class FingerSpin(DmControlEnv):
             return key, attempts + 1, place(sub)
 
         key, sub = jax.random.split(key)
-        _, _, data = jax.lax.while_loop(
-            lambda c: in_contact(c[2]) & (c[1] < _MAX_ATTEMPTS), redraw, (key, jnp.ones((), jnp.int32), place(sub))
-        )
+        first = batched_like((key, jnp.ones((), jnp.int32), place(sub)), key)
+        _, _, data = jax.lax.while_loop(lambda c: in_contact(c[2]) & (c[1] < _MAX_ATTEMPTS), redraw, first)
         return data, {}
 
     def hinge_velocity(self, data: mjx.Data) -> jax.Array:
