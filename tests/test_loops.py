@@ -17,7 +17,12 @@ LEAVES = {
     "scalar": jnp.float32(2.5),
     "empty": jnp.zeros((0, 3), jnp.float32),
     "empty_int": jnp.zeros((0,), jnp.int32),
+    "typed_key": jax.random.key(3),
 }
+
+
+def _values(x):
+    return jax.random.key_data(x) if jnp.issubdtype(x.dtype, jax.dtypes.prng_key) else x
 
 
 def test_values_shapes_and_dtypes_are_unchanged():
@@ -26,18 +31,24 @@ def test_values_shapes_and_dtypes_are_unchanged():
     for name, leaf in LEAVES.items():
         assert out[name].shape == (3,) + leaf.shape, name
         assert out[name].dtype == leaf.dtype, name
-        np.testing.assert_array_equal(out[name], np.broadcast_to(leaf, (3,) + leaf.shape))
+        expected = np.broadcast_to(_values(leaf), (3,) + _values(leaf).shape)
+        np.testing.assert_array_equal(_values(out[name]), expected)
 
 
-def test_nan_in_the_reference_still_selects_the_values():
-    out = batched_like(LEAVES["float"], jnp.float32(jnp.nan))
-    np.testing.assert_array_equal(out, LEAVES["float"])
+# references the loops use: raw uint32 keys, typed keys (finger, ball_in_cup under
+# envs.batch.rollout with jax.random.key), float state leaves, NaN or not
+REFERENCES = {
+    "raw_key": jax.random.split(jax.random.PRNGKey(0), 3),
+    "typed_key": jax.random.split(jax.random.key(0), 3),
+    "float_nan": jnp.full((3, 2), jnp.nan),
+}
 
 
+@pytest.mark.parametrize("reference", sorted(REFERENCES))
 @pytest.mark.parametrize("name", sorted(LEAVES))
-def test_every_leaf_is_batched_under_vmap(name):
+def test_every_leaf_is_batched_under_vmap(name, reference):
     """``out_axes=None`` (an unbatched output) is refused exactly when the leaf is batched."""
-    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    keys = REFERENCES[reference]
     leaf = LEAVES[name]
     # control: the unmarked leaf is unbatched, so out_axes=None is accepted
     jax.vmap(lambda k: leaf, out_axes=None)(keys)

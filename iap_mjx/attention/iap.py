@@ -141,7 +141,9 @@ def _larger(a: jax.Array, b: jax.Array) -> jax.Array:
     With ``jnp.maximum`` XLA's CPU backend (jax 0.10) hands the maxima of :func:`_row_max` to a
     YNNPACK elementwise kernel and first copies each of its rows out: at ``L = 19,200`` that was
     13% of the hybrid layer's CPU time (profile of ``benchmarks/attention.py``'s batch 64); a
-    select stays in XLA's own loop, fused with the rows' computation."""
+    select stays in XLA's own loop, fused with the rows' computation. A NaN in ``b`` is kept
+    and one in ``a`` dropped; a NaN query or key makes its ``|x|^2/2`` NaN, which the shift's
+    maximum over tokens propagates either way."""
     return jnp.where(a > b, a, b)
 
 

@@ -359,7 +359,10 @@ class DmControlEnv:
     def _settle(self, data: mjx.Data, n_steps: int) -> mjx.Data:
         """``n_steps`` physics steps with zero control from ``data`` (its position/velocity
         stage not computed), then that stage: cheetah's ``physics.step(nstep=200)`` and the
-        ``mj_forward`` of dm_control's reset, whose stage the last step has computed.
+        ``mj_forward`` of dm_control's reset, whose position/velocity stage the last step has
+        computed (its acceleration fields, which no task here reads, are not refreshed). As
+        before, the first step starts from the stage at ``data``'s own ``qpos``; dm_control's
+        first ``mj_step2`` uses the stage its reset computed at ``qpos0``.
 
         One loop of ``n_steps + 1`` rounds, each the position/velocity stage then the dynamics
         (kept in all rounds but the last), so the program holds one copy of each stage, not a
