@@ -30,7 +30,7 @@ def batched_like(tree: Any, like: jax.Array) -> Any:
       along ``like``'s batch axis.
     """
     first = jnp.ravel(like)[0]
-    always = (first == first) | (first != first)  # True, NaN or not
+    marker = first == first  # any batched predicate: select(p, x, x) is x whatever p is
     # lax.select, not jnp.where: jnp.where returns a zero-size operand as it is (unbatched),
     # and MJX's data has zero-size fields.
-    return jax.tree.map(lambda x: jax.lax.select(jnp.broadcast_to(always, jnp.shape(x)), x, x), tree)
+    return jax.tree.map(lambda x: jax.lax.select(jnp.broadcast_to(marker, jnp.shape(x)), x, x), tree)
