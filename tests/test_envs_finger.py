@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from dm_control import suite
 from scipy import stats
+import spread
 from test_envs_parity import Case, _flat, _our_rollouts
 
 from iap_mjx import envs
@@ -116,13 +117,19 @@ def test_touch_and_spin_reward_match_dm_control(finger):
     - Observation and reward at identical states (``test_envs_parity``'s machinery, so the
       compiled programs are shared): position and velocity to float32 precision, the reward
       exactly, on all 200 steps.
-    - Trajectory: the first 60 control steps (6 of them touching) within 1e-2 of dm_control's
-      observations, rewards equal; contacts make float32 and float64 part after that.
+    - Trajectory: the first 100 control steps (9 of them touching) within 1e-2 of dm_control's
+      observations plus 100x dm_control's own spread under float32 noise
+      (``tests/spread.py``), rewards equal up to that spread. Measured here: the spread is
+      needed from step ~65 on (a factor of 7.4 by step 100), and a physics step per control
+      step too few (tested) needs 3.6e6. Later touches add up what rounding does not explain:
+      8 float32 Newton iterations against dm_control's 200 leave each touch's contact force
+      ~4e-3 apart (above), ~1e4 float32 ulps, and by step 123 the trajectory needs 150x
+      the spread, by step 150 860x; the identical-state checks above cover those steps.
     """
     reference = _square_wave_rollout(seed=5)
     touch = reference["obs"][:, 7:]
     assert np.sum(np.any(touch > 0, axis=1)) >= 10 and np.sum(reference["reward"]) >= 5
-    ours = _our_rollouts(Case("finger-spin", 60, 1e-2, 0.0), reference)
+    ours = _our_rollouts(Case("finger-spin", 1e-2, 0.0), reference)
 
     @jax.jit
     @jax.vmap
@@ -137,70 +144,15 @@ def test_touch_and_spin_reward_match_dm_control(finger):
     np.testing.assert_allclose(ours["same_obs"][:, :7], reference["obs"][:, :7], rtol=1e-5, atol=1e-5)
     np.testing.assert_array_equal(ours["same_reward"], reference["reward"])
 
-    window = slice(0, 60)
-    assert np.sum(np.any(touch[window] > 0, axis=1)) >= 5
+    window = slice(0, 100)
+    assert np.sum(np.any(touch[window] > 0, axis=1)) >= 8
     np.testing.assert_allclose(ours["first_obs"], reference["start"]["obs"], rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(ours["obs"][window], reference["obs"][window], atol=1e-2)
-    np.testing.assert_array_equal(ours["reward"][window], reference["reward"][window])
-
-
-def test_model_edits_are_dm_controls(finger):
-    """dm_control's ``initialize_episode`` lowers the hinge damping and hides two sites."""
-    env = suite.load("finger", "spin", task_kwargs={"random": 0})
-    env.reset()
-    theirs = env.physics.model
-    ours = finger.mj_model
-    np.testing.assert_array_equal(ours.dof_damping, theirs.dof_damping)
-    np.testing.assert_array_equal(ours.site_rgba, theirs.site_rgba)
-    assert ours.site_rgba[mujoco.mj_name2id(ours, mujoco.mjtObj.mjOBJ_SITE, "tip"), 3] == 0
-    assert finger.observation_shape == (9,) and finger.action_size == 2
-    assert finger.n_sub_steps * ours.opt.timestep == pytest.approx(env.control_timestep())
-
-
-def test_the_geoms_left_without_collisions_never_touch():
-    """``FingerSpin`` drops the collision flags of geoms that no pose brings into contact.
-
-    On dm_control's own model (every pair MuJoCo would test), over 1000 random poses of all
-    three joints on the full circle (beyond the joint limits), each pair with a dropped geom
-    stays more than 2 cm apart by ``mj_geomDistance`` (the closest, fingertip to ground, is
-    0.4 - 0.371 = 0.029 m); and in dm_control's simulation (9 episodes of 1000 steps:
-    uniform, square-wave and bang-bang actions) every contact is one of the pairs we keep.
-    """
-    from mujoco.mjx._src import collision_driver
-
-    from iap_mjx.envs.finger import _NEVER_TOUCHING
-
-    env = suite.load("finger", "spin", task_kwargs={"random": 0})
-    env.reset()
-    model = env.physics.model.ptr
-    data = mujoco.MjData(model)
-    geom = lambda name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name)
-    dropped = {geom(name) for name in _NEVER_TOUCHING}
-    pairs = [(a, b) for a, b, *_ in collision_driver.geom_pairs(model)]
-    checked = [pair for pair in pairs if set(pair) & dropped]
-    kept = {frozenset(pair) for pair in pairs if not set(pair) & dropped}
-    assert len(checked) == 12 and len(kept) == 3
-    rng = np.random.default_rng(0)
-    closest = np.inf
-    fromto = np.zeros(6)
-    for qpos in rng.uniform(-np.pi, np.pi, (1000, 3)):
-        data.qpos[:] = qpos
-        mujoco.mj_kinematics(model, data)
-        for a, b in checked:
-            closest = min(closest, mujoco.mj_geomDistance(model, data, a, b, 1.0, fromto))
-    assert closest > 0.02, closest  # the fingertip's closest approach to the ground: 0.029
-
-    spec = env.action_spec()
-    for episode in range(9):
-        env.reset()
-        phase = rng.uniform(0, 2 * np.pi, 2)
-        for t in range(1000):
-            if episode % 3 == 0:
-                action = rng.uniform(spec.minimum, spec.maximum)
-            elif episode % 3 == 1:
-                action = np.sign(np.sin(t / 20.0 * 2 * np.pi + phase))
-            else:
-                action = np.where(rng.random(2) < 0.5, -1.0, 1.0)
-            env.step(action)
-            contacts = env.physics.data.contact[: env.physics.data.ncon]
-            assert all(frozenset((c.geom1, c.geom2)) in kept for c in contacts)
+    actions = reference["actions"][window]
+    obs, reward = reference["obs"][window], reference["reward"][window]
+    obs_spread, reward_spread = spread.dm_control_spread("finger-spin", 0, actions, obs, reward)
+    spread.assert_within_spread(ours["obs"][window], obs, obs_spread, atol=1e-2,
+                                what="finger-spin observations")
+    spread.assert_within_spread(ours["reward"][window], reward, reward_spread, atol=0.0,
+                                what="finger-spin rewards")
+    wrong, _ = spread.dm_control_run("finger-spin", 0, actions, sub_steps=spread.wrong_sub_steps(finger.n_sub_steps))
+    spread.assert_wrong_step_is_caught(wrong, obs, obs_spread, atol=1e-2)
