@@ -27,17 +27,77 @@ def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path
     """Turns on JAX's persistent compilation cache, so a program compiled once is reused.
 
     Every compiled program is cached, however quick its compile (the threshold is 0 s), since
-    on a 2-core CPU even small programs add up. Returns the cache directory.
+    on a 2-core CPU even small programs add up. Entries are written whole or not at all
+    (:func:`write_entries_atomically`), so processes sharing the directory (test workers, two
+    trainings at once) never read one another's half-written entries. Returns the cache
+    directory.
     """
     import jax
 
     path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     path.mkdir(parents=True, exist_ok=True)
+    write_entries_atomically()
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     logger.debug("JAX persistent compilation cache at %s", path)
     return path
+
+
+def write_entries_atomically() -> bool:
+    """Makes JAX's file cache write each entry to a temporary file in the cache directory and
+    rename it into place, so a reader sees a whole entry or none.
+
+    JAX's ``LRUCache`` (jax 0.10) writes ``<key>-cache`` in place: another process that
+    compiles the same program meanwhile finds the file, reads a truncated stream and warns
+    ("Error reading persistent compilation cache entry ... incomplete or truncated stream"),
+    and a process killed mid-write leaves a truncated entry behind for good. The rename is
+    atomic on a local filesystem. An entry is rewritten when it is written again (JAX writes
+    only after a compile, so after a miss or an unreadable entry), which also replaces a
+    truncated entry left by an earlier process. With a size cap (``jax_compilation_cache_max_size``)
+    JAX's own locked writes are kept. Returns whether the atomic writer is in place (False if
+    this JAX's cache internals differ from what it replaces: the cache then works as JAX's).
+    """
+    from jax._src import compilation_cache, lru_cache
+
+    installed = getattr(compilation_cache, "LRUCache", None)
+    if getattr(installed, "writes_atomically", False):
+        return True
+    if installed is not lru_cache.LRUCache or not hasattr(lru_cache, "_CACHE_SUFFIX"):
+        logger.warning("this JAX's compilation cache is not the one iap_mjx knows; entries are "
+                       "written as JAX writes them (not atomically)")
+        return False
+
+    class AtomicLRUCache(lru_cache.LRUCache):
+        """JAX's file cache whose uncapped writes go through a temporary file and a rename."""
+
+        writes_atomically = True
+
+        def put(self, key: str, value: bytes) -> None:
+            if self.eviction_enabled:  # JAX serialises reads and writes with a file lock
+                return super().put(key, value)
+            if not key:
+                raise ValueError("key cannot be empty")
+            write_atomically(Path(self.path) / f"{key}{lru_cache._CACHE_SUFFIX}", value)
+
+    compilation_cache.reset_cache()  # a cache built before this call is rebuilt with the writer
+    compilation_cache.LRUCache = AtomicLRUCache
+    return True
+
+
+def write_atomically(path: Path, value: bytes) -> None:
+    """Writes ``value`` to ``path`` through a temporary file in the same directory and
+    ``os.replace``: a concurrent reader sees the old file, no file, or all of ``value``."""
+    import tempfile
+
+    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(value)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
 
 
 LARGE_CONSTANT_BYTES = 1 << 20

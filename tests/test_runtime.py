@@ -1,0 +1,117 @@
+"""Process set-up: the persistent compilation cache's entries are written whole.
+
+Test workers share ``.jax_cache/`` and users may run two trainings on one cache directory; JAX's
+own cache writes ``<key>-cache`` in place, so a process reading it meanwhile gets a truncated
+stream. The race below, given JAX's own ``LRUCache`` instead of the writer
+``runtime.enable_compilation_cache`` installs, saw torn reads in 3 runs of 3 (118 to 8,909 of
+them, sizes from 0 to half an entry).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import threading
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+from jax._src import compilation_cache, lru_cache
+
+from iap_mjx import runtime
+
+ENTRY_BYTES = 8 << 20
+WRITES = 40
+
+
+def _race(cache_class, directory: Path) -> list[int]:
+    """A writer puts ``WRITES`` entries of ``ENTRY_BYTES`` under fresh keys while a reader
+    reads each key as soon as its file exists. Returns the sizes of the reads that were not
+    whole."""
+    cache = cache_class(str(directory), max_size=-1)
+    value = bytes(range(256)) * (ENTRY_BYTES // 256)
+    current = {"key": None}
+    done = threading.Event()
+    torn: list[int] = []
+
+    def read():
+        while not done.is_set():
+            key = current["key"]
+            if key is not None:
+                got = cache.get(key)
+                if got is not None and len(got) != len(value):
+                    torn.append(len(got))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    try:
+        for i in range(WRITES):
+            current["key"] = f"entry{i}"
+            cache.put(f"entry{i}", value)
+    finally:
+        done.set()
+        reader.join()
+    return torn
+
+
+def test_a_reader_never_sees_a_half_written_entry(tmp_path):
+    """The writer ``enable_compilation_cache`` installs: every read is whole (JAX's own cache
+    fails this, see the module docstring)."""
+    assert runtime.write_entries_atomically()
+    atomic = compilation_cache.LRUCache
+    assert atomic is not lru_cache.LRUCache and issubclass(atomic, lru_cache.LRUCache)
+    assert _race(atomic, tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"entry{i}-cache" for i in range(WRITES))
+
+
+def test_jax_writes_its_entries_through_the_atomic_writer(tmp_path):
+    """A fresh interpreter set up as the CLI is compiles a program: JAX's cache is the atomic
+    one, the entry lands under JAX's name, no temporary file is left, and a second process
+    loads it instead of compiling."""
+    script = textwrap.dedent(f"""
+        import json, sys
+        from iap_mjx import runtime
+        runtime.enable_compilation_cache({str(tmp_path)!r})
+        import jax, jax.numpy as jnp
+        from jax._src import compilation_cache
+        out = jax.jit(lambda x: jnp.sin(x) * 3.0 + x)(jnp.arange(5.0))
+        cache = compilation_cache._get_cache(jax.devices()[0].client)
+        print(json.dumps({{"atomic": getattr(type(cache), "writes_atomically", False),
+                           "value": float(out.sum())}}))
+    """)
+    def run() -> str:
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+        assert '"atomic": true' in done.stdout.splitlines()[-1], done.stdout + done.stderr
+        assert "Error reading persistent compilation cache" not in done.stderr
+        return done.stdout
+
+    def entries() -> dict[str, int]:
+        return {p.name: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+
+    first = run()
+    written = entries()
+    assert written and all(name.endswith("-cache") for name in written), written
+    assert run() == first
+    assert entries() == written  # the second process loaded every program: nothing rewritten
+
+
+def test_a_truncated_entry_is_replaced_when_written_again(tmp_path):
+    """An entry truncated by a process killed mid-write (before this writer) is replaced by the
+    next write of the same key, where JAX's cache keeps it forever."""
+    assert runtime.write_entries_atomically()
+    cache = compilation_cache.LRUCache(str(tmp_path), max_size=-1)
+    (tmp_path / "k-cache").write_bytes(b"trunc")
+    cache.put("k", b"whole entry")
+    assert cache.get("k") == b"whole entry"
+    jax_cache = lru_cache.LRUCache(str(tmp_path), max_size=-1)
+    (tmp_path / "j-cache").write_bytes(b"trunc")
+    jax_cache.put("j", b"whole entry")
+    assert jax_cache.get("j") == b"trunc"  # why the writer replaces entries
+
+
+def test_compiled_programs_still_run_from_the_cache():
+    """The suite's own cache (conftest) goes through the writer and serves programs."""
+    assert getattr(compilation_cache.LRUCache, "writes_atomically", False)
+    x = jnp.linspace(0.0, 1.0, 7)
+    assert float(jax.jit(lambda v: jnp.cumsum(v * v))(x)[-1]) > 0
