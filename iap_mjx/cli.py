@@ -134,16 +134,19 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    """Evaluates a run's latest checkpoint on fresh seeds; prints mean and std return."""
+    """Evaluates a run's latest checkpoint on fresh seeds, in the run's env or in the condition
+    its ``env.*`` overrides set; prints mean and std return."""
     from iap_mjx import es
 
     try:
-        returns = es.evaluate_run(args.run_dir, episodes=args.episodes, seed=args.seed)
+        returns = es.evaluate_run(args.run_dir, episodes=args.episodes, seed=args.seed,
+                                  overrides=tuple(args.overrides))
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     print(json.dumps({
         "run_dir": str(args.run_dir),
+        "overrides": list(args.overrides),
         "episodes": int(len(returns)),
         "return_mean": float(returns.mean()),
         "return_std": float(returns.std()),
@@ -248,6 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
     evaluate.add_argument("run_dir")
+    evaluate.add_argument("overrides", nargs="*", metavar="env.key=value",
+                          help="the evaluation's condition, e.g. env.distraction=none, env.dynamic=true, "
+                               "env.background_videos=val (held-out backgrounds)")
     evaluate.add_argument("--episodes", type=_count, default=8)
     evaluate.add_argument("--seed", type=int, default=12345,
                           help="evaluation seed (distinct from the training seeds)")

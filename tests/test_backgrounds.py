@@ -102,6 +102,25 @@ def test_davis_levels_take_the_first_videos_of_the_training_list(tmp_path):
     assert "'walking'" in str(error.value) and "'bear'" not in str(error.value).split("missing")[1].split("]")[0]
 
 
+def test_davis_validation_videos_are_the_references_held_out_list(tmp_path):
+    """``videos="val"`` reads the reference's DAVIS17_VALIDATION_VIDEOS (its 30 names as
+    distracting_control/background.py lists them; a level takes the first N), none of them a
+    training video, and names the validation videos it misses."""
+    val = backgrounds.DAVIS17_VALIDATION_VIDEOS
+    assert len(val) == 30 and len(set(val)) == 30 and not set(val) & set(backgrounds.DAVIS17_TRAINING_VIDEOS)
+    assert (val[0], val[9], val[-1]) == ("bike-packing", "dog", "soapbox")
+    _write_davis(tmp_path, val[:8], (1,) * 8, shape=(6, 6))
+    held_out = backgrounds.load("medium", tmp_path, size=4, videos="val")
+    assert held_out.names == val[:8] and held_out.source.endswith(":val")
+    with pytest.raises(ValueError, match="lacks 8 of the 8 DAVIS-2017 training"):
+        backgrounds.check("medium", tmp_path)  # the training videos are not there
+    with pytest.raises(ValueError, match="lacks 22 of the 30 DAVIS-2017 validation") as error:
+        backgrounds.check("hard", tmp_path, videos="val")
+    assert "'soapbox'" in str(error.value)
+    with pytest.raises(ValueError, match="background_videos = 'test': valid train, val"):
+        backgrounds.check("medium", videos="test")
+
+
 def test_missing_videos_are_all_named(tmp_path):
     _write_davis(tmp_path, EASY[:2], FRAME_COUNTS[:2])
     with pytest.raises(ValueError, match="background_dir") as error:
@@ -171,10 +190,30 @@ def test_videos_validate_their_arrays():
 # ---- the built-in photographs ---------------------------------------------------------------
 
 
-def test_photographs_ship_inside_the_scikit_image_wheel():
-    shipped = {str(path) for path in importlib.metadata.files("scikit-image")}
-    for photo in backgrounds.PHOTOGRAPHS:
-        assert f"skimage/data/{photo.filename}" in shipped, photo.filename
+def test_photographs_ship_inside_their_wheels():
+    """Every photograph, training and held out, is a file of an installed wheel (its RECORD),
+    not one that a package fetches on demand."""
+    for photo in backgrounds.PHOTOGRAPHS + backgrounds.VALIDATION_PHOTOGRAPHS:
+        distribution = {"skimage": "scikit-image", "matplotlib": "matplotlib"}[photo.package]
+        shipped = {str(path) for path in importlib.metadata.files(distribution)}
+        folder = "/".join((photo.package,) + backgrounds.PACKAGE_DATA[photo.package])
+        assert f"{folder}/{photo.filename}" in shipped, photo.filename
+
+
+def test_held_out_photographs_are_other_pictures():
+    """The held-out set shares no file and no picture with the training set: names, files and
+    pixels all differ (the pan/zoom videos' first frames are compared too), and each level has
+    as many held-out videos as training ones, so a compiled program takes either."""
+    train, val = backgrounds.PHOTOGRAPHS, backgrounds.VALIDATION_PHOTOGRAPHS
+    assert not {p.name for p in train} & {p.name for p in val}
+    assert not {p.filename for p in train} & {p.filename for p in val}
+    for difficulty in backgrounds.DIFFICULTIES:
+        seen = backgrounds.load(difficulty, size=16, num_frames=2)
+        held = backgrounds.load(difficulty, size=16, num_frames=2, videos="val")
+        assert held.frames.shape == seen.frames.shape and held.source == "builtin:val"
+        first = held.frames[:, 0].reshape(len(held.names), -1).astype(int)
+        for frame in seen.frames[:, 0].reshape(len(seen.names), -1).astype(int):
+            assert np.all(np.abs(first - frame).mean(axis=1) > 5)
 
 
 def test_builtin_videos_load_without_network(monkeypatch):
@@ -213,6 +252,6 @@ def test_pan_zoom_stays_inside_the_photo_and_moves_smoothly():
 def test_every_photograph_is_documented_with_its_licence():
     doc = (Path(__file__).resolve().parent.parent / "docs" / "backgrounds.md").read_text()
     rows = {line.split("|")[2].strip(): line for line in doc.splitlines() if line.startswith("| ") and "`" in line}
-    for photo in backgrounds.PHOTOGRAPHS:
+    for photo in backgrounds.PHOTOGRAPHS + backgrounds.VALIDATION_PHOTOGRAPHS:
         assert photo.name in rows, photo.name
         assert f"`{photo.filename}`" in rows[photo.name] and photo.licence in rows[photo.name]

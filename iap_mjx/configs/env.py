@@ -14,6 +14,11 @@ OBS_MODES = ("state", "pixels", "pixels_depth", "pixels+state")
 SOLVERS = ("newton", "cg")  # QuadrupedConfig.solver: MuJoCo's mjSOL_NEWTON, mjSOL_CG
 
 
+DISTRACTION_SETTINGS = ("dynamic", "distraction_kinds", "background_dir", "background_size",
+                        "background_frames", "background_videos")
+"""The ``EnvConfig`` fields that belong to ``distraction`` (meaningless without one)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
     """Static settings of one env (hashable, so jitted code can depend on it).
@@ -49,6 +54,9 @@ class EnvConfig:
       background_size, background_frames: the square sky texture's side in texels, and the
         frames per built-in video (``None``: ``backgrounds.DEFAULT_SIZE`` /
         ``DEFAULT_NUM_FRAMES``).
+      background_videos: ``"train"`` (``None`` too), the backgrounds training draws from, or
+        ``"val"``, a disjoint held-out set for evaluating generalisation (the reference's 30
+        DAVIS-2017 validation videos, or other built-in photographs: ``docs/backgrounds.md``).
     """
 
     action_repeat: int = 1
@@ -68,6 +76,7 @@ class EnvConfig:
     background_dir: str | None = None
     background_size: int | None = None
     background_frames: int | None = None
+    background_videos: str | None = None
 
     def __post_init__(self):
         positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height",
@@ -105,9 +114,9 @@ class EnvConfig:
         if self.distraction == "none":
             object.__setattr__(self, "distraction", None)
         if self.distraction is None:
-            given = [f"{name}={getattr(self, name)!r}" for name in
-                     ("distraction_kinds", "background_dir", "background_size", "background_frames")
-                     if getattr(self, name) is not None] + (["dynamic=True"] if self.dynamic is True else [])
+            given = [f"{name}={getattr(self, name)!r}" for name in DISTRACTION_SETTINGS
+                     if name != "dynamic" and getattr(self, name) is not None] + (
+                         ["dynamic=True"] if self.dynamic is True else [])
             if given:
                 raise ValueError(f"EnvConfig: {', '.join(given)} set without a distraction; set "
                                  f"distraction to one of {', '.join(distraction.DIFFICULTY_SCALE)}.")
@@ -135,7 +144,7 @@ class EnvConfig:
         if self.distraction is None:
             return None
         given = {"kinds": self.distraction_kinds, "background_size": self.background_size,
-                 "background_frames": self.background_frames}
+                 "background_frames": self.background_frames, "background_videos": self.background_videos}
         return distraction.DistractionConfig(
             difficulty=self.distraction, dynamic=self.dynamic, background_dir=self.background_dir,
             **{name: value for name, value in given.items() if value is not None})

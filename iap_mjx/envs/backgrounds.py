@@ -20,6 +20,12 @@ Two sources:
   smooth, periodic pan and zoom through the photo (deterministic): ten videos, easy the first
   4, medium the first 8, hard all 10.
 
+Each source has two disjoint sets, named as the reference names them (its
+``background_dataset_videos``): ``"train"``, what training draws from, and ``"val"``, held out
+for evaluating generalisation to backgrounds never seen in training: the reference's 30
+DAVIS-2017 validation videos, or ten other photographs (``VALIDATION_PHOTOGRAPHS``, shipped in
+scikit-image and matplotlib), with the same counts per difficulty.
+
 ``load(difficulty, background_dir=None)`` picks one (``None``: the photographs);
 ``check(difficulty, background_dir)`` runs the same validation without decoding an image,
 cheap enough to run before any compile. Every bad setting raises ``ValueError`` naming the
@@ -49,6 +55,7 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 DIFFICULTIES = ("easy", "medium", "hard")
+VIDEO_SETS = ("train", "val")
 # distracting_control/suite_utils.py: DIFFICULTY_NUM_VIDEOS (None: every video).
 _NUM_VIDEOS = {"easy": 4, "medium": 8, "hard": None}
 DEFAULT_SIZE = 256
@@ -70,21 +77,32 @@ DAVIS17_TRAINING_VIDEOS = (
     "snowboard", "soccerball", "stroller", "stunt", "surf", "swing", "tennis",
     "tractor-sand", "train", "tuk-tuk", "upside-down", "varanus-cage", "walking",
 )
+# distracting_control/background.py: DAVIS17_VALIDATION_VIDEOS, in the reference's order
+# (``background_dataset_videos="val"``).
+DAVIS17_VALIDATION_VIDEOS = (
+    "bike-packing", "blackswan", "bmx-trees", "breakdance", "camel",
+    "car-roundabout", "car-shadow", "cows", "dance-twirl", "dog", "dogs-jump",
+    "drift-chicane", "drift-straight", "goat", "gold-fish", "horsejump-high",
+    "india", "judo", "kite-surf", "lab-coat", "libby", "loading", "mbike-trick",
+    "motocross-jump", "paragliding-launch", "parkour", "pigs", "scooter-black",
+    "shooting", "soapbox",
+)
 _DAVIS_SUBDIR = Path("JPEGImages") / "480p"
 _LAYOUTS = "<root>/JPEGImages/480p/<video>/<frame>.jpg or <root>/<video>/<frame>.jpg"
 
 
 @dataclasses.dataclass(frozen=True)
 class Photograph:
-    """One photograph of ``skimage/data`` and the pan/zoom path made from it.
+    """One photograph shipped in an installed package, and the pan/zoom path made from it.
 
     Attributes:
-      name: the video's name (scikit-image's name for the image).
-      filename: the file inside the ``skimage/data`` package directory.
-      source: who made it, where from (as scikit-image's docstring states it).
-      licence: its licence, as scikit-image's docstring states it.
+      name: the video's name (the package's name for the image).
+      filename: the file inside the package's data directory (``PACKAGE_DATA``).
+      source: who made it, where from (as the package's documentation states it).
+      licence: its licence, as the package's documentation states it.
       zoom: ``(min, max)``: the window's side is ``min(H, W) / zoom``.
       pan: how far the window's centre moves, a fraction of the room the window leaves.
+      package: ``"skimage"`` or ``"matplotlib"``.
     """
 
     name: str
@@ -93,6 +111,11 @@ class Photograph:
     licence: str
     zoom: tuple[float, float] = (1.25, 1.6)
     pan: float = 0.9
+    package: str = "skimage"
+
+
+# Where each package keeps its sample images.
+PACKAGE_DATA = {"skimage": ("data",), "matplotlib": ("mpl-data", "sample_data")}
 
 
 # Colour photographs first, so that easy and medium draw from them; all ten ship in the
@@ -114,6 +137,33 @@ PHOTOGRAPHS = (
     Photograph("brick", "brick.png", "brick wall, CC0Textures Bricks25 (greyscale)", "CC0"),
     Photograph("grass", "grass.png", "grass, linolafett on DeviantArt (greyscale)", "CC0"),
     Photograph("gravel", "gravel.png", "gravel, CC0Textures Gravel04 (greyscale)", "CC0"),
+)
+
+# Held out: none of these is in PHOTOGRAPHS. Colour first, as above; the set has fewer colour
+# photographs (3 of 10, against 6), so it also moves the colour statistics away from training.
+VALIDATION_PHOTOGRAPHS = (
+    Photograph("motorcycle_left", "motorcycle_left.png",
+               "Middlebury 2014 stereo benchmark (Nesic, Westling, Wang, Kitajima, Krathwohl, "
+               "Scharstein), left view", "not stated by scikit-image (Middlebury's research data)"),
+    Photograph("immunohistochemistry", "ihc.png",
+               "colonic glands, IHC staining, Center for Microscopy And Molecular Imaging",
+               "no known copyright restrictions"),
+    Photograph("grace_hopper", "grace_hopper.jpg", "Rear Admiral Grace Hopper, U.S. Navy photograph",
+               "public domain (U.S. Navy)", package="matplotlib"),
+    Photograph("coins", "coins.png", "Greek coins from Pompeii, Brooklyn Museum (greyscale)",
+               "no known copyright restrictions"),
+    Photograph("clock", "clock_motion.png", "motion-blurred wall clock, Stefan van der Walt (greyscale)",
+               "public domain"),
+    Photograph("cell", "cell.png", "cell in saline, quantitative phase image, Paul Mueller (greyscale)",
+               "CC0"),
+    Photograph("text", "text.png", "text for corner detection, Wikipedia File:Corner.png (greyscale)",
+               "public domain"),
+    Photograph("moon", "moon.png", "surface of the moon (greyscale)", "not stated by scikit-image"),
+    Photograph("page", "page.png", "scanned page of printed text (greyscale)",
+               "not stated by scikit-image"),
+    Photograph("microaneurysms", "microaneurysms.png",
+               "retina detail, HRF fundus image database, Andreas Maier (greyscale)", "CC0",
+               zoom=(1.1, 1.3), pan=0.5),
 )
 
 
@@ -251,12 +301,18 @@ def _first(sequence: Sequence, difficulty: str) -> tuple:
     return tuple(sequence if count is None else sequence[:count])
 
 
+def _check_videos(videos: str) -> None:
+    if videos not in VIDEO_SETS:
+        raise ValueError(f"background_videos = {videos!r}: valid {', '.join(VIDEO_SETS)} (training or "
+                         "held-out backgrounds)")
+
+
 # ---- the built-in photographs ------------------------------------------------------------
 
 
 def _photograph_pixels(photo: Photograph) -> np.ndarray:
     """The photograph as ``(H, W, 3)`` uint8 (greyscale replicated into RGB)."""
-    resource = importlib.resources.files("skimage") / "data" / photo.filename
+    resource = importlib.resources.files(photo.package).joinpath(*PACKAGE_DATA[photo.package], photo.filename)
     with importlib.resources.as_file(resource) as path:
         return _decode(Path(path), "builtin photograph")
 
@@ -279,34 +335,41 @@ def pan_zoom_windows(height: int, width: int, num_frames: int, zoom: tuple[float
 
 
 def builtin_videos(difficulty: str = "medium", size: int = DEFAULT_SIZE,
-                   num_frames: int = DEFAULT_NUM_FRAMES) -> BackgroundVideos:
-    """The offline default: the level's first photographs of ``PHOTOGRAPHS`` as pan/zoom
-    videos of ``num_frames`` frames each, ``(V, num_frames, size, size, 3)``."""
-    photos = _first(PHOTOGRAPHS, difficulty)
+                   num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> BackgroundVideos:
+    """The offline default: the level's first photographs of ``PHOTOGRAPHS`` (``videos="val"``:
+    of ``VALIDATION_PHOTOGRAPHS``) as pan/zoom videos of ``num_frames`` frames each,
+    ``(V, num_frames, size, size, 3)``."""
+    _check_videos(videos)
+    source = "builtin" if videos == "train" else "builtin:val"
+    photos = _first(PHOTOGRAPHS if videos == "train" else VALIDATION_PHOTOGRAPHS, difficulty)
     _check_count("size", size)
     _check_count("num_frames", num_frames)
-    videos = []
+    clips = []
     for photo in photos:
         pixels = _photograph_pixels(photo).astype(np.float32)
         windows = pan_zoom_windows(pixels.shape[0], pixels.shape[1], num_frames, photo.zoom, photo.pan)
-        videos.append(np.stack([
+        clips.append(np.stack([
             _to_uint8(_sample_window(pixels, top, left, side, side, size)) for top, left, side in windows
         ]))
-    return _stack(videos, [photo.name for photo in photos], "builtin")
+    return _stack(clips, [photo.name for photo in photos], source)
 
 
 # ---- DAVIS-2017 --------------------------------------------------------------------------
 
 
-def davis_frame_paths(root: str | os.PathLike, difficulty: str = "medium") -> dict[str, list[Path]]:
-    """The frame files of the level's DAVIS-2017 training videos under ``root``, each video's
-    sorted by file name; checks everything that can be checked without decoding.
+def davis_frame_paths(root: str | os.PathLike, difficulty: str = "medium",
+                      videos: str = "train") -> dict[str, list[Path]]:
+    """The frame files of the level's DAVIS-2017 training videos (``videos="val"``: validation
+    videos) under ``root``, each video's sorted by file name; checks everything that can be
+    checked without decoding.
 
     Raises:
       ValueError: unknown difficulty; ``root`` missing or not a directory; a listed video
         missing (all missing ones are named); a video directory without frames.
     """
-    videos = _first(DAVIS17_TRAINING_VIDEOS, difficulty)
+    _check_videos(videos)
+    kind = "training" if videos == "train" else "validation"
+    videos = _first(DAVIS17_TRAINING_VIDEOS if videos == "train" else DAVIS17_VALIDATION_VIDEOS, difficulty)
     root = Path(root).expanduser()
     if not root.is_dir():
         raise ValueError(f"background_dir {str(root)!r} does not exist or is not a directory; give a DAVIS-2017 "
@@ -315,7 +378,7 @@ def davis_frame_paths(root: str | os.PathLike, difficulty: str = "medium") -> di
     missing = [name for name in videos if not (video_root / name).is_dir()]
     if missing:
         raise ValueError(
-            f"background_dir {str(video_root)!r} lacks {len(missing)} of the {len(videos)} DAVIS-2017 training "
+            f"background_dir {str(video_root)!r} lacks {len(missing)} of the {len(videos)} DAVIS-2017 {kind} "
             f"videos that difficulty {difficulty!r} uses: missing {missing}; expected {_LAYOUTS} with the videos "
             f"{list(videos)}.")
     paths = {}
@@ -342,8 +405,10 @@ def _decode(path: Path, what: str) -> np.ndarray:
         raise ValueError(f"{what}: cannot decode frame {str(path)!r}: {error}") from error
 
 
-def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = DEFAULT_SIZE) -> BackgroundVideos:
-    """The level's DAVIS-2017 training videos under ``root``, ``(V, F, size, size, 3)``.
+def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = DEFAULT_SIZE,
+               videos: str = "train") -> BackgroundVideos:
+    """The level's DAVIS-2017 training (``videos="val"``: validation) videos under ``root``,
+    ``(V, F, size, size, 3)``.
 
     Each frame is decoded and resized (``resize_frame``) one at a time, so the peak memory
     is the result's.
@@ -353,38 +418,41 @@ def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = 
         (the file is named).
     """
     _check_count("size", size)
-    paths = davis_frame_paths(root, difficulty)
-    videos = [
+    paths = davis_frame_paths(root, difficulty, videos)
+    clips = [
         np.stack([resize_frame(_decode(path, "background_dir"), size) for path in frames])
         for frames in paths.values()
     ]
-    return _stack(videos, list(paths), f"davis:{Path(root).expanduser()}")
+    suffix = "" if videos == "train" else ":val"
+    return _stack(clips, list(paths), f"davis:{Path(root).expanduser()}{suffix}")
 
 
 # ---- entry points ------------------------------------------------------------------------
 
 
 def check(difficulty: str, background_dir: str | os.PathLike | None = None, size: int = DEFAULT_SIZE,
-          num_frames: int = DEFAULT_NUM_FRAMES) -> None:
+          num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> None:
     """Validates ``load``'s arguments without decoding any image (run it before compiling).
 
     Raises:
       ValueError: as ``load`` would, except for frames that do not decode.
     """
     num_videos(difficulty)
+    _check_videos(videos)
     _check_count("size", size)
     _check_count("num_frames", num_frames)
     if background_dir is not None:
-        davis_frame_paths(background_dir, difficulty)
+        davis_frame_paths(background_dir, difficulty, videos)
 
 
 def load(difficulty: str = "medium", background_dir: str | os.PathLike | None = None, size: int = DEFAULT_SIZE,
-         num_frames: int = DEFAULT_NUM_FRAMES) -> BackgroundVideos:
+         num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> BackgroundVideos:
     """The level's background videos: DAVIS-2017 under ``background_dir``, or (``None``) the
     built-in photographs as ``num_frames``-frame pan/zoom videos. ``size``: the square
-    frame's side (see the module docstring for the memory it implies)."""
-    check(difficulty, background_dir, size, num_frames)
+    frame's side (see the module docstring for the memory it implies); ``videos``: the
+    training set or the held-out one (``"train"``, ``"val"``)."""
+    check(difficulty, background_dir, size, num_frames, videos)
     if background_dir is None:
-        return builtin_videos(difficulty, size, num_frames)
-    return load_davis(background_dir, difficulty, size)
+        return builtin_videos(difficulty, size, num_frames, videos)
+    return load_davis(background_dir, difficulty, size, videos)
 

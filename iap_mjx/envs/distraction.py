@@ -76,6 +76,8 @@ class DistractionConfig:
         scikit-image (``iap_mjx.envs.backgrounds``).
       background_size: side of the square frames (the sky texture), in texels.
       background_frames: frames per built-in video.
+      background_videos: ``"train"``, the backgrounds training draws from, or ``"val"``, a
+        disjoint held-out set (the reference's ``background_dataset_videos``).
     """
 
     difficulty: str = "medium"
@@ -84,6 +86,7 @@ class DistractionConfig:
     background_dir: str | None = None
     background_size: int = backgrounds_lib.DEFAULT_SIZE
     background_frames: int = backgrounds_lib.DEFAULT_NUM_FRAMES
+    background_videos: str = "train"
 
     def __post_init__(self):
         if not isinstance(self.difficulty, str) or self.difficulty not in DIFFICULTY_SCALE:
@@ -101,18 +104,21 @@ class DistractionConfig:
             raise ValueError(f"background_size = {self.background_size} texels: valid 1 to "
                              f"{MAX_BACKGROUND_SIZE} (the reference's sky is 800).")
         if "background" not in kinds:
-            if self.background_dir is not None:
-                raise ValueError(f"background_dir = {self.background_dir!r} is set but the background "
-                                 f"distraction is off (distraction_kinds = {','.join(kinds)}); add "
-                                 "'background' to distraction_kinds or drop background_dir.")
+            for name, unset in (("background_dir", None), ("background_videos", "train")):
+                if getattr(self, name) != unset:
+                    raise ValueError(f"{name} = {getattr(self, name)!r} is set but the background "
+                                     f"distraction is off (distraction_kinds = {','.join(kinds)}); add "
+                                     f"'background' to distraction_kinds or drop {name}.")
             return
         backgrounds_lib.check(self.difficulty, self.background_dir, self.background_size,
-                              self.background_frames)
+                              self.background_frames, self.background_videos)
         if self.background_dir is None:
-            frames = backgrounds_lib.num_videos(self.difficulty) or len(backgrounds_lib.PHOTOGRAPHS)
-            frames *= self.background_frames
+            photos = (backgrounds_lib.PHOTOGRAPHS if self.background_videos == "train"
+                      else backgrounds_lib.VALIDATION_PHOTOGRAPHS)
+            frames = (backgrounds_lib.num_videos(self.difficulty) or len(photos)) * self.background_frames
         else:
-            paths = backgrounds_lib.davis_frame_paths(self.background_dir, self.difficulty)
+            paths = backgrounds_lib.davis_frame_paths(self.background_dir, self.difficulty,
+                                                      self.background_videos)
             frames = len(paths) * max(len(p) for p in paths.values())
         nbytes = frames * self.background_size ** 2 * 4
         if nbytes > MAX_BACKGROUND_BYTES:

@@ -87,7 +87,8 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
         from iap_mjx.envs import backgrounds
 
         videos = backgrounds.load(distraction.difficulty, distraction.background_dir,
-                                  distraction.background_size, distraction.background_frames)
+                                  distraction.background_size, distraction.background_frames,
+                                  distraction.background_videos)
     return with_pixels(
         env,
         obs_mode=cfg.obs_mode,

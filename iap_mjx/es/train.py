@@ -15,7 +15,7 @@ import dataclasses
 import logging
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +26,8 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import NamedSharding, PartitionSpec
 
 from iap_mjx.es import checkpoint
+from iap_mjx.configs.env import DISTRACTION_SETTINGS
+from iap_mjx.configs.overrides import apply_overrides, parse_value
 from iap_mjx.configs.training import OPEN_ES, ESConfig, TrainConfig
 from iap_mjx.es.metrics_log import MetricsWriter, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
@@ -503,14 +505,33 @@ def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> Tra
 
 
 def evaluate_run(
-    run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, env: Any = None,
-    policy: Any = None,
+    run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, overrides: Sequence[str] = (),
+    env: Any = None, policy: Any = None,
 ) -> np.ndarray:
     """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
-    seeds (derived from ``seed``, not the training seeds)."""
+    seeds (derived from ``seed``, not the training seeds).
+
+    ``overrides``: ``env.<field>=<value>`` settings that change the evaluation's env from the
+    run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
+    (backgrounds never seen in training); the policy and its parameters are the run's.
+    ``env.distraction=none`` also drops the run's other distraction settings
+    (``configs.env.DISTRACTION_SETTINGS``), which mean nothing without a distraction.
+    """
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    not_env = [item for item in overrides if not str(item).strip().startswith("env.")]
+    if not_env:
+        raise ValueError(f"evaluation overrides set the env only (env.<field>=<value>), got {not_env}")
     config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    settings = {key.strip(): value for key, value in (str(item).split("=", 1) for item in overrides if "=" in str(item))}
+    if parse_value(settings.get("env.distraction", "")) in (None, "none"):
+        kept = tuple((k, v) for k, v in config.env.overrides if k not in DISTRACTION_SETTINGS)
+        config = dataclasses.replace(config, env=dataclasses.replace(config.env, overrides=kept))
+    config = apply_overrides(config, overrides)
+    if env is None:
+        from iap_mjx import envs
+
+        envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here
     config = dataclasses.replace(
         config, run=dataclasses.replace(config.run, eval_episodes=episodes)
     )
