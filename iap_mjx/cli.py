@@ -173,13 +173,20 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Reproduces the paper's Figure 1 or 6: inference time per pass next to return."""
-    from iap_mjx import reproduce
+    """Reproduces the paper's Figure 1 or 6 (inference time per pass next to return) or its
+    Table 1 with the generalisation conditions."""
+    from iap_mjx import reproduce, table1
 
     try:
-        markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
-                                       overrides=tuple(args.overrides), passes=args.passes,
-                                       train=not args.report_only)
+        if args.figure == "table1":
+            tasks = tuple(t.strip() for t in args.tasks.split(",")) if args.tasks else table1.TASKS
+            markdown = table1.reproduce_table1(args.out, seeds=args.seeds, overrides=tuple(args.overrides),
+                                               episodes=args.episodes, train=not args.report_only,
+                                               tasks=tasks)
+        else:
+            markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
+                                           overrides=tuple(args.overrides), passes=args.passes,
+                                           train=not args.report_only)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -267,15 +274,21 @@ def build_parser() -> argparse.ArgumentParser:
     video.set_defaults(func=cmd_video)
 
     repro = commands.add_parser(
-        "reproduce", help="the paper's Figure 1 or 6 (inference time vs return)",
-        description="Times one forward pass of every attention variant and trains each "
-                    "preset on --seeds seeds; key=value overrides apply to every preset "
-                    "(e.g. run.iterations=100).")
-    repro.add_argument("figure", choices=["fig1", "fig6"])
+        "reproduce", help="the paper's Figure 1 or 6 (inference time vs return), or Table 1",
+        description="fig1/fig6: times one forward pass of every attention variant and trains each "
+                    "preset on --seeds seeds. table1: trains dcs-<task> for every Distracting Control "
+                    "task and seed, then evaluates each finished run in four conditions (training "
+                    "backgrounds, held-out backgrounds, dynamic, no distraction). key=value overrides "
+                    "apply to every preset (e.g. run.iterations=100).")
+    repro.add_argument("figure", choices=["fig1", "fig6", "table1"])
     repro.add_argument("overrides", nargs="*", metavar="key=value")
     repro.add_argument("--out", default="results", help="output directory (default: results)")
     repro.add_argument("--seeds", type=_count, default=3)
-    repro.add_argument("--passes", type=_count, default=100, help="timed forward passes")
+    repro.add_argument("--passes", type=_count, default=100, help="timed forward passes (fig1, fig6)")
+    repro.add_argument("--episodes", type=_count, default=20,
+                       help="table1: evaluation episodes per condition and run (default 20)")
+    repro.add_argument("--tasks", default=None,
+                       help="table1: comma-separated suite tasks (default: all six)")
     repro.add_argument("--report-only", action="store_true",
                        help="train nothing: report the runs already in --out, however far they got")
     repro.set_defaults(func=cmd_reproduce)

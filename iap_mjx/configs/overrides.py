@@ -13,6 +13,7 @@ import ast
 import dataclasses
 from typing import Any, Iterable
 
+from iap_mjx.configs.env import DISTRACTION_SETTINGS
 from iap_mjx.configs.training import TrainConfig
 
 _OPEN_SECTIONS = {"policy": "options", "env": "overrides"}
@@ -86,3 +87,24 @@ def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfi
             )
         config = dataclasses.replace(config, **{section_name: section})
     return config
+
+
+def check_condition(overrides: Iterable[str]) -> tuple[str, ...]:
+    """``overrides`` as a tuple if every one is an ``env.<field>=<value>`` setting."""
+    overrides = tuple(overrides)
+    not_env = [item for item in overrides if not str(item).strip().startswith("env.")]
+    if not_env:
+        raise ValueError(f"evaluation overrides set the env only (env.<field>=<value>), got {not_env}")
+    return overrides
+
+
+def apply_condition(config: TrainConfig, overrides: Iterable[str]) -> TrainConfig:
+    """``config`` in another evaluation condition: ``env.<field>=<value>`` overrides only
+    (the policy, ES and loop stay the run's). ``env.distraction=none`` also drops the config's
+    other distraction settings (``DISTRACTION_SETTINGS``), which mean nothing without one."""
+    overrides = check_condition(overrides)
+    settings = {key.strip(): value for key, value in (str(item).split("=", 1) for item in overrides if "=" in item)}
+    if "env.distraction" in settings and parse_value(settings["env.distraction"]) in (None, "none"):
+        kept = tuple((k, v) for k, v in config.env.overrides if k not in DISTRACTION_SETTINGS)
+        config = dataclasses.replace(config, env=dataclasses.replace(config.env, overrides=kept))
+    return apply_overrides(config, overrides)

@@ -26,8 +26,7 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import NamedSharding, PartitionSpec
 
 from iap_mjx.es import checkpoint
-from iap_mjx.configs.env import DISTRACTION_SETTINGS
-from iap_mjx.configs.overrides import apply_overrides, parse_value
+from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import OPEN_ES, ESConfig, TrainConfig
 from iap_mjx.es.metrics_log import MetricsWriter, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
@@ -515,19 +514,12 @@ def evaluate_run(
     run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
     (backgrounds never seen in training); the policy and its parameters are the run's.
     ``env.distraction=none`` also drops the run's other distraction settings
-    (``configs.env.DISTRACTION_SETTINGS``), which mean nothing without a distraction.
+    (``configs.overrides.apply_condition``).
     """
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
-    not_env = [item for item in overrides if not str(item).strip().startswith("env.")]
-    if not_env:
-        raise ValueError(f"evaluation overrides set the env only (env.<field>=<value>), got {not_env}")
-    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
-    settings = {key.strip(): value for key, value in (str(item).split("=", 1) for item in overrides if "=" in str(item))}
-    if parse_value(settings.get("env.distraction", "")) in (None, "none"):
-        kept = tuple((k, v) for k, v in config.env.overrides if k not in DISTRACTION_SETTINGS)
-        config = dataclasses.replace(config, env=dataclasses.replace(config.env, overrides=kept))
-    config = apply_overrides(config, overrides)
+    check_condition(overrides)
+    config = apply_condition(TrainConfig.from_dict(checkpoint.load_config(run_dir)), overrides)
     if env is None:
         from iap_mjx import envs
 

@@ -1,0 +1,191 @@
+"""Reproducing the paper's Table 1 (Distracting Control Suite, static, medium) and measuring
+what it does not: generalisation of the same policies to other conditions.
+
+For each suite task, ``dcs-<task>`` trains on several seeds, each in its own run directory
+``<out>/dcs-<task>-seed<k>`` (resumed from its checkpoint, skipped once finished; the
+training loop is :func:`iap_mjx.reproduce.trained_curve`'s). A finished run's final centre is
+then evaluated, ``episodes`` episodes per condition, each episode with its own draw:
+
+- ``train``: the training condition (static medium distractions, training backgrounds);
+- ``held-out``: the same, on backgrounds never shown in training (``env.background_videos=val``);
+- ``dynamic``: dynamic medium distractions (``env.dynamic=true``);
+- ``none``: no distraction (``env.distraction=none``).
+
+Each evaluation is stored in the run directory (``eval.json``, keyed by condition, checkpoint,
+episodes and seed), so a report reads it instead of evaluating again. Writes
+``<out>/table1.json`` and ``<out>/table1.png`` and returns the markdown table, next to the
+paper's SAC and QT-Opt baselines.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from iap_mjx import configs
+from iap_mjx.configs.dcs_presets import TASKS
+from iap_mjx.configs.overrides import apply_condition
+
+logger = logging.getLogger(__name__)
+
+# The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
+BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpole-swingup": (196.0, 167.0),
+             "ball_in_cup-catch": (109.0, 62.0), "reacher-easy": (75.0, 109.0)}
+# The best six-task static-medium mean the suite's own paper reports (QT-Opt with DrQ
+# augmentation, 500k env steps).
+SUITE_BEST_MEAN, SUITE_BEST_STEPS = 170.0, 500_000
+CONDITIONS = {"train": (), "held-out": ("env.background_videos=val",), "dynamic": ("env.dynamic=true",),
+              "none": ("env.distraction=none",)}
+EVAL_SEED = 2021  # not a training seed: evaluation episodes are fresh draws
+EVAL_FILE = "eval.json"
+
+
+def preset(task: str) -> str:
+    return f"dcs-{task}"
+
+
+def check(tasks: tuple[str, ...], overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
+    """Every task's config and every condition's env, validated before anything compiles."""
+    from iap_mjx import envs
+
+    unknown = [task for task in tasks if task not in TASKS]
+    if unknown or not tasks:
+        raise ValueError(f"tasks {list(tasks)}: choose from {', '.join(TASKS)}")
+    result = {}
+    for task in tasks:
+        config = configs.apply_overrides(configs.get(preset(task)), overrides)
+        if config.run.eval_episodes < 1:
+            raise ValueError("table1 reads the evaluation return: run.eval_episodes must be >= 1")
+        for condition in CONDITIONS.values():
+            probe = apply_condition(config, condition)
+            envs.check(probe.env.name, **dict(probe.env.overrides))
+        result[task] = config
+    return result
+
+
+def evaluate_conditions(run_dir: Path, step: int, *, episodes: int) -> dict[str, list[float]]:
+    """``{condition: returns}`` of the run's checkpoint ``step``, read from ``eval.json``
+    where stored, evaluated (and stored) otherwise."""
+    from iap_mjx import es
+
+    path = run_dir / EVAL_FILE
+    stored = json.loads(path.read_text()) if path.exists() else {}
+    out = {}
+    for name, condition in CONDITIONS.items():
+        key = f"{name}@{step}x{episodes}s{EVAL_SEED}"
+        if key not in stored:
+            logger.info("%s: evaluating %s (%d episodes)", run_dir.name, name, episodes)
+            returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
+            stored[key] = [float(r) for r in returns]
+            temporary = path.with_suffix(".tmp")
+            temporary.write_text(json.dumps(stored, indent=1))
+            temporary.replace(path)
+        out[name] = stored[key]
+    return out
+
+
+def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool,
+            episodes: int) -> dict[str, Any] | None:
+    """One run: its curve, env steps, seconds, and (finished runs) every condition's returns."""
+    from iap_mjx.es import checkpoint
+    from iap_mjx.es.metrics_log import read_history
+    from iap_mjx.reproduce import trained_curve
+
+    run_dir = out_dir / f"{preset(task)}-seed{seed}"
+    trained = trained_curve(config, seed, run_dir, train=train)
+    if trained is None or not trained[0]:
+        return None
+    curve, seconds = trained
+    history = read_history(run_dir, up_to=len(curve))
+    row = {"task": task, "seed": seed, "curve": curve, "seconds": seconds,
+           "iterations": len(curve), "env_steps": int(history[-1]["env_steps"]) if history else 0,
+           "finished": len(curve) == config.run.iterations}
+    if row["finished"]:
+        step = checkpoint.latest_step(run_dir)
+        row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes)
+    return row
+
+
+def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
+                     episodes: int = 20, train: bool = True,
+                     tasks: tuple[str, ...] = TASKS) -> str:
+    """Trains (``train=False``: only reads) every task and seed, evaluates the finished runs,
+    writes ``table1.json`` / ``table1.png`` in ``out_dir`` and returns the markdown table."""
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    task_configs = check(tuple(tasks), tuple(overrides))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = [row for task, config in task_configs.items() for seed in range(seeds)
+            if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes)) is not None]
+    if not rows:
+        raise ValueError(f"no table1 runs in {out_dir} to report")
+    (out_dir / "table1.json").write_text(json.dumps(rows, indent=1))
+    plot(rows, out_dir / "table1.png")
+    return table(rows, seeds=seeds)
+
+
+def _mean_std(values: list[float]) -> str:
+    return f"{np.mean(values):.1f} ± {np.std(values):.1f}" if values else "-"
+
+
+def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
+    """Markdown: per task the paper's baselines, our final return in the training condition
+    (mean ± std over seeds; the per-seed means of ``episodes`` evaluation episodes), the other
+    conditions, env steps and wall-clock; then the bar's summary."""
+    lines = ["| task | SAC | QT-Opt | IAP (ours), train condition | per seed | held-out backgrounds | "
+             "dynamic | no distraction | seeds finished | iterations | env steps per run | wall-clock per run (s) |",
+             "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    met, means = 0, {}
+    for task in TASKS:
+        task_rows = [row for row in rows if row["task"] == task]
+        if not task_rows:
+            continue
+        done = [row for row in task_rows if row["finished"]]
+        per = {name: [float(np.mean(row["conditions"][name])) for row in done] for name in CONDITIONS}
+        sac, qt = BASELINES.get(task, (None, None))
+        if len(done) == seeds:
+            means[task] = float(np.mean(per["train"]))
+            met += task in BASELINES and means[task] >= max(sac, qt)
+        lines.append(
+            f"| {task} | {sac if sac is not None else '-'} | {qt if qt is not None else '-'} | "
+            f"{_mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
+            f"{_mean_std(per['held-out'])} | {_mean_std(per['dynamic'])} | {_mean_std(per['none'])} | "
+            f"{len(done)} of {seeds} | {max(row['iterations'] for row in task_rows)} | "
+            f"{max(row['env_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} |")
+    scored = [task for task in BASELINES if task in means]
+    lines.append("")
+    lines.append(f"At or above the better of SAC and QT-Opt: {met} of {len(scored)} finished tasks (bar: 4 of 5).")
+    if len(means) == len(TASKS):
+        lines.append(f"Six-task mean: {np.mean(list(means.values())):.1f} (bar: {SUITE_BEST_MEAN:.0f}, the suite "
+                     f"paper's best, at {SUITE_BEST_STEPS:,} env steps).")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> Path:
+    """One panel per task: each seed's evaluation-return curve and the baselines as lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = [task for task in TASKS if any(row["task"] == task for row in rows)]
+    fig, axes = plt.subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.2), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        for row in rows:
+            if row["task"] == task:
+                ax.plot(np.arange(1, len(row["curve"]) + 1), row["curve"], label=f"seed {row['seed']}")
+        for value, name, style in zip(BASELINES.get(task, ()), ("SAC", "QT-Opt"), ("--", ":")):
+            ax.axhline(value, color="grey", linestyle=style, label=name)
+        ax.set_title(task)
+        ax.set_xlabel("ES iteration")
+    axes[0][0].set_ylabel("evaluation return (static medium)")
+    axes[0][0].legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

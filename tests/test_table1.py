@@ -1,0 +1,88 @@
+"""``iap-mjx reproduce table1``: bad input fails before anything compiles; finished runs are
+evaluated once per condition (stored in the run directory); the table holds the paper's
+baselines and the bar. Training and evaluation themselves are ``iap_mjx.reproduce``'s and
+``es.evaluate_run``'s (tested in test_reproduce.py, test_es_train.py and test_cli.py); here
+they are replaced by recorders so that the command's own logic runs in seconds."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from iap_mjx import cli, configs, table1
+from iap_mjx.es import checkpoint
+from iap_mjx.es.metrics_log import MetricsWriter
+
+
+def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):
+    with pytest.raises(ValueError, match="choose from cheetah-run"):
+        table1.reproduce_table1(tmp_path, tasks=("cartpole",))
+    with pytest.raises(ValueError, match="heigth"):
+        table1.reproduce_table1(tmp_path, overrides=("env.heigth=64",))
+    with pytest.raises(ValueError, match="episodes"):
+        table1.reproduce_table1(tmp_path, episodes=0)
+    assert not list(tmp_path.iterdir())
+    assert cli.main(["reproduce", "table1", "--tasks", "reacher", "--out", str(tmp_path)]) == 2
+    assert "choose from" in capsys.readouterr().err
+
+
+def test_every_condition_is_a_valid_env_of_every_task():
+    checked = table1.check(table1.TASKS, ())
+    assert list(checked) == list(table1.TASKS)
+    for task, config in checked.items():
+        none = configs.overrides.apply_condition(config, table1.CONDITIONS["none"])
+        assert "distraction" not in dict(none.env.overrides) or dict(none.env.overrides)["distraction"] in (None, "none")
+        held = dict(configs.overrides.apply_condition(config, table1.CONDITIONS["held-out"]).env.overrides)
+        assert held["background_videos"] == "val" and held["distraction"] == "medium"
+
+
+def _fake_run(run_dir, config, iterations, returns):
+    writer = MetricsWriter(run_dir, None, tensorboard=False)
+    for i in range(1, iterations + 1):
+        writer.write({"iteration": i, "eval_return": returns[i - 1], "run_s": 2.0, "compile_s": 30.0,
+                      "env_steps": i * 1000})
+    checkpoint.save(run_dir, iterations, {"x": np.zeros(2)}, config.to_dict())
+
+
+def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, monkeypatch):
+    config = configs.apply_overrides(configs.get("dcs-cartpole-swingup"), ("run.iterations=3",))
+    _fake_run(tmp_path / "dcs-cartpole-swingup-seed0", config, 3, [1.0, 2.0, 3.0])
+    _fake_run(tmp_path / "dcs-cartpole-swingup-seed1", config, 2, [1.0, 5.0, 0.0])  # unfinished
+    calls = []
+
+    def evaluate_run(run_dir, *, episodes, seed, overrides):
+        calls.append((run_dir.name, tuple(overrides), episodes, seed))
+        return np.full(episodes, 200.0 + 10 * len(overrides))
+
+    from iap_mjx import es
+
+    monkeypatch.setattr(es, "evaluate_run", evaluate_run)
+    markdown = table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4,
+                                       train=False, tasks=("cartpole-swingup",))
+    assert sorted(call[1] for call in calls) == sorted(table1.CONDITIONS.values())
+    assert {call[0] for call in calls} == {"dcs-cartpole-swingup-seed0"}  # the finished run only
+    assert all(call[2] == 4 and call[3] == table1.EVAL_SEED for call in calls)
+    row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
+    assert "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 3,000 |" in row
+    assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
+    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / table1.EVAL_FILE).read_text())
+    assert len(stored) == 4
+    table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
+                            tasks=("cartpole-swingup",))
+    assert len(calls) == 4  # read back, not evaluated again
+    assert (tmp_path / "table1.png").stat().st_size > 0
+    assert json.loads((tmp_path / "table1.json").read_text())[0]["conditions"]["none"] == [210.0] * 4
+
+
+def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
+    def rows(task, value):
+        return [{"task": task, "seed": s, "curve": [value], "seconds": 1.0, "iterations": 1, "env_steps": 10,
+                 "finished": True, "conditions": {name: [value] for name in table1.CONDITIONS}} for s in range(3)]
+
+    markdown = table1.table(rows("cartpole-swingup", 196.0) + rows("walker-walk", 110.0)
+                            + rows("reacher-easy", 109.0), seeds=3)
+    assert "2 of 3 finished tasks" in markdown  # walker's 110 is below QT-Opt's 111
+    six = [r for task in table1.TASKS for r in rows(task, 170.0)]
+    assert "Six-task mean: 170.0" in table1.table(six, seeds=3)
