@@ -112,3 +112,26 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     # it is within the codec's loss of the bare frames, and far from the outlined ones)
     assert (np.abs(decoded - annotated)[outline].mean()
             < np.abs(decoded - bare.astype(float))[outline].mean())
+
+
+def test_small_patches_get_a_ring_that_can_be_seen():
+    """2x2 patches at 3x are 6-pixel squares: each also gets a red ring of radius
+    ``MARK_RADIUS`` around its centre; 4x4 patches (12 pixels) get the outline only."""
+    from iap_mjx.attention import AttentionConfig, IAPAttention
+
+    frame = np.full((24, 32, 3), 0.5, np.float32)
+    for patch, ringed in ((2, True), (4, False)):
+        layer = IAPAttention(AttentionConfig(patch_size=patch, top_l=1), image_shape=(24, 32, 3))
+        index = layer.grid[1] + 2  # second patch row, third column
+        drawn = video.annotate(frame, np.array([index]), layer, 0.0, scale=3)
+        centre_y, centre_x = 16 + (1 * patch + patch / 2) * 3, (2 * patch + patch / 2) * 3
+        red = np.all(drawn == video.RED, axis=-1)
+        ys, xs = np.nonzero(red)
+        half = patch * 3 / 2
+        outside = (np.abs(ys + 0.5 - centre_y) > half) | (np.abs(xs + 0.5 - centre_x) > half)
+        assert outside.any() == ringed, patch  # red beyond the patch's own square: the ring
+        if ringed:  # red all round the centre, at the ring's radius
+            distance = np.hypot(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
+            assert np.all((distance > video.MARK_RADIUS - 2.5) & (distance < video.MARK_RADIUS + 1)), distance
+            angles = np.arctan2(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
+            assert np.histogram(angles, bins=8, range=(-np.pi, np.pi))[0].min() > 0

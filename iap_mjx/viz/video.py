@@ -21,6 +21,8 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 RED = (230, 30, 30)
+MARK_BELOW = 12  # pixels: a patch drawn smaller than this also gets a ring around it
+MARK_RADIUS = 8  # pixels, the ring's outer radius
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
 
 
@@ -125,7 +127,12 @@ def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: in
 
 def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_return: float,
              *, scale: int = 3) -> np.ndarray:
-    """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text."""
+    """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text.
+
+    Each selected patch is outlined in red; one drawn smaller than ``MARK_BELOW`` pixels (a 2x2
+    patch at 3x is 6 pixels) also gets a 2-pixel red ring of radius ``MARK_RADIUS`` around its
+    centre, so that it can be seen at a glance.
+    """
     from PIL import Image, ImageDraw
 
     image = Image.fromarray((np.clip(frame, 0, 1) * 255).astype(np.uint8))
@@ -140,6 +147,10 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
             top, left = (int(index) // cols) * step * scale, (int(index) % cols) * step * scale
             draw.rectangle([left, 16 + top, left + patch * scale - 1, 16 + top + patch * scale - 1],
                            outline=RED)
+            if patch * scale < MARK_BELOW:
+                x, y = left + patch * scale / 2, 16 + top + patch * scale / 2
+                draw.ellipse([x - MARK_RADIUS, y - MARK_RADIUS, x + MARK_RADIUS, y + MARK_RADIUS],
+                             outline=RED, width=2)
     draw.text((2, 2), f"return {episode_return:8.2f}", fill=(255, 255, 255))
     return np.asarray(canvas)
 
