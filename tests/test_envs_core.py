@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -227,3 +231,21 @@ def test_settle_is_forward_then_n_steps_then_forward(n_steps):
     np.testing.assert_allclose(ours.qvel, native.qvel, atol=1e-4)
     np.testing.assert_allclose(ours.xpos, native.xpos, atol=1e-4)
     np.testing.assert_allclose(ours.sensordata, native.sensordata, atol=1e-4)
+
+
+def test_importing_and_building_every_env_prints_nothing():
+    """The README's Python example as a user runs it, in a fresh interpreter on a headless
+    machine with neither ``MUJOCO_GL`` nor ``DISPLAY`` set: importing the package and building
+    every env (state and pixels) writes nothing to stdout or stderr (dm_control's OpenGL probe
+    warned ``GLFWError ... DISPLAY environment variable is missing`` before its import was
+    made quiet)."""
+    script = (
+        "from iap_mjx import envs\n"
+        "for name in envs.names():\n"
+        "    envs.make(name)\n"
+        "envs.make('cartpole-swingup', obs_mode='pixels', height=24, width=32)\n"
+    )
+    environment = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "PYOPENGL_PLATFORM")}
+    done = subprocess.run([sys.executable, "-c", script], env=environment, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "" and done.stderr == "", done.stdout + done.stderr

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import mujoco
-from dm_control.suite import ball_in_cup
+from iap_mjx.envs.dm_control_suite import ball_in_cup
 from mujoco import mjx
 
 from iap_mjx.envs.dmc import DmControlEnv

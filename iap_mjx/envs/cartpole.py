@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from dm_control.suite import cartpole
+from iap_mjx.envs.dm_control_suite import cartpole
 from mujoco import mjx
 
 from iap_mjx.envs.dmc import DmControlEnv

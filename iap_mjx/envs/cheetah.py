@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import mujoco
-from dm_control.suite import cheetah
+from iap_mjx.envs.dm_control_suite import cheetah
 from mujoco import mjx
 
 from iap_mjx.envs.dmc import DmControlEnv
