@@ -103,10 +103,17 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     bare = np.stack([video.annotate(f, None, None, float(r)) for f, r in zip(record["frames"], returns)])
     decoded = iio.imread(out, plugin="pyav").astype(float)
     assert decoded.shape == annotated.shape == (10, 48 * 3 + 16, 64 * 3, 3)
-    body = (slice(None), slice(16, None))  # below the caption
-    assert np.abs(decoded[body] - annotated[body]).mean() < 4.0  # H.264's loss, on 0-255
-    outline = np.any(annotated != bare, axis=-1)  # where the patch outlines are drawn
+    outline = np.any(annotated != bare, axis=-1)  # where the patch outlines and rings are drawn
     assert outline.sum() > 0
+    # the picture within H.264's loss (on 0-255; measured 3.3) below the caption, away from the red marks:
+    # 4:2:0 chroma spreads a mark's red over its 2-pixel neighbourhood, which the check of the
+    # marks below covers
+    from scipy import ndimage
+
+    near_marks = ndimage.binary_dilation(outline, structure=np.ones((1, 5, 5), bool))
+    picture = ~near_marks
+    picture[:, :16] = False
+    assert np.abs(decoded - annotated)[picture].mean() < 4.0
     # H.264 halves chroma resolution, which blurs 1-pixel red lines: the outlines are there
     # when the video is closer to the outlined frames than to the bare ones (without outlines
     # it is within the codec's loss of the bare frames, and far from the outlined ones)
