@@ -53,62 +53,49 @@ DISTRACTION_SETTINGS = ("distraction", "dynamic", "distraction_kinds", "backgrou
                         "background_frames")
 """The env settings of the distraction: the rest of a preset's settings make its undistracted env."""
 STEPS = 5
-"""Env steps of the stepped comparisons (40 control steps at action repeat 8; episodes are 10)."""
-PHYSICS_ATOL = 2e-5
-"""Distracted against dm_control: the state observation after each env step, where dm_control's
-own float32-noise spread is <= 1e-5 (no contacts): measured gap 1.8e-6; a wrong physics step
-(two per control step) is 0.27 off after the first env step."""
-REWARD_ATOL = 1e-5
-"""The same for one env step's reward, a sum of 8 control steps' rewards: measured gap 5.4e-7."""
+"""Env steps per episode (40 control steps at action repeat 8; the preset's episodes are 10)."""
+STEP_ATOL = 1e-5
+"""Our env step against dm_control's from the same state (float32 against float64, no
+contacts): largest gap over the 60 steps measured 5.4e-7 for qpos/qvel after the 8 control
+steps, 6e-8 for the unperturbed camera's pose, 3.4e-7 for the summed reward. dm_control with
+a wrong physics step (two a control step) is 0.27 off after one env step; the test requires
+more than 100 x ``STEP_ATOL``."""
 SAME_KEY_ATOL = 1e-6
-"""Distracted against undistracted from the same key, every float of the physics state: the
-same float32 computation twice (measured gap 0, bit for bit). Cartpole's reset draws its
-coordinates as 1e-2 x N(0, 1) from the key (the 6 keys here span 0.016 and 0.033), so a key
-that the distraction consumed or changed moves the reset state by that much: the chance that a
-different key lands within 1e-6 in each of the 4 drawn coordinates is below 1e-16 per episode."""
+"""Distracted against undistracted reset from the same key, every float of the physics state
+(measured gap 0, bit for bit). Cartpole's reset draws its 4 coordinates as 1e-2 x N(0, 1)
+from the key, so a key that the distraction consumed or changed moves the reset state by that
+much: the chance that a different key lands within 1e-6 in all four is below 1e-16."""
 
 
 def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alone():
     """dcs-cartpole-swingup-quick (action repeat 8) at 60x80, made dynamic so that walks can
-    be counted; 12 distracted episodes in one program, each with its own key: 6 from one
-    dm_control state (``reset_to``) under one action sequence, 6 drawn from their keys
-    (``reset``), each under its own actions; then an ended step and an ended step showing
+    be counted; 12 distracted episodes in one program, each reset from its own key and stepped
+    ``STEPS`` times under its own random actions, then an ended step and an ended step showing
     another episode's perturbation.
 
-    The physics is checked against two references over ``STEPS`` env steps:
-
-    - dm_control itself: each of the first six (all perturbed differently) follows dm_control's
-      own trajectory from that state under the same actions, state observation and reward
-      after every env step, within ``PHYSICS_ATOL``/``REWARD_ATOL`` plus 100 x dm_control's
-      spread under float32 noise (``tests/spread.py``); dm_control with a wrong physics step
-      must break that bound;
-    - the undistracted env from the same keys (the last six): the same preset without its
-      distraction settings (state observations: no camera), reset from the same keys and
-      stepped with the same actions; every float of ``State.data``, the reward and ``done``
-      agree within ``SAME_KEY_ATOL`` at reset and after each step.
+    The physics is checked against the undistracted episode from the same key, in two parts
+    with independent references: its reset (the same preset without its distraction settings,
+    reset from the same keys: every float of ``State.data``, reward and ``done`` within
+    ``SAME_KEY_ATOL``), and every step of every episode (dm_control's own physics and task
+    from the state before the step, under the same action: qpos, qvel, the unperturbed
+    camera's pose and the reward within ``STEP_ATOL``; a dm_control step with a wrong number
+    of physics steps must be further off than that, so the bound can tell).
     """
     config = configs.get("dcs-cartpole-swingup-quick")
     overrides = {**dict(config.env.overrides), "height": 60, "width": 80, "dynamic": True}
     env = envs.make(config.env.name, **overrides)
     plain = envs.make(config.env.name, **{**{k: v for k, v in overrides.items() if k not in DISTRACTION_SETTINGS},
                                           "obs_mode": "state"})
-    assert plain.config.action_repeat == env.config.action_repeat == SUITE[config.env.name]
-    reference = suite.load("cartpole", "swingup", task_kwargs={"random": 0})
-    reference.reset()
-    start = reference.physics.data
+    repeat = env.config.action_repeat
+    assert plain.config.action_repeat == repeat == SUITE[config.env.name]
     keys = jax.random.split(jax.random.PRNGKey(4), 12)
     shuffle = jnp.roll(jnp.arange(12), -1)
-    rng = np.random.default_rng(0)
-    common = rng.uniform(-1, 1, (STEPS, 1, env.action_size))
-    own = rng.uniform(-1, 1, (STEPS, 6, env.action_size))
-    actions = np.concatenate([np.broadcast_to(common, (STEPS, 6, env.action_size)), own], axis=1)
+    actions = np.random.default_rng(0).uniform(-1, 1, (STEPS, 12, env.action_size))
     phases = jnp.asarray([0] * STEPS + [1, 2])
 
     @jax.jit
     def run(keys, actions):
-        from_state = jax.vmap(lambda k: env.reset_to(start.qpos, start.qvel, key=k))(keys[:6])
-        drawn = jax.vmap(env.reset)(keys[6:])
-        first = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), from_state, drawn)
+        first = jax.vmap(env.reset)(keys)
         padded = jnp.concatenate([actions, jnp.full((2, 12, env.action_size), 0.5)])
 
         def step(s, inputs):
@@ -119,18 +106,15 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
             s = jax.tree.map(lambda a, b: jnp.where(phase == 2, b, a), s, other)
             s = s.replace(done=jnp.where(phase > 0, jnp.ones_like(s.done), s.done))
             s = jax.vmap(env.step)(s, action)
-            return s, (s, jax.vmap(env.state_observation)(s.data))
+            return s, s
 
-        states, observations = jax.lax.scan(step, first, (phases, padded))[1]
-        plain_first = jax.vmap(plain.reset)(keys[6:])
-        plain_states = jax.lax.scan(lambda s, a: (jax.vmap(plain.step)(s, a),) * 2, plain_first,
-                                    actions[:, 6:])[1]
+        states = jax.lax.scan(step, first, (phases, padded))[1]
         two = jax.vmap(lambda p: env.distraction.advance(p, 8))(first.info["distraction"])
         seen = jax.vmap(lambda d, p: env.distraction.scene(d, p)[0].cam_xpos[0])(
             first.data, first.info["distraction"])
-        return first, states, observations, plain_first, plain_states, two, seen
+        return first, states, two, seen, jax.vmap(plain.reset)(keys)
 
-    first, states, observations, plain_first, plain_states, walked, seen = run(keys, actions)
+    first, states, walked, seen, plain_first = run(keys, actions)
     again = run(keys, actions)[0]
     moved, last, ended, swapped = (jax.tree.map(lambda x, i=i: x[i], states) for i in (0, STEPS - 1, STEPS, STEPS + 1))
     p0, p1 = first.info["distraction"], moved.info["distraction"]
@@ -141,47 +125,48 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     for i in range(12):
         for j in range(i):
             assert not np.allclose(sphere[i], sphere[j]) and not np.allclose(colour[i], colour[j])
-    # the reset state is dm_control's (its qpos, its unperturbed camera); the perturbed pose
-    # exists only in what is rendered
-    np.testing.assert_allclose(first.data.qpos[:6], np.broadcast_to(start.qpos, (6, len(start.qpos))), atol=1e-6)
-    np.testing.assert_allclose(first.data.cam_xpos[:6, 0], np.broadcast_to(start.cam_xpos[0], (6, 3)), atol=1e-4)
+
+    # the reset: the undistracted env's from the same keys, every float of it
+    for a, b in zip(jax.tree.leaves((first.data, first.reward, first.done)),
+                    jax.tree.leaves((plain_first.data, plain_first.reward, plain_first.done))):
+        np.testing.assert_allclose(a, b, rtol=0, atol=SAME_KEY_ATOL)
+    assert np.ptp(np.asarray(first.data.qpos), axis=0).min() > 1e-3  # the keys drew different states
+
+    # every step: dm_control's physics and task from the state before it, under its action
+    reference = suite.load("cartpole", "swingup", task_kwargs={"random": 0})
+    physics, task = reference.physics, reference.task
+
+    def dm_control_step(qpos, qvel, action, sub_steps=reference._n_sub_steps):
+        with physics.reset_context():
+            physics.data.qpos[:], physics.data.qvel[:] = qpos, qvel
+        reward = 0.0
+        for _ in range(repeat):
+            task.before_step(action, physics)
+            physics.step(sub_steps)
+            task.after_step(physics)
+            reward += task.get_reward(physics)
+        data = physics.data
+        return np.concatenate([data.qpos, data.qvel]), np.concatenate([data.cam_xpos[0], data.cam_xmat[0]]), reward
+
+    before = [first] + [jax.tree.map(lambda x, t=t: x[t], states) for t in range(STEPS - 1)]
+    gaps = {"state": 0.0, "camera": 0.0, "reward": 0.0}
+    for t in range(STEPS):
+        after = jax.tree.map(lambda x, t=t: x[t], states)
+        for e in range(12):
+            theirs = dm_control_step(before[t].data.qpos[e], before[t].data.qvel[e], actions[t, e])
+            ours = (np.concatenate([after.data.qpos[e], after.data.qvel[e]]),
+                    np.concatenate([after.data.cam_xpos[e, 0], np.ravel(after.data.cam_xmat[e, 0])]),
+                    float(after.reward[e]))
+            for (what, gap), mine, reference_value in zip(gaps.items(), ours, theirs):
+                gaps[what] = max(gap, float(np.max(np.abs(mine - reference_value))))
+    assert max(gaps.values()) < STEP_ATOL, gaps
+    wrong = dm_control_step(first.data.qpos[0], first.data.qvel[0], actions[0, 0],
+                            sub_steps=spread.wrong_sub_steps(reference._n_sub_steps))[0]
+    right = np.concatenate([moved.data.qpos[0], moved.data.qvel[0]])
+    assert np.max(np.abs(wrong - right)) > 100 * STEP_ATOL
+
+    # the reset camera is the physics' own; the perturbed pose exists only in what is rendered
     assert np.all(np.linalg.norm(np.asarray(seen) - np.asarray(first.data.cam_xpos[:, 0]), axis=-1) > 1e-3)
-
-    # physics against dm_control: the six episodes from its state, after each env step
-    repeat = env.config.action_repeat
-    control_actions = np.repeat(common[:, 0], repeat, axis=0)
-    theirs_obs, theirs_reward = spread.dm_control_run(config.env.name, 0, control_actions)
-    per_step = slice(repeat - 1, None, repeat)
-
-    def per_env_step(obs, reward):
-        return obs[per_step], reward.reshape(STEPS, repeat).sum(1)
-
-    reference_obs, reference_reward = per_env_step(theirs_obs, theirs_reward)
-    runs = [per_env_step(*spread.dm_control_run(config.env.name, 0, control_actions, rng=noise))
-            for noise in spread.noise_generators()]
-    obs_spread = spread.spread(reference_obs, [obs for obs, _ in runs])
-    reward_spread = spread.spread(reference_reward, [reward for _, reward in runs])
-    ours_obs = np.asarray(observations[:STEPS, :6])
-    ours_reward = np.asarray(states.reward[:STEPS, :6])
-    for e in range(6):
-        spread.assert_within_spread(ours_obs[:, e], reference_obs, obs_spread, atol=PHYSICS_ATOL,
-                                    what=f"distracted episode {e}: state observation")
-        spread.assert_within_spread(ours_reward[:, e], reference_reward, reward_spread, atol=REWARD_ATOL,
-                                    what=f"distracted episode {e}: reward")
-    wrong_obs, _ = spread.dm_control_run(config.env.name, 0, control_actions,
-                                         sub_steps=spread.wrong_sub_steps(plain.n_sub_steps))
-    spread.assert_wrong_step_is_caught(wrong_obs[per_step], reference_obs, obs_spread, atol=PHYSICS_ATOL)
-
-    # physics against the undistracted env from the same keys, at reset and after each step
-    def physics(state, batch):
-        return {"data": [x[batch] for x in jax.tree.leaves(state.data)],
-                "reward": state.reward[batch], "done": state.done[batch]}
-
-    for when, ours, theirs in [("reset", physics(first, np.s_[6:]), physics(plain_first, np.s_[:])),
-                               ("steps", physics(states, np.s_[:STEPS, 6:]), physics(plain_states, np.s_[:]))]:
-        for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(theirs)):
-            np.testing.assert_allclose(a, b, rtol=0, atol=SAME_KEY_ATOL, err_msg=when)
-    assert np.ptp(np.asarray(first.data.qpos[6:]), axis=0).min() > 1e-3  # the keys drew different states
 
     # one env step = 8 control steps of every walk
     np.testing.assert_allclose(p1.camera.sphere, walked.camera.sphere, atol=1e-5)
