@@ -79,7 +79,8 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     ``SAME_KEY_ATOL``), and every step of every episode (dm_control's own physics and task
     from the state before the step, under the same action: qpos, qvel, the unperturbed
     camera's pose and the reward within ``STEP_ATOL``; a dm_control step with a wrong number
-    of physics steps must be further off than that, so the bound can tell).
+    of physics steps must be further off than that, so the bound can tell). The reset's camera
+    is dm_control's at the same state too.
     """
     config = configs.get("dcs-cartpole-swingup-quick")
     overrides = {**dict(config.env.overrides), "height": 60, "width": 80, "dynamic": True}
@@ -136,11 +137,11 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     reference = suite.load("cartpole", "swingup", task_kwargs={"random": 0})
     physics, task = reference.physics, reference.task
 
-    def dm_control_step(qpos, qvel, action, sub_steps=reference._n_sub_steps):
+    def dm_control_step(qpos, qvel, action, sub_steps=reference._n_sub_steps, control_steps=repeat):
         with physics.reset_context():
             physics.data.qpos[:], physics.data.qvel[:] = qpos, qvel
         reward = 0.0
-        for _ in range(repeat):
+        for _ in range(control_steps):
             task.before_step(action, physics)
             physics.step(sub_steps)
             task.after_step(physics)
@@ -165,7 +166,12 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     right = np.concatenate([moved.data.qpos[0], moved.data.qvel[0]])
     assert np.max(np.abs(wrong - right)) > 100 * STEP_ATOL
 
-    # the reset camera is the physics' own; the perturbed pose exists only in what is rendered
+    # the reset camera is the physics' own (dm_control's at the same state); the perturbed pose
+    # exists only in what is rendered
+    for e in range(12):
+        camera = dm_control_step(first.data.qpos[e], first.data.qvel[e], actions[0, e], control_steps=0)[1]
+        np.testing.assert_allclose(np.concatenate([first.data.cam_xpos[e, 0], np.ravel(first.data.cam_xmat[e, 0])]),
+                                   camera, rtol=0, atol=STEP_ATOL)
     assert np.all(np.linalg.norm(np.asarray(seen) - np.asarray(first.data.cam_xpos[:, 0]), axis=-1) > 1e-3)
 
     # one env step = 8 control steps of every walk
