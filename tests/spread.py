@@ -96,9 +96,11 @@ def dm_control_run(name: str, seed: int, actions: np.ndarray, *,
     """dm_control's ``name`` (reset with ``seed``) under ``actions``: flat observations
     ``(T, n)`` and rewards ``(T,)`` after each control step.
 
-    Stepped as dm_control's legacy ``physics.step`` steps (``mj_step2`` then ``mj_step1`` per
-    physics step, so acceleration-stage sensors such as finger's touch sensors come from the
-    last physics step's start), one physics step at a time so that ``rng`` can nudge the state
+    Stepped as dm_control's legacy ``physics.step`` steps: for Euler models ``mj_step2`` then
+    ``mj_step1`` per physics step (so acceleration-stage sensors such as finger's touch sensors
+    come from the last physics step's start); for RK4 models (cartpole), whose steps
+    ``mj_step2`` would integrate with Euler, a whole ``mj_step`` per physics step and one
+    ``mj_step1`` after the last. One physics step at a time so that ``rng`` can nudge the state
     after each integration (``None``: no noise, and the run equals ``env.step``'s bit for bit);
     ``sub_steps`` replaces the task's physics steps per control step (a wrong step, for the
     bound's power).
@@ -109,13 +111,17 @@ def dm_control_run(name: str, seed: int, actions: np.ndarray, *,
     physics = env.physics
     model, data = physics.model.ptr, physics.data.ptr
     sub_steps = env._n_sub_steps if sub_steps is None else sub_steps
+    rk4 = model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
     observations, rewards = [], []
     for action in actions:
         env.task.before_step(action, physics)
         for _ in range(sub_steps):
-            mujoco.mj_step2(model, data)
+            (mujoco.mj_step if rk4 else mujoco.mj_step2)(model, data)
             if rng is not None:
                 nudge_state(data, rng)
+            if not rk4:
+                mujoco.mj_step1(model, data)
+        if rk4:
             mujoco.mj_step1(model, data)
         env.task.after_step(physics)
         observations.append(flat(env.task.get_observation(physics)))

@@ -13,8 +13,9 @@ Each test builds our layer (``Distraction``) from our own env and compares what 
 what the reference's wrappers do on dm_control's env in the same state: the settings a level
 implies, the camera's box, velocity scale and look-at point at reset, the walk and the pose
 it writes into ``cam_xpos``/``cam_xmat`` over several control steps, the colour box, the
-colours the camera then draws, the floor's alpha, the dynamic colour step's size and the
-background's frame walk.
+colours the camera then draws (against the geoms and colours MuJoCo's own visualiser,
+``mjv_updateScene``, draws with the reference's perturbed materials), the floor's alpha, the
+dynamic colour step's size and the background's frame walk.
 """
 
 from __future__ import annotations
@@ -45,7 +46,6 @@ from iap_mjx import envs
 from iap_mjx.envs import backgrounds, camera_walk, distraction
 from iap_mjx.envs.pixels import with_pixels
 from iap_mjx.envs.registry import _task_classes
-from iap_mjx.render import scene as scene_lib
 
 ATOL = 2e-5  # float32 against the reference's float64: matrix entries and metres (|x| < 10)
 REFERENCE_BACKGROUND = Path(distracting_control.__file__).parent / "background.py"
@@ -209,16 +209,43 @@ def test_layer_matches_the_reference_wrappers_on_dm_control(task):
         np.testing.assert_allclose(cam_xmat, physics.data.cam_xmat[0].reshape(3, 3), atol=ATOL,
                                    err_msg=f"{task} cam_xmat")
     assert np.linalg.norm(np.asarray(after.velocity)) > 0, "the dynamic camera should move"
-    # colours: the reference's box around dm_control's materials, and what MuJoCo draws with
-    # its perturbed materials, geom by geom (geoms of their own colour keep it)
+    # colours: the reference's box around dm_control's materials; and what MuJoCo's own
+    # visualiser draws with the reference's perturbed materials (the wrapper writes them into
+    # dm_control's model): mjv_updateScene's geoms, the ones the renderer rasterises, each in
+    # the rgba MuJoCo gives it, against our camera's geoms and the colours our layer hands it
     np.testing.assert_allclose(layer.colour_low, ref_col._min_rgb, atol=1e-6)
     np.testing.assert_allclose(layer.colour_high, ref_col._max_rgb, atol=1e-6)
-    model = copy.copy(physics.model.ptr)
-    model.mat_rgba[:, :3] = ref_col._current_rgb
-    expected = scene_lib.build_scene(model).geom_rgb
-    assert list(scene_lib.build_scene(model).geom_ids) == list(pixel_env.camera.scene.geom_ids)
-    np.testing.assert_allclose(geom_rgb, expected, atol=1e-6)
+    np.testing.assert_allclose(physics.model.mat_rgba[:, :3], ref_col._current_rgb, atol=1e-7)  # float32
+    drawn, others = _mujoco_drawn(physics.model.ptr, physics.data.ptr)
+    assert sorted(drawn) == sorted(pixel_env.camera.scene.geom_ids.tolist()), task
+    expected = np.stack([drawn[g][:3] for g in pixel_env.camera.scene.geom_ids.tolist()])
+    np.testing.assert_allclose(geom_rgb, expected, atol=1e-6, err_msg=task)
     assert not np.allclose(geom_rgb, pixel_env.camera.scene.geom_rgb, atol=1e-3)
+    # what else MuJoCo draws (ball_in_cup's string and sites, which our camera does not) keeps
+    # its colour under the perturbation: the colour distraction changes geoms only
+    original = copy.copy(physics.model.ptr)
+    original.mat_rgba[:, :3] = ref_col._original_rgb
+    unperturbed = _mujoco_drawn(original, physics.data.ptr)[1]
+    assert [o[:2] for o in others] == [o[:2] for o in unperturbed], task
+    for (kind, index, rgba), (_, _, before) in zip(others, unperturbed):
+        np.testing.assert_array_equal(rgba, before, err_msg=f"{task}: object type {kind} {index}")
+
+
+def _mujoco_drawn(model, data):
+    """What MuJoCo's renderer draws from camera 0 (``mjv_updateScene`` with the default
+    ``mjvOption``: geom groups 0-2): ``({geom id: (4,) rgba}, [(object type, id, (4,) rgba)]
+    of everything else)``, each in the rgba of its ``mjvGeom`` (for a geom: its material's or
+    its own, as MuJoCo chooses)."""
+    scene = mujoco.MjvScene(model, maxgeom=10_000)
+    camera = mujoco.MjvCamera()
+    camera.type, camera.fixedcamid = mujoco.mjtCamera.mjCAMERA_FIXED, 0
+    mujoco.mjv_updateScene(model, data, mujoco.MjvOption(), mujoco.MjvPerturb(), camera,
+                           mujoco.mjtCatBit.mjCAT_ALL, scene)
+    geoms = [scene.geoms[i] for i in range(scene.ngeom)]
+    drawn = {int(g.objid): np.array(g.rgba) for g in geoms if g.objtype == mujoco.mjtObj.mjOBJ_GEOM}
+    others = [(int(g.objtype), int(g.objid), np.array(g.rgba)) for g in geoms
+              if g.objtype != mujoco.mjtObj.mjOBJ_GEOM]
+    return drawn, others
 
 
 def test_dynamic_colour_step_has_the_reference_size():

@@ -2,7 +2,11 @@
 
 The reference for the phase is an independent step-by-step integration written from the
 equations: the phase moves at ``2 pi f (k + 1) / (2 k)`` in stance (``phi < pi``) and
-``2 pi f (k + 1) / 2`` in swing, carrying what is left of a step across the boundaries.
+``2 pi f (k + 1) / 2`` in swing, carrying what is left of a step across the boundaries. The
+legs' phases are checked against the same integration run for each leg's offset (as the
+PyBullet code places its legs), with the PyBullet code's offset table; the joint targets'
+range against a closed form of the equations' extremes and the compiled MuJoCo model's joint
+ranges.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
@@ -68,18 +73,33 @@ def test_period_and_stance_split_at_constant_frequency(ratio):
     np.testing.assert_allclose(in_stance / steps, ratio / (ratio + 1), atol=1.0 / steps)
 
 
-@pytest.mark.parametrize("gait", sorted(pmtg.GAITS))
+PYBULLET_GAITS = {"walk": (0, 0.25, 0.5, 0.75), "trot": (0, 0.5, 0.5, 0), "bound": (0, 0.5, 0, 0.5),
+                  "pace": (0, 0, 0.5, 0.5), "pronk": (0, 0, 0, 0)}
+"""The PyBullet code's leg phase offsets as its source states them (``pmtg_wrapper_env.py``,
+``_GAIT_PHASE_MAP``): fractions of a period for legs FL, RL, FR, RR (``tg_simple.py``'s order)."""
+PYBULLET_LEGS = ("FL", "RL", "FR", "RR")
+
+
+@pytest.mark.parametrize("gait", sorted(PYBULLET_GAITS))
 def test_gait_offsets_between_legs(gait):
-    """Each leg is ahead of the TG by its gait offset, as a fraction of the period."""
-    offsets = np.asarray(pmtg.GAITS[gait])
+    """Each leg's phase is where the TG's phase gets after the leg's offset, a fraction of a
+    period: the PyBullet code places its legs so (``calculate_progressed_phase(delta_period)``
+    of the TG's integrator), and the reference here is the segment integration above run for
+    ``offset`` seconds at 1 Hz, with the offsets of the PyBullet code's table matched to our
+    legs by name. 20 random phases and ratios ``k`` in ``[e^-1.6, e^1.6]``; tolerance 1e-4 rad
+    (float32 against float64; an offset wrong by 1% of a period moves a leg by 0.037 rad or
+    more at these ratios, two legs swapped by a quarter period or more where their offsets
+    differ)."""
+    offsets = np.asarray([PYBULLET_GAITS[gait][PYBULLET_LEGS.index(leg)] for leg in a1.LEGS])
+    np.testing.assert_array_equal(pmtg.GAITS[gait], offsets)
     rng = np.random.default_rng(1)
     for _ in range(20):
         phase, ratio = rng.uniform(0, 2 * math.pi), math.exp(rng.uniform(-1.6, 1.6))
-        legs = pmtg.leg_phases(jnp.float32(phase), ratio, offsets)
-        tau = np.asarray(pmtg.phase_to_time(legs, ratio))
-        base = float(pmtg.phase_to_time(jnp.float32(phase), ratio))
-        gap = (tau - base - offsets) % 1.0
-        np.testing.assert_allclose(np.minimum(gap, 1 - gap), 0, atol=1e-5)
+        legs = np.asarray(pmtg.leg_phases(jnp.float32(phase), ratio, pmtg.GAITS[gait]))
+        expected = np.array([_reference_advance(phase, 1.0, ratio, offset) for offset in offsets])
+        gap = np.abs(legs - expected)
+        np.testing.assert_allclose(np.minimum(gap, 2 * math.pi - gap), 0, atol=1e-4,
+                                   err_msg=f"phase {phase}, ratio {ratio}")
     # at k = 1 the warp is the identity: phase differences are 2 pi times the offsets
     legs = np.asarray(pmtg.leg_phases(jnp.float32(0.0), 1.0, offsets))
     np.testing.assert_allclose(legs, 2 * math.pi * offsets, atol=1e-5)
@@ -105,10 +125,64 @@ def test_swing_extend_and_joint_targets_follow_the_equations():
     np.testing.assert_allclose(targets, expected + np.asarray(residuals).reshape(4, 3), atol=1e-6)
 
 
+def _max_on_arc(c: float, s: float, low: float, high: float) -> float:
+    """The largest ``c cos(phi) + s sin(phi)`` over ``phi`` in ``[low, high]``: the peak
+    ``hypot(c, s)`` at ``atan2(s, c)`` if that angle is on the arc, else an end's value."""
+    values = [c * math.cos(low) + s * math.sin(low), c * math.cos(high) + s * math.sin(high)]
+    if low <= math.atan2(s, c) % (2 * math.pi) <= high:
+        values.append(math.hypot(c, s))
+    return max(values)
+
+
+def _target_extremes(config: pmtg.TGConfig) -> np.ndarray:
+    """``(3, 2)``: per leg joint (abduction, thigh, knee) the lowest and highest target of any
+    bounded input, in closed form from the equations (module docstring of ``pmtg``): thigh
+    ``= thigh0 - h / 2 - I (a cos phi + A sin phi / 2) + residual``, knee ``= knee0 + h +
+    I A sin phi + residual``, ``A`` the stance lift on ``[0, pi)`` and the swing lift on
+    ``[pi, 2 pi)``, each term at the end of its range that moves the target the most (the
+    intensity at its top when the phase term goes that way, else at 0)."""
+    i_max, (h_low, h_high), r = config.intensity_range[1], config.height_range, config.residual_range
+    a = config.swing_amplitude
+    arcs = [(0.0, math.pi, config.stance_lift), (math.pi, 2 * math.pi, config.swing_lift)]
+
+    def largest(swing: float, lift_share: float) -> float:
+        """The largest ``I (swing cos phi + lift_share A sin phi)``, ``I`` in ``[0, i_max]``."""
+        peak = max(_max_on_arc(swing, lift_share * lift, low, high) for low, high, lift in arcs)
+        return i_max * max(0.0, peak)
+
+    abduction0, thigh0, knee0 = a1.HOME_LEG
+    return np.array([
+        [abduction0 - r, abduction0 + r],
+        [thigh0 - h_high / 2 - r - largest(a, 0.5), thigh0 - h_low / 2 + r + largest(-a, -0.5)],
+        [knee0 + h_low - r - largest(0.0, -1.0), knee0 + h_high + r + largest(0.0, 1.0)],
+    ])
+
+
 def test_joint_targets_stay_in_the_joint_ranges_for_all_bounded_inputs():
-    """Random outputs in [-1, 1]^16 and every corner of the TG parameters' box, at phases all
-    round the cycle: the targets never leave the joint ranges (no clipping anywhere)."""
+    """The targets of every bounded input stay inside the joint ranges of the compiled MuJoCo
+    model, shown in closed form (:func:`_target_extremes`, from the equations) and checked on
+    ``tg_step`` itself.
+
+    - The closed form's extremes lie inside the model's ``jnt_range`` (the closest: the knee's
+      lowest target, -2.670, 0.027 rad inside -2.697).
+    - 4096 random outputs in ``[-1, 1]^16`` plus every corner of the TG parameters' box with 4
+      residual sign patterns, 64 random phases each: ``tg_step``'s targets stay within the
+      closed form's range (1e-5 rad: float32) and come within 1e-3 rad of each of its 24 ends
+      (both ends of every joint of every leg; measured within 1.9e-4), so the sample reaches
+      the extremes the ranges are checked against.
+    - ``TGConfig.target_bounds``, which the config validates bounds with, contains the closed
+      form's range (so it refuses every config whose targets could leave the ranges) and equals
+      it at both ends of abduction and knee and at the thigh's lowest; the thigh's highest
+      (1.810) is 0.222 rad above the reachable 1.588: the bound adds the swing's and the
+      extension's extremes, which no phase reaches together.
+    """
     config = pmtg.TGConfig()
+    extremes = _target_extremes(config)
+    model = mujoco.MjModel.from_xml_string(a1.world_xml())
+    ranges = np.array([model.jnt_range[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)]
+                       for name in a1.JOINT_NAMES]).reshape(4, 3, 2)
+    assert np.all(ranges[..., 0] < extremes[:, 0]) and np.all(extremes[:, 1] < ranges[..., 1])
+
     step = jax.jit(jax.vmap(lambda phase, u: pmtg.tg_step(config, phase, u).targets))
     rng = np.random.default_rng(2)
     random_u = rng.uniform(-1, 1, (4096, 16))
@@ -118,12 +192,15 @@ def test_joint_targets_stay_in_the_joint_ranges_for_all_bounded_inputs():
                                np.tile(corners, (len(residual_signs), 1))], axis=1)
     u = np.concatenate([random_u, np.repeat(corner_u, 64, 0)])
     phases = rng.uniform(0, 2 * math.pi, len(u)).astype(np.float32)
-    targets = np.asarray(step(jnp.asarray(phases), jnp.asarray(u, jnp.float32)))
-    lo, hi = a1.JOINT_RANGES[:, 0], a1.JOINT_RANGES[:, 1]
-    assert np.all(targets >= lo) and np.all(targets <= hi)
-    # the bounds are used: the extreme knee targets come within 0.05 rad of the stated bounds
+    targets = np.asarray(step(jnp.asarray(phases), jnp.asarray(u, jnp.float32))).reshape(-1, 4, 3)
+    assert np.all(targets >= extremes[:, 0] - 1e-5) and np.all(targets <= extremes[:, 1] + 1e-5)
+    np.testing.assert_allclose(targets.min(0), np.broadcast_to(extremes[:, 0], (4, 3)), atol=1e-3)
+    np.testing.assert_allclose(targets.max(0), np.broadcast_to(extremes[:, 1], (4, 3)), atol=1e-3)
+
     low, high = config.target_bounds()
-    assert targets.reshape(-1, 4, 3)[..., 2].min() < low[2] + 0.05
+    assert np.all(low <= extremes[:, 0] + 1e-6) and np.all(high >= extremes[:, 1] - 1e-6)
+    np.testing.assert_allclose(low, extremes[:, 0], atol=1e-6)
+    np.testing.assert_allclose(high[[0, 2]], extremes[[0, 2], 1], atol=1e-6)
 
 
 def test_config_refuses_bounds_that_leave_the_joint_ranges():
