@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib
 import json
 import os
 import re
@@ -119,7 +120,8 @@ def training_programs():
     from jax.sharding import NamedSharding, PartitionSpec
 
     from iap_mjx import configs
-    from iap_mjx.es import train
+
+    train = importlib.import_module("iap_mjx.es.train")  # the module (``iap_mjx.es.train`` is also a function)
 
     for preset in PRESETS:
         config = configs.get(preset)
