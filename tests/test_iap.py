@@ -273,3 +273,8 @@ def test_vmap_in_chunks_equals_one_image_at_a_time(batched_projections):
 def test_batch_chunk_must_be_positive():
     with pytest.raises(ValueError, match="AttentionConfig.batch_chunk must be a positive integer or None"):
         AttentionConfig(batch_chunk=0)
+
+
+def test_effective_stride_is_the_stride_or_else_the_patch_size():
+    assert AttentionConfig(patch_size=4).effective_stride == 4
+    assert AttentionConfig(patch_size=4, stride=2).effective_stride == 2

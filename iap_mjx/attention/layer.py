@@ -93,8 +93,8 @@ class AttentionConfig:
                              "(IAP scores are column sums of an unnormalised attention matrix)")
 
     @property
-    def step(self) -> int:
-        """The stride actually used."""
+    def effective_stride(self) -> int:
+        """The stride actually used: ``stride``, or ``patch_size`` if ``stride`` is ``None``."""
         return self.patch_size if self.stride is None else self.stride
 
 
@@ -144,17 +144,18 @@ class IAPAttention:
         if len(self.image_shape) != 3:
             raise ValueError(f"image_shape must be (H, W, C), got {self.image_shape!r}")
         height, width, _ = self.image_shape
-        patch_grid(height, width, self.config.patch_size, self.config.step)
+        stride = self.config.effective_stride
+        patch_grid(height, width, self.config.patch_size, stride)
         if self.config.top_l > self.num_patches:
             raise ValueError(
                 f"top_l = {self.config.top_l} exceeds the number of patches L = {self.num_patches} "
-                f"({height}x{width} image, patch_size {self.config.patch_size}, stride {self.config.step})")
+                f"({height}x{width} image, patch_size {self.config.patch_size}, stride {stride})")
 
     @property
     def grid(self) -> tuple[int, int]:
         """Patch grid ``(rows, cols)``."""
         height, width, _ = self.image_shape
-        return patch_grid(height, width, self.config.patch_size, self.config.step)
+        return patch_grid(height, width, self.config.patch_size, self.config.effective_stride)
 
     @property
     def num_patches(self) -> int:
@@ -193,15 +194,15 @@ class IAPAttention:
         (on XLA CPU the reshape path was 10x faster than the convolution where both apply).
         """
         cfg = self.config
-        p, channels = cfg.patch_size, self.image_shape[2]
+        p, stride, channels = cfg.patch_size, cfg.effective_stride, self.image_shape[2]
         weights = jnp.concatenate([params.w_q, params.w_k], axis=1)  # (c, 2d)
-        if cfg.step == p:
+        if stride == p:
             patches, _ = extract_patches(image.astype(weights.dtype), p, p)
             projected = patches @ weights
         else:
             projected = jax.lax.conv_general_dilated(
                 image[None].astype(weights.dtype), weights.reshape(p, p, channels, -1),
-                window_strides=(cfg.step, cfg.step), padding="VALID",
+                window_strides=(stride, stride), padding="VALID",
                 dimension_numbers=("NHWC", "HWIO", "NHWC"))
             projected = projected.reshape(self.num_patches, 2 * cfg.d_qk)
         queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk:]
@@ -231,16 +232,16 @@ class IAPAttention:
         the strided convolution of :meth:`queries_keys` with channel-major output.
         """
         cfg = self.config
-        p, channels, d = cfg.patch_size, self.image_shape[2], cfg.d_qk
+        p, stride, channels, d = cfg.patch_size, cfg.effective_stride, self.image_shape[2], cfg.d_qk
         weights = jnp.concatenate([params.w_q, params.w_k], axis=1)  # (c, 2d)
         image = image.astype(weights.dtype)
-        if cfg.step == p:
+        if stride == p:
             patches, _ = extract_patches(image, p, p)
             projected = jax.lax.dot_general(weights.T, patches, (((1,), (1,)), ((), ())))  # (2d, L)
         else:
             projected = jax.lax.conv_general_dilated(
                 image[None], weights.reshape(p, p, channels, 2 * d),
-                window_strides=(cfg.step, cfg.step), padding="VALID",
+                window_strides=(stride, stride), padding="VALID",
                 dimension_numbers=("NHWC", "HWIO", "NCHW"))[0]
         projected = projected.reshape(2 * d, self.num_patches)
         if params.b_q is not None:
@@ -322,17 +323,17 @@ class IAPAttention:
         scores = self.scores(params, projections, image)
         indices = top_l(scores, self.config.top_l)
         centres = jnp.asarray(patch_centres(*self.image_shape[:2], self.config.patch_size,
-                                            self.config.step))[indices]
+                                            self.config.effective_stride))[indices]
         patches = self.selected_patches(image, indices) if with_patches else None
         return Selection(indices=indices, centres=centres, scores=scores, patches=patches)
 
     def selected_patches(self, image: jax.Array, indices: jax.Array) -> jax.Array:
         """Pixels of the patches ``indices (l,)`` of ``image`` -> ``(l, p*p*C)``."""
-        p, step = self.config.patch_size, self.config.step
+        p, stride = self.config.patch_size, self.config.effective_stride
         _, cols = self.grid
 
         def one(index):
-            corner = (index // cols * step, index % cols * step, 0)
+            corner = (index // cols * stride, index % cols * stride, 0)
             return jax.lax.dynamic_slice(image, corner, (p, p, self.image_shape[2])).reshape(-1)
 
         return jax.vmap(one)(indices)
