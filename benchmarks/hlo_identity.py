@@ -11,7 +11,8 @@ What is hashed (SHA-256, one JSON entry each):
   ``dcs-cartpole-swingup`` (``iap_mjx.es.train.make_train_call``, lowered as ``train`` lowers it,
   on the devices the CLI makes: one per core).
 - ``compiled/...`` (with ``--compiled``): the same programs compiled, XLA's optimised HLO text
-  with its ``metadata={...}`` (op names, source files and lines) removed.
+  without debug information (each instruction's ``metadata={...}`` and the module's tables of
+  source files, Python function names and stack frames).
 - ``outputs/<case>``: the bytes of the layer's ``Selection.indices`` and ``Selection.scores`` on
   fixed random images, for every kernel and the projection paths (non-overlapping and
   overlapping patches, biases, each input scaling): equal hashes mean bit-identical outputs.
@@ -88,9 +89,22 @@ def lowered_text(lowered) -> str:
     return re.sub(r"\s*loc\((?:[^()]|\([^()]*\))*\)", "", text)
 
 
+DEBUG_TABLES = ("FileNames", "FunctionNames", "FileLocations", "StackFrames")
+
+
 def compiled_text(lowered) -> str:
-    """XLA's optimised HLO without ``metadata={...}`` (op names, source files and lines)."""
-    return re.sub(r",?\s*metadata=\{[^}]*\}", "", lowered.compile().as_text())
+    """XLA's optimised HLO without debug information: the instructions' ``metadata={...}``
+    (op names, source lines) and the module's tables of source files, Python function names,
+    locations and stack frames (each a header line, its rows, a blank line)."""
+    kept, in_table = [], False
+    for line in lowered.compile().as_text().splitlines():
+        if line.strip() in DEBUG_TABLES:
+            in_table = True
+        elif in_table and not line.strip():
+            in_table = False
+        elif not in_table:
+            kept.append(line)
+    return re.sub(r",?\s*metadata=\{[^}]*\}", "", "\n".join(kept))
 
 
 def attention_programs():
