@@ -186,12 +186,19 @@ class IAPAttention:
                                    orthogonal=cfg.orthogonal)
 
     def queries_keys(self, params: AttentionParams, image: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """``image (H, W, C)`` -> queries, keys ``(L, d)``, input scaling applied.
+        """``image (H, W, C)`` -> queries, keys ``(L, d)``, scaled: the inputs of brute force
+        and of the feature maps (:func:`features.feature_map`), which take tokens on the major
+        axis.
+
+        The projection of :meth:`query_key_rows` in the other layout, computed in this one
+        rather than transposed from the token rows: XLA's CPU backend rounds the two layouts'
+        products differently, so the transpose would change these kernels' scores in their
+        last bits, and with them the training runs that use these kernels.
 
         Non-overlapping patches: a reshape and one ``(L, c) @ (c, 2d)`` product. Overlapping
         patches: one strided convolution with kernel ``[W_Q | W_K]`` reshaped to
         ``(p, p, C, 2d)``, the same numbers without materialising the overlapping patches
-        (on XLA CPU the reshape path was 10x faster than the convolution where both apply).
+        (where both apply, XLA's CPU backend runs the reshape and product much faster).
         """
         cfg = self.config
         p, stride, channels = cfg.patch_size, cfg.effective_stride, self.image_shape[2]
@@ -208,28 +215,19 @@ class IAPAttention:
         queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk:]
         if params.b_q is not None:
             queries, keys = queries + params.b_q, keys + params.b_k
-        return self.scale_inputs(queries), self.scale_inputs(keys)
-
-    def scale_inputs(self, u: jax.Array) -> jax.Array:
-        """Paper eq. 4 (``d^{-1/4} u``), eq. 5 (``c u / |u|``) or identity; ``(..., d)``."""
-        cfg = self.config
-        if cfg.scaling == "eq4":
-            return u * cfg.d_qk ** -0.25
-        if cfg.scaling == "eq5":
-            norm = jnp.linalg.norm(u, axis=-1, keepdims=True)
-            return cfg.eq5_scale * u / jnp.maximum(norm, 1e-12)
-        return u
+        return self.scale_inputs(queries, axis=-1), self.scale_inputs(keys, axis=-1)
 
     def query_key_rows(self, params: AttentionParams, image: jax.Array) -> jax.Array:
         """``image (H, W, C)`` -> queries and keys as token rows ``(2d, L)`` (queries first),
-        input scaling applied: :meth:`queries_keys`, transposed.
+        scaled: the inputs of the ReLU and hybrid kernels' row scores
+        (:func:`scores.relu_scores_rows`, :func:`scores.hybrid_scores_rows`), the layer's hot
+        path. The projection of :meth:`queries_keys`, transposed.
 
-        Non-overlapping patches: the patches of :meth:`queries_keys` ``(L, c)`` contracted
-        with ``[W_Q | W_K]^T`` on ``c``, giving ``(2d, L)`` directly. (On XLA CPU at ``L =
-        19,200`` this was faster than ``(patches @ W).T``, which writes ``(L, 2d)`` and then
-        transposes it, and than a product with the image reshaped to ``(rows, p, cols, p*C)``,
-        for which XLA transposes the whole image into ``(c, L)`` planes.) Overlapping patches:
-        the strided convolution of :meth:`queries_keys` with channel-major output.
+        Non-overlapping patches: the patches ``(L, c)`` contracted with ``[W_Q | W_K]^T`` on
+        ``c``, giving ``(2d, L)`` directly: ``(patches @ W).T`` would write ``(L, 2d)`` and then
+        transpose it, and a product with the image reshaped to ``(rows, p, cols, p*C)`` makes
+        XLA transpose the whole image into ``(c, L)`` planes. Overlapping patches: the strided
+        convolution of :meth:`queries_keys` with channel-major output.
         """
         cfg = self.config
         p, stride, channels, d = cfg.patch_size, cfg.effective_stride, self.image_shape[2], cfg.d_qk
@@ -246,15 +244,18 @@ class IAPAttention:
         projected = projected.reshape(2 * d, self.num_patches)
         if params.b_q is not None:
             projected = projected + jnp.concatenate([params.b_q, params.b_k])[:, None]
-        return jnp.concatenate([self.scale_rows(projected[:d]), self.scale_rows(projected[d:])])
+        return jnp.concatenate([self.scale_inputs(projected[:d], axis=0),
+                                self.scale_inputs(projected[d:], axis=0)])
 
-    def scale_rows(self, u: jax.Array) -> jax.Array:
-        """:meth:`scale_inputs` for token rows ``u (d, L)``."""
+    def scale_inputs(self, u: jax.Array, *, axis: int) -> jax.Array:
+        """Paper eq. 4 (``d^{-1/4} u``), eq. 5 (``c u / |u|``) or identity, of queries or keys
+        ``u`` whose query/key dimension ``d`` is ``axis``: ``(L, d)`` with ``axis=-1``, token rows
+        ``(d, L)`` with ``axis=0``; same shape out."""
         cfg = self.config
         if cfg.scaling == "eq4":
             return u * cfg.d_qk ** -0.25
         if cfg.scaling == "eq5":
-            norm = jnp.linalg.norm(u, axis=0, keepdims=True)
+            norm = jnp.linalg.norm(u, axis=axis, keepdims=True)
             return cfg.eq5_scale * u / jnp.maximum(norm, 1e-12)
         return u
 
