@@ -25,10 +25,8 @@ from iap_mjx.attention.selection import top_l
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
 ROW_KERNELS = ("relu", "hybrid")  # scored from token rows (tokens minor), in chunks under vmap
-# Patches scored together under vmap (batch_chunk=None). Development runs at L = 19,200 (2 XLA
-# devices, batch 64 in groups of 4 as in benchmarks/attention.py; same process): chunks of 2 images
-# took 0.66x the CPU time per image of the previous scoring code, chunks of 3 0.87x, chunks of 4
-# 0.79x.
+# Patches scored together per chunk under vmap when batch_chunk is None: 2 images at L = 19,200,
+# the chunk whose row-score intermediates stay in cache, where the time per image is lowest.
 CHUNK_TOKENS = 40_000
 
 
@@ -295,9 +293,8 @@ class IAPAttention:
                 return jax.vmap(self._row_scores, in_axes=axes)(*merged)
 
             # At least two chunks: with the whole batch in one step (a loop of one trip is
-            # removed), XLA's CPU backend fused the scores' computation into both consumers in
-            # top_l, computing it twice (dev run at 100x100, L = 625, 16 images per device:
-            # 1.5x the time of two chunks of 8).
+            # removed), XLA's CPU backend fuses the scores' computation into both of top_l's
+            # consumers and computes it twice (BENCHMARKS.md, full pixel pipeline at 100x100).
             chunk = min(self.batch_chunk, -(-axis_size // 2))
             return chunks.map_chunks(one_chunk, per_image, chunk, axis_size), True
 

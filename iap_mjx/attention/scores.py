@@ -32,9 +32,9 @@ def brute_scores(queries: jax.Array, keys: jax.Array, *, row_normalize: bool = F
     """
     logits = queries @ keys.T
     if row_normalize:
-        # Column sums of the row-softmax as one matvec (1 / row sums) @ exp. XLA CPU's column
-        # reduction of softmax(logits) is pathologically slow at some vmap batch sizes (at L=625,
-        # batch 18: ~17x slower per image than batch 64), which made a weak baseline.
+        # Column sums of the row-softmax as one matvec (1 / row sums) @ exp: XLA CPU's column
+        # reduction of softmax(logits) is pathologically slow at some vmap batch sizes, which
+        # would make brute force a weak baseline.
         unnormalised = jnp.exp(logits - jax.lax.stop_gradient(jnp.max(logits, axis=-1, keepdims=True)))
         return (1.0 / jnp.sum(unnormalised, axis=-1)) @ unnormalised
     return jnp.sum(jnp.exp(logits - jax.lax.stop_gradient(jnp.max(logits))), axis=0)
@@ -66,10 +66,10 @@ def _half_sq_norm(x: jax.Array) -> jax.Array:
 def _larger(a: jax.Array, b: jax.Array) -> jax.Array:
     """``max(a, b)`` elementwise as compare-and-select (the same number for non-NaN inputs).
 
-    With ``jnp.maximum`` XLA's CPU backend (jax 0.10) hands the maxima of :func:`_row_max` to a
-    YNNPACK elementwise kernel and first copies each of its rows out: at ``L = 19,200`` that was
-    13% of the hybrid layer's CPU time (profile of ``benchmarks/attention.py``'s batch 64); a
-    select stays in XLA's own loop, fused with the rows' computation. A NaN in ``b`` is kept
+    With ``jnp.maximum`` XLA's CPU backend (jaxlib 0.10) hands the maxima of :func:`_row_max` to
+    a YNNPACK elementwise kernel and first copies each of its rows out; a select stays in XLA's
+    own loop, fused with the rows' computation (the layer's kernel time with each:
+    BENCHMARKS.md, full pixel pipeline at 240x320). A NaN in ``b`` is kept
     and one in ``a`` dropped; a NaN query or key makes its ``|x|^2/2`` NaN, which the shift's
     maximum over tokens propagates either way."""
     return jnp.where(a > b, a, b)
