@@ -208,7 +208,7 @@ def run_base(commit: str, args: argparse.Namespace) -> dict[str, str]:
         env = {**os.environ, "PYTHONPATH": tmp + os.pathsep + os.environ.get("PYTHONPATH", ""),
                EXPECTED_ROOT_VAR: tmp}
         print(f"hashing {commit}'s iap_mjx ...", file=sys.stderr, flush=True)
-        subprocess.run(command, check=True, env=env, cwd=tmp)
+        subprocess.run(command, check=True, env=env, cwd=tmp, stdout=subprocess.DEVNULL)
         return json.loads(out.read_text())["hashes"]
 
 
