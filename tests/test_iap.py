@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from iap_mjx.attention import features as ft
-from iap_mjx.attention import iap
+from iap_mjx.attention.layer import KERNELS, AttentionConfig, IAPAttention
+from iap_mjx.attention.patches import extract_patches
+from iap_mjx.attention.scores import brute_scores, hybrid_scores, linear_scores
+from iap_mjx.attention.selection import top_l
 
 
 def random_image(shape, seed=0):
@@ -20,7 +23,7 @@ def random_image(shape, seed=0):
 ])
 def test_patches_equal_direct_slicing(shape, patch, stride):
     image = random_image(shape)
-    patches, centres = jax.jit(iap.extract_patches, static_argnums=(1, 2))(image, patch, stride)
+    patches, centres = jax.jit(extract_patches, static_argnums=(1, 2))(image, patch, stride)
     rows, cols = (shape[0] - patch) // stride + 1, (shape[1] - patch) // stride + 1
     assert patches.shape == (rows * cols, patch * patch * shape[2])
     img = np.asarray(image)
@@ -35,11 +38,11 @@ def test_patches_equal_direct_slicing(shape, patch, stride):
 
 def test_patches_that_do_not_tile_raise():
     with pytest.raises(ValueError, match="do not tile the image"):
-        iap.extract_patches(jnp.zeros((10, 10, 3)), 3)
+        extract_patches(jnp.zeros((10, 10, 3)), 3)
     with pytest.raises(ValueError, match="larger than the image"):
-        iap.extract_patches(jnp.zeros((4, 4, 3)), 5)
+        extract_patches(jnp.zeros((4, 4, 3)), 5)
     with pytest.raises(ValueError, match="stride must be a positive integer"):
-        iap.extract_patches(jnp.zeros((4, 4, 3)), 2, 0)
+        extract_patches(jnp.zeros((4, 4, 3)), 2, 0)
 
 
 def test_brute_scores_equal_a_plain_loop():
@@ -52,10 +55,10 @@ def test_brute_scores_equal_a_plain_loop():
         for j in range(30):
             loop[j] += row[j]
             loop_normalised[j] += row[j] / sum(row)
-    plain = np.asarray(iap.brute_scores(jnp.asarray(q), jnp.asarray(k)))
+    plain = np.asarray(brute_scores(jnp.asarray(q), jnp.asarray(k)))
     # Unnormalised scores come scaled by one positive constant (overflow guard): compare ratios.
     np.testing.assert_allclose(plain / plain.sum(), loop / loop.sum(), rtol=1e-5)
-    np.testing.assert_allclose(iap.brute_scores(jnp.asarray(q), jnp.asarray(k), row_normalize=True),
+    np.testing.assert_allclose(brute_scores(jnp.asarray(q), jnp.asarray(k), row_normalize=True),
                                loop_normalised, rtol=1e-5)
 
 
@@ -68,7 +71,7 @@ def test_linear_scores_equal_explicit_column_sums(kind):
     qf = ft.feature_map(kind, q, proj, role="query")
     kf = ft.feature_map(kind, k, proj, role="key")
     explicit = np.asarray(qf @ kf.T).sum(axis=0)  # the L x L matrix, built on purpose
-    np.testing.assert_allclose(iap.linear_scores(qf, kf), explicit, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(linear_scores(qf, kf), explicit, rtol=1e-4, atol=1e-5)
 
 
 def test_factorised_hybrid_scores_equal_the_feature_map():
@@ -77,10 +80,10 @@ def test_factorised_hybrid_scores_equal_the_feature_map():
     k = jax.random.normal(keys[1], (80, 4))
     proj = ft.draw_projections(keys[2], "hybrid", m=10, d=4, r=5)
     for stabilize in (False, True):
-        via_features = iap.linear_scores(
+        via_features = linear_scores(
             ft.feature_map("hybrid", q, proj, role="query", stabilize=stabilize),
             ft.feature_map("hybrid", k, proj, role="key", stabilize=stabilize))
-        fast = iap.hybrid_scores(q, k, proj, stabilize=stabilize)
+        fast = hybrid_scores(q, k, proj, stabilize=stabilize)
         np.testing.assert_allclose(fast, via_features, rtol=2e-4, atol=1e-4 * float(jnp.abs(via_features).max()))
 
 
@@ -93,8 +96,8 @@ def test_factorised_hybrid_scores_survive_norm_10_and_keep_the_ranking():
     norms = jax.random.uniform(keys[1], (2, 80, 1), minval=8.0, maxval=10.0)
     q, k = directions * norms
     proj = ft.draw_projections(keys[2], "hybrid", m=10, d=4, r=5)
-    fast = np.asarray(jax.jit(iap.hybrid_scores)(q, k, proj))
-    via_features = np.asarray(iap.linear_scores(
+    fast = np.asarray(jax.jit(hybrid_scores)(q, k, proj))
+    via_features = np.asarray(linear_scores(
         ft.feature_map("hybrid", q, proj, role="query", stabilize=True),
         ft.feature_map("hybrid", k, proj, role="key", stabilize=True)))
     assert np.all(np.isfinite(fast))
@@ -103,13 +106,13 @@ def test_factorised_hybrid_scores_survive_norm_10_and_keep_the_ranking():
 
 def test_top_l_breaks_ties_toward_the_lower_index():
     scores = jnp.array([1.0, 3.0, 2.0, 3.0, 3.0, 0.0])
-    np.testing.assert_array_equal(jax.jit(iap.top_l, static_argnums=1)(scores, 4), [1, 3, 4, 2])
+    np.testing.assert_array_equal(jax.jit(top_l, static_argnums=1)(scores, 4), [1, 3, 4, 2])
 
 
 def layer_for(kernel, shape=(20, 20, 3), **overrides):
-    cfg = iap.AttentionConfig(kernel=kernel, patch_size=overrides.pop("patch_size", 4), top_l=5,
+    cfg = AttentionConfig(kernel=kernel, patch_size=overrides.pop("patch_size", 4), top_l=5,
                               m=6, r=3, **overrides)
-    return iap.IAPAttention(cfg, shape)
+    return IAPAttention(cfg, shape)
 
 
 @pytest.mark.parametrize("use_bias", [False, True])
@@ -120,7 +123,7 @@ def test_layer_queries_keys_equal_patches_times_weights(scaling, use_bias):
     if use_bias:
         params = params.replace(b_q=jnp.arange(4.0) * 0.1, b_k=-jnp.arange(4.0) * 0.1)
     image = random_image((20, 20, 3), seed=5)
-    patches, _ = iap.extract_patches(image, 4, 2)
+    patches, _ = extract_patches(image, 4, 2)
     q_direct = patches @ params.w_q + (params.b_q if use_bias else 0)
     k_direct = patches @ params.w_k + (params.b_k if use_bias else 0)
     if scaling == "eq4":
@@ -133,7 +136,7 @@ def test_layer_queries_keys_equal_patches_times_weights(scaling, use_bias):
     np.testing.assert_allclose(k, k_direct, rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("kernel", iap.KERNELS)
+@pytest.mark.parametrize("kernel", KERNELS)
 def test_layer_under_jit_and_vmap_selects_the_best_scores(kernel):
     layer = layer_for(kernel)
     params = layer.init(jax.random.PRNGKey(1))
@@ -150,7 +153,7 @@ def test_layer_under_jit_and_vmap_selects_the_best_scores(kernel):
         assert np.all(np.isfinite(scores))
         best = np.sort(scores)[::-1][:5]
         np.testing.assert_allclose(scores[np.asarray(single.indices)], best, rtol=1e-6)
-        patches, centres = iap.extract_patches(images[b], 4)
+        patches, centres = extract_patches(images[b], 4)
         np.testing.assert_array_equal(single.patches, patches[single.indices])
         np.testing.assert_array_equal(single.centres, centres[single.indices])
 
@@ -161,7 +164,7 @@ def test_layer_scores_equal_the_explicit_kernel_matrix():
     params = layer.init(jax.random.PRNGKey(7))
     proj = layer.draw_projections(jax.random.PRNGKey(8))
     image = random_image((20, 20, 3), seed=9)
-    patches, _ = iap.extract_patches(image, 4)
+    patches, _ = extract_patches(image, 4)
     q = patches @ params.w_q * 4**-0.25
     k = patches @ params.w_k * 4**-0.25
     matrix = ft.feature_map("hybrid", q, proj, role="query") @ ft.feature_map("hybrid", k, proj, role="key").T
@@ -174,17 +177,17 @@ def test_layer_scores_equal_the_explicit_kernel_matrix():
 
 def test_layer_errors_are_clear_and_early():
     with pytest.raises(ValueError, match="top_l = 30 exceeds the number of patches L = 25"):
-        iap.IAPAttention(iap.AttentionConfig(patch_size=4, top_l=30), (20, 20, 3))
+        IAPAttention(AttentionConfig(patch_size=4, top_l=30), (20, 20, 3))
     with pytest.raises(ValueError, match="do not tile"):
-        iap.IAPAttention(iap.AttentionConfig(patch_size=3), (20, 20, 3))
+        IAPAttention(AttentionConfig(patch_size=3), (20, 20, 3))
     with pytest.raises(ValueError, match="valid kernels: brute, relu, exp, trig, hybrid, angular"):
-        iap.AttentionConfig(kernel="softmax")
+        AttentionConfig(kernel="softmax")
     with pytest.raises(ValueError, match="AttentionConfig.m must be a positive integer"):
-        iap.AttentionConfig(m=0)
+        AttentionConfig(m=0)
     with pytest.raises(ValueError, match="valid scalings"):
-        iap.AttentionConfig(scaling="eq6")
+        AttentionConfig(scaling="eq6")
     with pytest.raises(ValueError, match="row_normalize applies to kernel='brute' only"):
-        iap.AttentionConfig(kernel="hybrid", row_normalize=True)
+        AttentionConfig(kernel="hybrid", row_normalize=True)
     layer = layer_for("relu")
     with pytest.raises(ValueError, match=r"image of shape \(10, 10, 3\)"):
         layer(layer.init(jax.random.PRNGKey(0)), layer.draw_projections(jax.random.PRNGKey(0)),
@@ -192,9 +195,9 @@ def test_layer_errors_are_clear_and_early():
 
 
 def test_config_is_hashable_for_static_arguments():
-    cfg = iap.AttentionConfig()
-    assert hash(cfg) == hash(iap.AttentionConfig())
-    assert hash(iap.IAPAttention(cfg, (20, 20, 3))) == hash(iap.IAPAttention(cfg, (20, 20, 3)))
+    cfg = AttentionConfig()
+    assert hash(cfg) == hash(AttentionConfig())
+    assert hash(IAPAttention(cfg, (20, 20, 3))) == hash(IAPAttention(cfg, (20, 20, 3)))
 
 
 @pytest.mark.parametrize("size", [25, 200, 625, 19200])
@@ -204,7 +207,7 @@ def test_top_l_equals_lax_top_k_with_ties(size):
     rng = np.random.default_rng(size)
     rows = np.stack([rng.normal(size=size), rng.integers(0, 4, size=size),  # distinct / heavy ties
                      np.ones(size), np.arange(size), -np.arange(size)]).astype(np.float32)
-    top = jax.jit(jax.vmap(iap.top_l, in_axes=(0, None)), static_argnums=1)
+    top = jax.jit(jax.vmap(top_l, in_axes=(0, None)), static_argnums=1)
     for l in (1, 10):
         np.testing.assert_array_equal(top(jnp.asarray(rows), l), jax.lax.top_k(jnp.asarray(rows), l)[1])
 
@@ -227,15 +230,15 @@ def test_layer_scores_equal_the_feature_map_path_at_patch_2(kernel):
     """The token-row scores of the layer (hybrid: moments and key scores as products; relu)
     equal linear_scores of the feature maps of queries_keys, and select the same patches,
     on an image with 2-pixel patches (L = 768) whose pixels have structure as rendered ones do."""
-    cfg = iap.AttentionConfig(kernel=kernel, patch_size=2, top_l=10, m=10, r=5)
-    layer = iap.IAPAttention(cfg, (48, 64, 3))
+    cfg = AttentionConfig(kernel=kernel, patch_size=2, top_l=10, m=10, r=5)
+    layer = IAPAttention(cfg, (48, 64, 3))
     params = layer.init(jax.random.PRNGKey(11))
     proj = layer.draw_projections(jax.random.PRNGKey(12))
     yy, xx = np.mgrid[0:48, 0:64] / 48.0
     image = jnp.asarray(np.stack([np.sin(3 * xx) ** 2, yy, (xx * yy) % 0.3], axis=-1), jnp.float32)
     image = image + 0.05 * random_image((48, 64, 3), seed=13)
     q, k = layer.queries_keys(params, image)
-    expected = iap.linear_scores(ft.feature_map(kernel, q, proj, role="query", stabilize=True),
+    expected = linear_scores(ft.feature_map(kernel, q, proj, role="query", stabilize=True),
                                  ft.feature_map(kernel, k, proj, role="key", stabilize=True))
     scores = jax.jit(layer.scores)(params, proj, image)
     scale = float(jnp.abs(expected).max())
@@ -269,4 +272,9 @@ def test_vmap_in_chunks_equals_one_image_at_a_time(batched_projections):
 
 def test_batch_chunk_must_be_positive():
     with pytest.raises(ValueError, match="AttentionConfig.batch_chunk must be a positive integer or None"):
-        iap.AttentionConfig(batch_chunk=0)
+        AttentionConfig(batch_chunk=0)
+
+
+def test_effective_stride_is_the_stride_or_else_the_patch_size():
+    assert AttentionConfig(patch_size=4).effective_stride == 4
+    assert AttentionConfig(patch_size=4, stride=2).effective_stride == 2

@@ -115,8 +115,9 @@ def gaussian_directions(key: jax.Array, count: int, d: int, *, orthogonal: bool)
 def _orthonormal_rows(gaussian: jax.Array) -> jax.Array:
     """Gram-Schmidt on the rows of a Gaussian ``(d, d)`` matrix -> Haar-random orthonormal rows.
 
-    Plain array ops rather than ``jnp.linalg.qr``: under a large ``vmap`` the LAPACK custom
-    call was seen to deadlock XLA's CPU runtime (jaxlib 0.10.2), and ``d`` is small here.
+    Plain array ops rather than ``jnp.linalg.qr``: under a large ``vmap`` its LAPACK custom
+    call can deadlock XLA's CPU runtime in jaxlib 0.10 (as MJX's batched Cholesky does:
+    ``iap_mjx.envs.dmc.serial_lapack_batch``), and ``d`` is small here.
     """
     rows = []
     for vector in gaussian:

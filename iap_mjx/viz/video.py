@@ -141,10 +141,10 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
     canvas.paste(image, (0, 16))
     draw = ImageDraw.Draw(canvas)
     if indices is not None and layer is not None:
-        patch, step = layer.config.patch_size, layer.config.step
+        patch, stride = layer.config.patch_size, layer.config.effective_stride
         _, cols = layer.grid
         for index in indices:
-            top, left = (int(index) // cols) * step * scale, (int(index) % cols) * step * scale
+            top, left = (int(index) // cols) * stride * scale, (int(index) % cols) * stride * scale
             draw.rectangle([left, 16 + top, left + patch * scale - 1, 16 + top + patch * scale - 1],
                            outline=RED)
             if patch * scale < MARK_BELOW:
