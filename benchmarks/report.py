@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import platform
-import re
 import shlex
 import statistics
 import time
@@ -11,6 +10,8 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 ROOT = Path(__file__).resolve().parent.parent
+
+from iap_mjx.viz.sections import write_section  # noqa: E402,F401  (the benchmarks' sections)
 
 
 def readme_main_command() -> list[str]:
@@ -22,19 +23,6 @@ def readme_main_command() -> list[str]:
         if "iap-mjx train" in line and "pip install" in line:
             return shlex.split(line.split("&& iap-mjx ", 1)[1])
     raise ValueError("README.md has no install-and-train line (`pip install ... && iap-mjx train ...`)")
-
-
-def write_section(path: Path, name: str, body: str) -> None:
-    """Replaces the text between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` in ``path``.
-
-    The section is appended when absent, so every script owns only its own part of the file.
-    """
-    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
-    block = f"{begin}\n{body.rstrip()}\n{end}"
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
-    text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
-    path.write_text(text)
 
 
 def compile_and_time(fn: Callable, *args: Any, repeats: int = 5,

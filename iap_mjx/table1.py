@@ -111,10 +111,11 @@ def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *,
 
 
 def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
-                     episodes: int = 20, train: bool = True,
-                     tasks: tuple[str, ...] = TASKS) -> str:
+                     episodes: int = 20, train: bool = True, tasks: tuple[str, ...] = TASKS,
+                     results: str | Path | None = None) -> str:
     """Trains (``train=False``: only reads) every task and seed, evaluates the finished runs,
-    writes ``table1.json`` / ``table1.png`` in ``out_dir`` and returns the markdown table."""
+    writes ``table1.json`` / ``table1.png`` in ``out_dir`` and returns the markdown table;
+    ``results``: a markdown file (RESULTS.md) whose ``table1`` section is rewritten with it."""
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     task_configs = check(tuple(tasks), tuple(overrides))
@@ -125,8 +126,29 @@ def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[st
     if not rows:
         raise ValueError(f"no table1 runs in {out_dir} to report")
     (out_dir / "table1.json").write_text(json.dumps(rows, indent=1))
-    plot(rows, out_dir / "table1.png")
-    return table(rows, seeds=seeds)
+    png = plot(rows, out_dir / "table1.png")
+    markdown = table(rows, seeds=seeds)
+    if results is not None:
+        write_results(Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes)
+    return markdown
+
+
+def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...],
+                  episodes: int) -> None:
+    """The ``table1`` section of ``path``: the command, the table and the curves."""
+    from iap_mjx.viz.sections import write_section
+
+    command = " ".join(["iap-mjx reproduce table1", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
+                        f"--out {png.parent}", f"--results {path.name}"])
+    try:
+        image = png.resolve().relative_to(path.resolve().parent)
+    except ValueError:
+        image = png
+    body = (f"## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
+            f"the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
+            "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
+            f"Stone et al. 2021).\n\n![table1]({image})\n\n{markdown}\n")
+    write_section(path, "table1", body, title="# Results")
 
 
 def _mean_std(values: list[float]) -> str:

@@ -73,6 +73,13 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
                             tasks=("cartpole-swingup",))
     assert len(calls) == 4  # read back, not evaluated again
     assert (tmp_path / "table1.png").stat().st_size > 0
+    results = tmp_path / "RESULTS.md"
+    results.write_text("# Results\n\n<!-- BEGIN table1 -->\nold\n<!-- END table1 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n")
+    table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
+                            tasks=("cartpole-swingup",), results=results)
+    text = results.read_text()
+    assert "old" not in text and "kept" in text and row in text and "![table1](table1.png)" in text
+    assert "`iap-mjx reproduce table1 run.iterations=3 --seeds 2 --episodes 4" in text
     assert json.loads((tmp_path / "table1.json").read_text())[0]["conditions"]["none"] == [210.0] * 4
 
 

@@ -1,0 +1,21 @@
+"""Named sections of a markdown file (RESULTS.md, BENCHMARKS.md) that scripts rewrite in place."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+
+def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmarks") -> None:
+    """Replaces the text between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` in ``path``.
+
+    The section is appended when absent (``title`` starts a file that does not exist yet), so
+    every script owns only its own part of the file.
+    """
+    path = Path(path)
+    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
+    block = f"{begin}\n{body.rstrip()}\n{end}"
+    text = path.read_text() if path.exists() else f"{title}\n"
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
+    path.write_text(text)
