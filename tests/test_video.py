@@ -123,7 +123,8 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
 
 def test_small_patches_get_a_ring_that_can_be_seen():
     """2x2 patches at 3x are 6-pixel squares: each also gets a red ring of radius
-    ``MARK_RADIUS`` around its centre; 4x4 patches (12 pixels) get the outline only."""
+    ``MARK_RADIUS`` around its centre inside a white one; 4x4 patches (12 pixels) get the
+    outline only."""
     from iap_mjx.attention import AttentionConfig, IAPAttention
 
     frame = np.full((24, 32, 3), 0.5, np.float32)
@@ -137,8 +138,14 @@ def test_small_patches_get_a_ring_that_can_be_seen():
         half = patch * 3 / 2
         outside = (np.abs(ys + 0.5 - centre_y) > half) | (np.abs(xs + 0.5 - centre_x) > half)
         assert outside.any() == ringed, patch  # red beyond the patch's own square: the ring
-        if ringed:  # red all round the centre, at the ring's radius
+        white = np.all(drawn == video.WHITE, axis=-1)
+        white[:16] = False  # the caption
+        assert white.any() == ringed
+        if ringed:  # red all round the centre at the ring's radius, white just outside it
             distance = np.hypot(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
             assert np.all((distance > video.MARK_RADIUS - 2.5) & (distance < video.MARK_RADIUS + 1)), distance
             angles = np.arctan2(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
             assert np.histogram(angles, bins=8, range=(-np.pi, np.pi))[0].min() > 0
+            wy, wx = np.nonzero(white)
+            halo = np.hypot(wy + 0.5 - centre_y, wx + 0.5 - centre_x)
+            assert np.all((halo > video.MARK_RADIUS - 0.5) & (halo < video.MARK_RADIUS + 3.5)), halo

@@ -21,6 +21,7 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 RED = (230, 30, 30)
+WHITE = (255, 255, 255)
 MARK_BELOW = 12  # pixels: a patch drawn smaller than this also gets a ring around it
 MARK_RADIUS = 8  # pixels, the ring's outer radius
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
@@ -131,7 +132,8 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
 
     Each selected patch is outlined in red; one drawn smaller than ``MARK_BELOW`` pixels (a 2x2
     patch at 3x is 6 pixels) also gets a 2-pixel red ring of radius ``MARK_RADIUS`` around its
-    centre, so that it can be seen at a glance.
+    centre, inside a white ring, so that it can be seen at a glance on any background (a red
+    ring alone vanishes on the suite's red retina photograph).
     """
     from PIL import Image, ImageDraw
 
@@ -149,6 +151,8 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
                            outline=RED)
             if patch * scale < MARK_BELOW:
                 x, y = left + patch * scale / 2, 16 + top + patch * scale / 2
+                halo = MARK_RADIUS + 2
+                draw.ellipse([x - halo, y - halo, x + halo, y + halo], outline=WHITE, width=2)
                 draw.ellipse([x - MARK_RADIUS, y - MARK_RADIUS, x + MARK_RADIUS, y + MARK_RADIUS],
                              outline=RED, width=2)
     draw.text((2, 2), f"return {episode_return:8.2f}", fill=(255, 255, 255))
