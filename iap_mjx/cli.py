@@ -182,7 +182,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             tasks = tuple(t.strip() for t in args.tasks.split(",")) if args.tasks else table1.TASKS
             markdown = table1.reproduce_table1(args.out, seeds=args.seeds, overrides=tuple(args.overrides),
                                                episodes=args.episodes, train=not args.report_only,
-                                               tasks=tasks, results=args.results)
+                                               tasks=tasks, results=args.results, export=args.export)
         else:
             markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
                                            overrides=tuple(args.overrides), passes=args.passes,
@@ -291,6 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="table1: comma-separated suite tasks (default: all six)")
     repro.add_argument("--results", default=None, metavar="RESULTS.md",
                        help="table1: rewrite this markdown file's table1 section with the table")
+    repro.add_argument("--export", default=None, metavar="DIR",
+                       help="table1: copy each run's newest checkpoint, config and metrics to "
+                            "DIR/<task>-seed<k> (e.g. pretrained/dcs, tracked by git)")
     repro.add_argument("--report-only", action="store_true",
                        help="train nothing: report the runs already in --out, however far they got")
     repro.set_defaults(func=cmd_reproduce)

@@ -89,8 +89,9 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int) -> dict[str,
 
 
 def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool,
-            episodes: int) -> dict[str, Any] | None:
-    """One run: its curve, env steps, seconds, and (finished runs) every condition's returns."""
+            episodes: int, export: Path | None = None) -> dict[str, Any] | None:
+    """One run: its curve, env steps, seconds, and (finished runs) every condition's returns;
+    with ``export``, its newest checkpoint and files are copied to ``export/<task>-seed<k>``."""
     from iap_mjx.es import checkpoint
     from iap_mjx.es.metrics_log import read_history
     from iap_mjx.reproduce import trained_curve
@@ -107,22 +108,29 @@ def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *,
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
         row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes)
+    if export is not None:
+        checkpoint.export_latest(run_dir, export / f"{task}-seed{seed}")
     return row
 
 
 def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
                      episodes: int = 20, train: bool = True, tasks: tuple[str, ...] = TASKS,
-                     results: str | Path | None = None) -> str:
+                     results: str | Path | None = None, export: str | Path | None = None) -> str:
     """Trains (``train=False``: only reads) every task and seed, evaluates the finished runs,
     writes ``table1.json`` / ``table1.png`` in ``out_dir`` and returns the markdown table;
-    ``results``: a markdown file (RESULTS.md) whose ``table1`` section is rewritten with it."""
+    ``results``: a markdown file (RESULTS.md) whose ``table1`` section is rewritten with it;
+    ``export``: a folder (e.g. ``pretrained/dcs``, tracked by git) that receives each run's
+    newest checkpoint, config and metrics as ``<task>-seed<k>`` as soon as the run is trained
+    (finished or not), so trained policies ship and unfinished runs survive a lost ``out_dir``."""
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     task_configs = check(tuple(tasks), tuple(overrides))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    export = None if export is None else Path(export)
     rows = [row for task, config in task_configs.items() for seed in range(seeds)
-            if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes)) is not None]
+            if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes,
+                               export=export)) is not None]
     if not rows:
         raise ValueError(f"no table1 runs in {out_dir} to report")
     (out_dir / "table1.json").write_text(json.dumps(rows, indent=1))

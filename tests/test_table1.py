@@ -93,3 +93,27 @@ def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
     assert "2 of 3 finished tasks" in markdown  # walker's 110 is below QT-Opt's 111
     six = [r for task in table1.TASKS for r in rows(task, 170.0)]
     assert "Six-task mean: 170.0" in table1.table(six, seeds=3)
+
+
+def test_export_copies_the_newest_checkpoint_and_the_run_files(tmp_path, monkeypatch):
+    config = configs.apply_overrides(configs.get("dcs-cartpole-swingup"), ("run.iterations=3",))
+    run = tmp_path / "out" / "dcs-cartpole-swingup-seed0"
+    _fake_run(run, config, 2, [1.0, 2.0])
+    checkpoint.save(run, 1, {"x": np.ones(2)}, config.to_dict())  # an older step: not exported
+    export = tmp_path / "pretrained"
+    table1.reproduce_table1(tmp_path / "out", seeds=1, overrides=("run.iterations=3",), train=False,
+                            tasks=("cartpole-swingup",), export=export)
+    copied = export / "cartpole-swingup-seed0"
+    assert sorted(p.name for p in (copied / checkpoint.CHECKPOINT_DIR).iterdir()) == ["2"]
+    assert checkpoint.latest_step(copied) == 2
+    assert (copied / "metrics.jsonl").read_text() == (run / "metrics.jsonl").read_text()
+    assert configs.TrainConfig.from_dict(checkpoint.load_config(copied)) == config
+    step, state = checkpoint.restore(copied, {"x": np.ones(2)})
+    assert step == 2 and np.array_equal(state["x"], np.zeros(2))
+    # the run goes on: the next export replaces the copied checkpoint with the newer one
+    checkpoint.save(run, 3, {"x": np.full(2, 3.0)}, config.to_dict())
+    assert checkpoint.export_latest(run, copied) == 3
+    assert sorted(p.name for p in (copied / checkpoint.CHECKPOINT_DIR).iterdir()) == ["3"]
+    assert np.array_equal(checkpoint.restore(copied, {"x": np.ones(2)})[1]["x"], np.full(2, 3.0))
+    assert checkpoint.export_latest(tmp_path / "nothing", tmp_path / "dest") is None
+    assert not (tmp_path / "dest").exists()

@@ -7,6 +7,7 @@ run killed at any moment leaves only complete checkpoints behind.
 from __future__ import annotations
 
 import logging
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -84,3 +85,36 @@ def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[in
             step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
         )
         return step, restored["state"]
+
+
+#: What :func:`export_latest` copies besides the checkpoint: what a person or a resumed run reads.
+RUN_FILES = ("config.json", "metrics.csv", "metrics.jsonl", "eval.json")
+
+
+def export_latest(run_dir: str | Path, dest: str | Path) -> int | None:
+    """Copies ``run_dir``'s newest checkpoint and its :data:`RUN_FILES` into ``dest``.
+
+    ``dest`` becomes a run directory of its own with one checkpoint (older ones in it are
+    removed): ``iap-mjx eval`` and ``iap-mjx video`` read it, and training resumes from it
+    (resuming drops metric rows past the checkpoint). Returns the step copied, or ``None``
+    when ``run_dir`` has no checkpoint (nothing is written then).
+    """
+    run_dir, dest = Path(run_dir), Path(dest)
+    step = latest_step(run_dir)
+    if step is None:
+        return None
+    target = dest / CHECKPOINT_DIR
+    if not (target / str(step)).is_dir():
+        staging = dest / f".{CHECKPOINT_DIR}-{step}.tmp"
+        shutil.rmtree(staging, ignore_errors=True)
+        shutil.copytree(run_dir / CHECKPOINT_DIR / str(step), staging)
+        target.mkdir(parents=True, exist_ok=True)
+        staging.replace(target / str(step))
+    for old in target.iterdir():
+        if old.name != str(step):
+            shutil.rmtree(old) if old.is_dir() else old.unlink()
+    for name in RUN_FILES:
+        if (run_dir / name).exists():
+            shutil.copy2(run_dir / name, dest / name)
+    logger.info("exported checkpoint %d of %s to %s", step, run_dir, dest)
+    return step
