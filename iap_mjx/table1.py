@@ -67,7 +67,8 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...]) -> dict[str, confi
     return result
 
 
-def evaluate_conditions(run_dir: Path, step: int, *, episodes: int) -> dict[str, list[float]]:
+def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
+                        conditions: dict[str, tuple[str, ...]] = CONDITIONS) -> dict[str, list[float]]:
     """``{condition: returns}`` of the run's checkpoint ``step``, read from ``eval.json``
     where stored, evaluated (and stored) otherwise."""
     from iap_mjx import es
@@ -75,7 +76,7 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int) -> dict[str,
     path = run_dir / EVAL_FILE
     stored = json.loads(path.read_text()) if path.exists() else {}
     out = {}
-    for name, condition in CONDITIONS.items():
+    for name, condition in conditions.items():
         key = f"{name}@{step}x{episodes}s{EVAL_SEED}"
         if key not in stored:
             logger.info("%s: evaluating %s (%d episodes)", run_dir.name, name, episodes)

@@ -1,0 +1,209 @@
+"""Reproducing the paper's Figure 7: how the attention's shape matters on the Distracting
+Control Suite.
+
+On ``dcs-cartpole-swingup`` (the suite's cheapest task: 8 control steps per frame), one seed
+per cell at a budget the caller states in iterations (``run.iterations=...``):
+
+- the grid patch size ``{2, 4, 8}`` x selected patches ``l`` in ``{5, 10, 20}`` at
+  ``d_qk = 4`` (the preset's);
+- then query/key dimension ``d_qk`` in ``{2, 4, 8}`` at the grid's best cell, chosen once all
+  nine cells are finished (its ``d_qk = 4`` run is the grid cell itself).
+
+Each cell trains in ``<out>/fig7-p<p>-l<l>-d<d>-seed<k>`` (resumed, skipped once finished; the
+training loop is :func:`iap_mjx.reproduce.trained_curve`'s). A cell's return is its final
+centre's mean over ``episodes`` evaluation episodes in the training condition, stored in the
+run's ``eval.json`` (:func:`iap_mjx.table1.evaluate_conditions`). Writes ``fig7.json`` and
+``fig7.png`` and returns the markdown table.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from iap_mjx import configs
+
+logger = logging.getLogger(__name__)
+
+PRESET = "dcs-cartpole-swingup"
+PATCH_SIZES = (2, 4, 8)
+TOP_LS = (5, 10, 20)
+D_QKS = (2, 4, 8)
+GRID_D_QK = 4
+TRAIN_CONDITION = {"train": ()}
+
+
+def cell_overrides(patch_size: int, top_l: int, d_qk: int) -> tuple[str, ...]:
+    return (f"policy.patch_size={patch_size}", f"policy.top_l={top_l}", f"policy.d_qk={d_qk}")
+
+
+def run_name(patch_size: int, top_l: int, d_qk: int, seed: int) -> str:
+    return f"fig7-p{patch_size}-l{top_l}-d{d_qk}-seed{seed}"
+
+
+def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.TrainConfig]:
+    """Every cell's config (grid and every possible ``d_qk`` row), validated before anything
+    compiles; ``overrides`` may not set what the sweep varies."""
+    from iap_mjx import envs
+
+    swept = [item for item in overrides
+             if item.split("=")[0].strip() in ("policy.patch_size", "policy.top_l", "policy.d_qk")]
+    if swept:
+        raise ValueError(f"fig7 sets the patch size, top_l and d_qk per cell; remove {', '.join(swept)}")
+    cells = {}
+    for p in PATCH_SIZES:
+        for l in TOP_LS:
+            for d in D_QKS:
+                config = configs.apply_overrides(configs.get(PRESET), (*overrides, *cell_overrides(p, l, d)))
+                if config.run.eval_episodes < 1:
+                    raise ValueError("fig7 reads the evaluation return: run.eval_episodes must be >= 1")
+                cells[p, l, d] = config
+    first = next(iter(cells.values()))
+    envs.check(first.env.name, **dict(first.env.overrides))  # the cells share one env
+    return cells
+
+
+def cell_row(cell: tuple[int, int, int], config: configs.TrainConfig, seed: int, out_dir: Path, *,
+             train: bool, episodes: int) -> dict[str, Any] | None:
+    """One cell: its curve and (finished) its final centre's evaluation returns."""
+    from iap_mjx.es import checkpoint
+    from iap_mjx.reproduce import trained_curve
+    from iap_mjx.table1 import evaluate_conditions
+
+    run_dir = out_dir / run_name(*cell, seed)
+    trained = trained_curve(config, seed, run_dir, train=train)
+    if trained is None or not trained[0]:
+        return None
+    curve, seconds = trained
+    row = {"patch_size": cell[0], "top_l": cell[1], "d_qk": cell[2], "seed": seed, "curve": curve,
+           "seconds": seconds, "iterations": len(curve), "finished": len(curve) == config.run.iterations,
+           "run": run_dir.name}
+    if row["finished"]:
+        step = checkpoint.latest_step(run_dir)
+        row["returns"] = evaluate_conditions(run_dir, step, episodes=episodes, conditions=TRAIN_CONDITION)["train"]
+        row["return"] = float(np.mean(row["returns"]))
+    return row
+
+
+def best_cell(rows: list[dict[str, Any]]) -> tuple[int, int] | None:
+    """The grid's ``(patch_size, top_l)`` of highest return, once all nine are finished."""
+    grid = {(row["patch_size"], row["top_l"]): row for row in rows
+            if row["d_qk"] == GRID_D_QK and row["finished"]}
+    if len(grid) < len(PATCH_SIZES) * len(TOP_LS):
+        return None
+    return max(grid, key=lambda cell: grid[cell]["return"])
+
+
+def reproduce_fig7(out_dir: str | Path, *, seed: int = 0, overrides: tuple[str, ...] = (), episodes: int = 20,
+                   train: bool = True, results: str | Path | None = None) -> str:
+    """Trains (``train=False``: only reads) the grid, then the ``d_qk`` row at its best cell;
+    writes ``fig7.json`` / ``fig7.png`` in ``out_dir`` and returns the markdown table;
+    ``results``: a markdown file whose ``fig7`` section is rewritten with it."""
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    cells = check(tuple(overrides))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for p in PATCH_SIZES:
+        for l in TOP_LS:
+            row = cell_row((p, l, GRID_D_QK), cells[p, l, GRID_D_QK], seed, out_dir, train=train, episodes=episodes)
+            rows.append(row) if row is not None else None
+    best = best_cell(rows)
+    if best is not None:
+        for d in D_QKS:
+            if d != GRID_D_QK:
+                row = cell_row((*best, d), cells[(*best, d)], seed, out_dir, train=train, episodes=episodes)
+                rows.append(row) if row is not None else None
+    if not rows:
+        raise ValueError(f"no fig7 runs in {out_dir} to report")
+    (out_dir / "fig7.json").write_text(json.dumps({"best": best, "rows": rows}, indent=1))
+    png = plot(rows, best, out_dir / "fig7.png")
+    markdown = table(rows, best, overrides=tuple(overrides), seed=seed)
+    if results is not None:
+        write_results(Path(results), markdown, png, overrides=tuple(overrides), episodes=episodes, seed=seed)
+    return markdown
+
+
+def command(overrides: tuple[str, ...], row: dict[str, Any], seed: int) -> str:
+    """The ``iap-mjx train`` command of one cell."""
+    cell = cell_overrides(row["patch_size"], row["top_l"], row["d_qk"])
+    return " ".join(["iap-mjx train", PRESET, *overrides, *cell, f"run.seed={seed}"])
+
+
+def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides: tuple[str, ...],
+          seed: int) -> str:
+    """Markdown: one line per cell with its command, its return and how far it got."""
+    lines = ["| patch size | l | d_qk | patches L (240x320) | return (mean ± std, episodes) | best eval return on the way | "
+             "iterations | wall-clock (s) | command |", "|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for row in rows:
+        patches = (240 // row["patch_size"]) * (320 // row["patch_size"])
+        final = (f"{row['return']:.1f} ± {np.std(row['returns']):.1f} ({len(row['returns'])})"
+                 if row["finished"] else "running")
+        lines.append(f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {patches:,} | {final} | "
+                     f"{max(row['curve']):.1f} | {row['iterations']} | {row['seconds']:.0f} | "
+                     f"`{command(overrides, row, seed)}` |")
+    lines.append("")
+    lines.append("Best grid cell (patch size, l): " + (f"{best}" if best is not None else
+                                                        "not chosen yet (the grid is not finished)") + ".")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -> Path:
+    """Left: the grid's returns as an annotated heat map (patch size x l). Right: return
+    against ``d_qk`` at the best cell."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grid = np.full((len(PATCH_SIZES), len(TOP_LS)), np.nan)
+    for row in rows:
+        if row["d_qk"] == GRID_D_QK and row["finished"]:
+            grid[PATCH_SIZES.index(row["patch_size"]), TOP_LS.index(row["top_l"])] = row["return"]
+    fig, (ax, bars) = plt.subplots(1, 2, figsize=(10, 4))
+    image = ax.imshow(grid, cmap="viridis", origin="lower")
+    for i in range(len(PATCH_SIZES)):
+        for j in range(len(TOP_LS)):
+            ax.text(j, i, "-" if np.isnan(grid[i, j]) else f"{grid[i, j]:.0f}", ha="center", va="center",
+                    color="white")
+    ax.set_xticks(range(len(TOP_LS)), [str(l) for l in TOP_LS])
+    ax.set_yticks(range(len(PATCH_SIZES)), [str(p) for p in PATCH_SIZES])
+    ax.set_xlabel("selected patches l")
+    ax.set_ylabel("patch size")
+    ax.set_title(f"cartpole-swingup (static medium), d_qk = {GRID_D_QK}")
+    fig.colorbar(image, ax=ax, label="return")
+    if best is not None:
+        done = sorted((row["d_qk"], row["return"]) for row in rows
+                      if (row["patch_size"], row["top_l"]) == best and row["finished"])
+        bars.bar([str(d) for d, _ in done], [r for _, r in done], color="tab:blue")
+        bars.set_title(f"d_qk at patch size {best[0]}, l = {best[1]}")
+    else:
+        bars.set_title("d_qk row: after the grid")
+    bars.set_xlabel("query/key dimension d_qk")
+    bars.set_ylabel("return")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int,
+                  seed: int) -> None:
+    """The ``fig7`` section of ``path``: the command, the figure and the table."""
+    from iap_mjx.viz.sections import write_section
+
+    command_line = " ".join(["iap-mjx reproduce fig7", *overrides, f"--episodes {episodes}",
+                             f"--out {png.parent}", f"--results {path.name}"])
+    try:
+        image = png.resolve().relative_to(path.resolve().parent)
+    except ValueError:
+        image = png
+    body = (f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
+            f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "
+            f"evaluation episodes in the training condition.\n\n![fig7]({image})\n\n{markdown}\n")
+    write_section(path, "fig7", body, title="# Results")
