@@ -175,10 +175,13 @@ def cmd_video(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Reproduces the paper's Figure 1 or 6 (inference time per pass next to return) or its
     Table 1 with the generalisation conditions."""
-    from iap_mjx import patch_sweep, reproduce, table1
+    from iap_mjx import patch_sweep, reproduce, table1, wallclock
 
     try:
-        if args.figure == "fig7":
+        if args.figure == "fig8":
+            markdown = wallclock.reproduce_fig8(args.out, overrides=tuple(args.overrides), train=not args.report_only,
+                                                results=args.results)
+        elif args.figure == "fig7":
             markdown = patch_sweep.reproduce_fig7(args.out, overrides=tuple(args.overrides), episodes=args.episodes,
                                                   train=not args.report_only, results=args.results)
         elif args.figure == "table1":
@@ -277,15 +280,18 @@ def build_parser() -> argparse.ArgumentParser:
     video.set_defaults(func=cmd_video)
 
     repro = commands.add_parser(
-        "reproduce", help="the paper's Figure 1, 6 (inference time vs return) or 7 (patch sweep), or Table 1",
+        "reproduce", help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
+                          "or Table 1",
         description="fig1/fig6: times one forward pass of every attention variant and trains each "
                     "preset on --seeds seeds. fig7: on dcs-cartpole-swingup, one seed per cell of patch "
-                    "size {2, 4, 8} x selected patches {5, 10, 20}, then d_qk {2, 4, 8} at the best cell. "
+                    "size {2, 4, 8} x selected patches {5, 10, 20}, then d_qk {2, 4, 8} at the best cell. fig8: "
+                    "brute force, IAP ReLU and hybrid on dcs-cartpole-swingup against wall-clock seconds, "
+                    "each method's seconds per iteration measured first (leave the machine alone). "
                     "table1: trains dcs-<task> for every Distracting Control "
                     "task and seed, then evaluates each finished run in four conditions (training "
                     "backgrounds, held-out backgrounds, dynamic, no distraction). key=value overrides "
                     "apply to every preset (e.g. run.iterations=100).")
-    repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "table1"])
+    repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "fig8", "table1"])
     repro.add_argument("overrides", nargs="*", metavar="key=value")
     repro.add_argument("--out", default="results", help="output directory (default: results)")
     repro.add_argument("--seeds", type=_count, default=3)
@@ -295,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     repro.add_argument("--tasks", default=None,
                        help="table1: comma-separated suite tasks (default: all six)")
     repro.add_argument("--results", default=None, metavar="RESULTS.md",
-                       help="table1, fig7: rewrite this markdown file's section with the table")
+                       help="table1, fig7, fig8: rewrite this markdown file's section with the table")
     repro.add_argument("--export", default=None, metavar="DIR",
                        help="table1: copy each run's newest checkpoint, config and metrics to "
                             "DIR/<task>-seed<k> (e.g. pretrained/dcs, tracked by git)")
