@@ -8,11 +8,13 @@ commands, after ``main`` has split the CPU into devices and turned on the compil
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from iap_mjx import runtime
 
@@ -155,6 +157,35 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def in_condition(result: Any, overrides: list[str]) -> Any:
+    """A loaded run whose config's env is moved to the condition ``overrides`` set (checked
+    and built before anything compiles)."""
+    from iap_mjx import envs
+    from iap_mjx.configs.overrides import apply_condition
+
+    config = apply_condition(result.config, overrides)
+    envs.check(config.env.name, **dict(config.env.overrides))
+    return dataclasses.replace(result, config=config)
+
+
+def cmd_attended(args: argparse.Namespace) -> int:
+    """Prints what an attention policy's selected patches show, share per geom, over episodes
+    of a run's latest checkpoint (in the run's env or the condition its overrides set)."""
+    from iap_mjx import es
+    from iap_mjx.viz import artifacts, attended
+
+    try:
+        result = in_condition(es.load_run(args.run_dir), args.overrides)
+        env, policy = artifacts.env_and_policy(result.config)
+        shares = attended.attended_shares(env, policy, result.params, episodes=args.episodes, seed=args.seed,
+                                          obs_stats=result.obs_stats)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(attended.markdown(shares))
+    return 0
+
+
 def cmd_video(args: argparse.Namespace) -> int:
     """Renders an episode of a run's latest checkpoint: a pixel agent's view with the selected
     patches outlined, or a state agent's env from its video camera."""
@@ -162,7 +193,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     from iap_mjx.viz import artifacts
 
     try:
-        result = es.load_run(args.run_dir)
+        result = in_condition(es.load_run(args.run_dir), args.overrides)
         out = Path(args.out) if args.out else Path(args.run_dir) / "episode.mp4"
         path, episode_return = artifacts.write_video(result, out, seed=args.seed, steps=args.steps)
     except (FileNotFoundError, ValueError) as error:
@@ -274,10 +305,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     video = commands.add_parser("video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)")
     video.add_argument("run_dir")
+    video.add_argument("overrides", nargs="*", metavar="env.key=value",
+                       help="the episode's condition, e.g. env.background_videos=val (held-out backgrounds)")
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
     video.add_argument("--steps", type=_count, default=None, help="control steps (default: the episode)")
     video.set_defaults(func=cmd_video)
+
+    look = commands.add_parser("attended", help="what an attention policy's selected patches show, share per geom",
+                               description="Runs episodes of a run's latest checkpoint and prints the share of "
+                                           "the selected patches' pixels that show each geom of the scene or the "
+                                           "background (sky or distraction picture).")
+    look.add_argument("run_dir")
+    look.add_argument("overrides", nargs="*", metavar="env.key=value",
+                      help="the episodes' condition, e.g. env.background_videos=val")
+    look.add_argument("--episodes", type=_count, default=3)
+    look.add_argument("--seed", type=int, default=0, help="episode seed")
+    look.set_defaults(func=cmd_attended)
 
     repro = commands.add_parser(
         "reproduce", help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "

@@ -78,19 +78,29 @@ class PixelEnv:
             return {"pixels": pixels, "state": tuple(self.env.observation_shape)}
         return pixels
 
+    def _scene(self, data: Any, perturbation: Any) -> tuple[Any, dict[str, Any]]:
+        """``data`` and the camera's inputs as the episode's distraction draw sets them."""
+        if self.distraction is None:
+            return data, {}
+        if perturbation is None:
+            raise ValueError("a distracted env renders with the episode's perturbation: "
+                             "render(state.data, state.info['distraction'])")
+        return self.distraction.scene(data, perturbation)
+
     def render(self, data: Any, perturbation: Any = None) -> jax.Array:
         """One frame ``(H, W, C)`` float32 of ``data`` (RGB, or RGB-D for ``"pixels_depth"``);
         a distracted env needs the episode's ``perturbation`` (``state.info["distraction"]``)."""
-        inputs = {}
-        if self.distraction is not None:
-            if perturbation is None:
-                raise ValueError("a distracted env renders with the episode's perturbation: "
-                                 "render(state.data, state.info['distraction'])")
-            data, inputs = self.distraction.scene(data, perturbation)
+        data, inputs = self._scene(data, perturbation)
         rgb, depth = self.camera.render(data, **inputs)
         if self.obs_mode == "pixels_depth":
             return jnp.concatenate([rgb, depth[..., None]], axis=-1)
         return rgb
+
+    def geom_map(self, data: Any, perturbation: Any = None) -> jax.Array:
+        """``(H, W)`` int32: the MuJoCo geom id (``env.mj_model``'s) seen at each pixel of
+        :meth:`render`'s frame, ``-1`` where nothing is hit (sky or background picture)."""
+        data, inputs = self._scene(data, perturbation)
+        return self.camera.render_ids(data, **inputs)[2]
 
     def reset(self, key: jax.Array) -> State:
         return self._first(self.env.reset(key), key)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
@@ -50,7 +50,7 @@ def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
                   width=size[1])
 
 
-def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
+def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any], dict] | None = None) -> Any:
     """The jitted episode ``(params, obs_stats, key) -> record`` that :func:`run_episode` runs.
 
     Params, observation statistics (``None``: raw observations) and the key are arguments, not
@@ -63,9 +63,11 @@ def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
       policy: the policy; if it has ``select`` (IAP) and the env has pixels, the selected
         patches are recorded.
       steps: control steps to record.
+      extra: ``state -> {name: array}`` recorded too, from the state the policy sees (e.g.
+        the geom map of its frame: ``viz.attended``).
 
     Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
-    (T, l) int or absent, "rewards": (T,)}``.
+    (T, l) int or absent, "rewards": (T,)}`` and ``extra``'s entries ``(T, ...)``.
     """
     from iap_mjx.es.normalizer import normalize
 
@@ -82,7 +84,7 @@ def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
         def step(carry, _):
             state, policy_state = carry
             seen = state.obs if obs_stats is None else normalize(obs_stats, state.obs)
-            record = {"frames": frame(state)}
+            record = {"frames": frame(state), **(extra(state) if extra is not None else {})}
             if selects:
                 record["indices"] = policy.select(params, seen, policy_state).indices
             action, policy_state = policy.apply(params, seen, policy_state)

@@ -1,0 +1,94 @@
+"""What a pixel agent's attention looks at: the share of its selected patches' pixels that show
+each geom of the scene (the agent's bodies, the floor, ...) or the background (sky or a
+distraction picture), over whole episodes.
+
+The geom seen at every pixel comes from the same ray trace as the frame
+(``PixelEnv.geom_map``, the camera's ``render_ids``), recorded beside the selected patches
+by the video's episode program (``video.episode_program``'s ``extra``), so the shares
+describe exactly the frames the policy saw.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import mujoco
+import numpy as np
+
+from iap_mjx.viz import video
+
+BACKGROUND = "background"
+
+
+def geom_label(model: mujoco.MjModel, geom: int) -> str:
+    """A geom's name, else its body's name and index, ``BACKGROUND`` for ``-1``."""
+    if geom < 0:
+        return BACKGROUND
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, geom)
+    if name:
+        return name
+    body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[geom])) or "world"
+    return f"{body} geom {geom}"
+
+
+def patch_pixels(layer: Any, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns ``(..., p * p)`` of the pixels of patches ``indices (...)``."""
+    patch, stride = layer.config.patch_size, layer.config.effective_stride
+    _, cols = layer.grid
+    offsets = np.arange(patch)
+    rows = (indices // cols * stride)[..., None, None] + offsets[:, None]
+    columns = (indices % cols * stride)[..., None, None] + offsets[None, :]
+    rows, columns = np.broadcast_arrays(rows, columns)
+    shape = indices.shape + (patch * patch,)
+    return rows.reshape(shape), columns.reshape(shape)
+
+
+def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int, int]:
+    """``{geom id: selected pixels showing it}`` from ``geoms (T, H, W)`` and ``indices (T, l)``."""
+    rows, columns = patch_pixels(layer, indices)
+    steps = np.arange(geoms.shape[0])[:, None, None]
+    seen = geoms[steps, rows, columns]
+    ids, counts = np.unique(seen, return_counts=True)
+    return {int(i): int(c) for i, c in zip(ids, counts)}
+
+
+def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
+    """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
+    each frame the policy sees."""
+    def geom_map(state):
+        return {"geoms": env.geom_map(state.data, state.info.get("distraction"))}
+
+    return video.episode_program(env, policy, steps=steps, extra=geom_map)
+
+
+def attended_shares(env: Any, policy: Any, params: Any, *, episodes: int = 3, seed: int = 0,
+                    steps: int | None = None, obs_stats: Any = None, program: Any = None) -> dict[str, float]:
+    """``{label: share}`` of the selected patches' pixels over ``episodes`` episodes of
+    ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
+    ``split(PRNGKey(seed), episodes)[i]``; shares sum to 1, largest first. ``program``:
+    :func:`episode_program` for these ``steps`` (default: built here)."""
+    if not (video.has_pixels(env) and hasattr(policy, "select")):
+        raise ValueError("attended shares need an attention policy on a pixel env")
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    steps = env.episode_length if steps is None else steps
+    program = episode_program(env, policy, steps=steps) if program is None else program
+    totals: dict[int, int] = {}
+    for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
+        record = video.run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+        for geom, count in count_geoms(record["geoms"], record["indices"], policy.layer).items():
+            totals[geom] = totals.get(geom, 0) + count
+    shares: dict[str, float] = {}
+    total = sum(totals.values())
+    for geom, count in totals.items():
+        label = geom_label(env.mj_model, geom)
+        shares[label] = shares.get(label, 0.0) + count / total
+    return dict(sorted(shares.items(), key=lambda item: -item[1]))
+
+
+def markdown(shares: dict[str, float]) -> str:
+    """A two-column markdown table of :func:`attended_shares`."""
+    lines = ["| what the selected pixels show | share |", "|---|---:|"]
+    lines += [f"| {label} | {100 * share:.1f}% |" for label, share in shares.items()]
+    return "\n".join(lines)
