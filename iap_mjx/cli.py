@@ -177,12 +177,12 @@ def cmd_attended(args: argparse.Namespace) -> int:
     try:
         result = in_condition(es.load_run(args.run_dir), args.overrides)
         env, policy = artifacts.env_and_policy(result.config)
-        shares = attended.attended_shares(env, policy, result.params, episodes=args.episodes, seed=args.seed,
-                                          obs_stats=result.obs_stats)
+        counts = attended.episode_counts(env, policy, result.params, episodes=args.episodes, seed=args.seed,
+                                         obs_stats=result.obs_stats)
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    print(attended.markdown(shares))
+    print(attended.markdown(counts))
     return 0
 
 
@@ -194,6 +194,10 @@ def cmd_video(args: argparse.Namespace) -> int:
 
     try:
         result = in_condition(es.load_run(args.run_dir), args.overrides)
+        if args.strip:
+            path, episode_return = artifacts.write_strip(result, args.strip, seed=args.seed, frames=args.frames)
+            print(json.dumps({"strip": str(path), "return": episode_return}))
+            return 0
         out = Path(args.out) if args.out else Path(args.run_dir) / "episode.mp4"
         path, episode_return = artifacts.write_video(result, out, seed=args.seed, steps=args.steps)
     except (FileNotFoundError, ValueError) as error:
@@ -310,6 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
     video.add_argument("--steps", type=_count, default=None, help="control steps (default: the episode)")
+    video.add_argument("--strip", default=None, metavar="PNG",
+                       help="instead of a video, a PNG of --frames frames evenly spaced over the episode")
+    video.add_argument("--frames", type=_count, default=6, help="frames in a --strip (default 6)")
     video.set_defaults(func=cmd_video)
 
     look = commands.add_parser("attended", help="what an attention policy's selected patches show, share per geom",

@@ -81,3 +81,11 @@ def test_attended_refuses_a_state_policy():
 def test_cli_attended_names_a_missing_run(tmp_path, capsys):
     assert cli.main(["attended", str(tmp_path / "nothing")]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_shares_and_table_over_episodes():
+    counts = [{"cart": 30, "background": 10}, {"background": 50, "cart": 10}, {"pole": 20}]
+    assert attended.shares(counts) == {"background": 60 / 120, "cart": 40 / 120, "pole": 20 / 120}
+    table = attended.markdown(counts).splitlines()
+    assert table[2] == "| background | 50.0% | 1 of 3 |"
+    assert table[3] == "| cart | 33.3% | 1 of 3 |" and table[4] == "| pole | 16.7% | 1 of 3 |"

@@ -40,6 +40,22 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
     assert frames.shape == (4, 88, 72, 3)
     np.testing.assert_allclose(episode_return, record["rewards"].sum(), rtol=1e-5)
 
+    # A strip: frames 0, 2 and 3 of the same episode (evenly spaced, rounded), 2 to a row,
+    # each tile the frame annotated as the video's, white gaps between them.
+    path, strip_return = video.episode_strip(env, policy, params, tmp_path / "strip.png", key=jax.random.PRNGKey(1),
+                                             steps=4, frames=3, columns=2, program=program, scale=3)
+    strip = np.asarray(imageio.imread(path))
+    tile_h, tile_w = 24 * 3 + 16, 24 * 3
+    assert strip.shape == (2 * tile_h + 4, 2 * tile_w + 4, 3)
+    returns = np.cumsum(record["rewards"])
+    for (row, col), t in zip([(0, 0), (0, 1), (1, 0)], [0, 2, 3]):
+        tile = strip[row * (tile_h + 4): row * (tile_h + 4) + tile_h, col * (tile_w + 4): col * (tile_w + 4) + tile_w]
+        expected = video.annotate(record["frames"][t], record["indices"][t], policy.layer, float(returns[t]),
+                                  scale=3, step=t)
+        np.testing.assert_array_equal(tile, expected)
+    assert np.all(strip[tile_h: tile_h + 4] == 255) and np.all(strip[tile_h + 4:, tile_w + 4:] == 0)  # rule, blank
+    np.testing.assert_allclose(strip_return, episode_return, rtol=1e-6)
+
 
 @pytest.mark.slow
 def test_a_state_policy_video_renders_the_envs_camera(tmp_path):

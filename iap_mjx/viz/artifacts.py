@@ -43,6 +43,16 @@ def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | No
                                steps=steps, obs_stats=result.obs_stats, program=program)
 
 
+def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6) -> tuple[Path, float]:
+    """A PNG strip of ``frames`` frames from one episode of ``result``'s centre params, the
+    selected patches drawn (:func:`video.episode_strip`)."""
+    env, policy = env_and_policy(result.config)
+    if not has_pixels(env):
+        raise ValueError(f"{result.config.env.name!r} observes the state: a strip shows a pixel agent's frames")
+    return video.episode_strip(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
+                               steps=env.episode_length, frames=frames, obs_stats=result.obs_stats)
+
+
 def compile_video_in_background(config: Any) -> concurrent.futures.Future | None:
     """Starts compiling the episode video :func:`write_run_artifacts` will render, in a daemon
     thread, and returns its future (``None`` for a state env: a run writes no video of one).

@@ -62,33 +62,50 @@ def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
     return video.episode_program(env, policy, steps=steps, extra=geom_map)
 
 
-def attended_shares(env: Any, policy: Any, params: Any, *, episodes: int = 3, seed: int = 0,
-                    steps: int | None = None, obs_stats: Any = None, program: Any = None) -> dict[str, float]:
-    """``{label: share}`` of the selected patches' pixels over ``episodes`` episodes of
+def episode_counts(env: Any, policy: Any, params: Any, *, episodes: int = 3, seed: int = 0,
+                   steps: int | None = None, obs_stats: Any = None, program: Any = None) -> list[dict[str, int]]:
+    """Per episode, ``{label: selected pixels showing it}`` over ``episodes`` episodes of
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
-    ``split(PRNGKey(seed), episodes)[i]``; shares sum to 1, largest first. ``program``:
-    :func:`episode_program` for these ``steps`` (default: built here)."""
+    ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
+    ``steps`` (default: built here)."""
     if not (video.has_pixels(env) and hasattr(policy, "select")):
         raise ValueError("attended shares need an attention policy on a pixel env")
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     steps = env.episode_length if steps is None else steps
     program = episode_program(env, policy, steps=steps) if program is None else program
-    totals: dict[int, int] = {}
+    out = []
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
         record = video.run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+        counts: dict[str, int] = {}
         for geom, count in count_geoms(record["geoms"], record["indices"], policy.layer).items():
-            totals[geom] = totals.get(geom, 0) + count
-    shares: dict[str, float] = {}
+            label = geom_label(env.mj_model, geom)
+            counts[label] = counts.get(label, 0) + count
+        out.append(counts)
+    return out
+
+
+def shares(counts: list[dict[str, int]]) -> dict[str, float]:
+    """``{label: share}`` of all episodes' selected pixels; shares sum to 1, largest first."""
+    totals: dict[str, int] = {}
+    for episode in counts:
+        for label, count in episode.items():
+            totals[label] = totals.get(label, 0) + count
     total = sum(totals.values())
-    for geom, count in totals.items():
-        label = geom_label(env.mj_model, geom)
-        shares[label] = shares.get(label, 0.0) + count / total
-    return dict(sorted(shares.items(), key=lambda item: -item[1]))
+    return {label: count / total for label, count in sorted(totals.items(), key=lambda item: -item[1])}
 
 
-def markdown(shares: dict[str, float]) -> str:
-    """A two-column markdown table of :func:`attended_shares`."""
-    lines = ["| what the selected pixels show | share |", "|---|---:|"]
-    lines += [f"| {label} | {100 * share:.1f}% |" for label, share in shares.items()]
+def attended_shares(env: Any, policy: Any, params: Any, **kwargs: Any) -> dict[str, float]:
+    """:func:`shares` of :func:`episode_counts` (same arguments)."""
+    return shares(episode_counts(env, policy, params, **kwargs))
+
+
+def markdown(counts: list[dict[str, int]]) -> str:
+    """A markdown table of the shares over all episodes, and per label the episodes in which
+    it has the largest share."""
+    first = [max(episode, key=episode.get) for episode in counts]
+    lines = ["| what the selected pixels show | share | episodes where it is the largest share |",
+             "|---|---:|---:|"]
+    lines += [f"| {label} | {100 * share:.1f}% | {first.count(label)} of {len(counts)} |"
+              for label, share in shares(counts).items()]
     return "\n".join(lines)

@@ -129,7 +129,7 @@ def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: in
 
 
 def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_return: float,
-             *, scale: int = 3) -> np.ndarray:
+             *, scale: int = 3, step: int | None = None) -> np.ndarray:
     """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text.
 
     Each selected patch is outlined in red; one drawn smaller than ``MARK_BELOW`` pixels (a 2x2
@@ -157,7 +157,8 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
                 draw.ellipse([x - halo, y - halo, x + halo, y + halo], outline=WHITE, width=2)
                 draw.ellipse([x - MARK_RADIUS, y - MARK_RADIUS, x + MARK_RADIUS, y + MARK_RADIUS],
                              outline=RED, width=2)
-    draw.text((2, 2), f"return {episode_return:8.2f}", fill=(255, 255, 255))
+    caption = f"return {episode_return:8.2f}" if step is None else f"step {step}   return {episode_return:.2f}"
+    draw.text((2, 2), caption, fill=(255, 255, 255))
     return np.asarray(canvas)
 
 
@@ -201,3 +202,34 @@ def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: 
         repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
         fps = max(1, round(1.0 / (timestep * repeat))) if timestep else 30
     return write_video(path, frames, fps=fps), float(returns[-1])
+
+
+def episode_strip(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array, steps: int,
+                  frames: int = 6, columns: int = 3, obs_stats: Any = None, program: Any = None,
+                  scale: int = 2) -> tuple[Path, float]:
+    """Runs one episode (:func:`run_episode`) and writes ``frames`` of it, evenly spaced from
+    the first step to the last, annotated as the video's (:func:`annotate`, the step in the
+    caption) and tiled ``columns`` to a row, as a PNG. Returns ``(path, episode return)``."""
+    from PIL import Image
+
+    if not isinstance(frames, int) or frames < 1 or not isinstance(columns, int) or columns < 1:
+        raise ValueError(f"frames = {frames!r} and columns = {columns!r} must be ints >= 1")
+    record = run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+    returns = np.cumsum(record["rewards"])
+    layer = getattr(policy, "layer", None)
+    indices = record.get("indices")
+    picks = np.unique(np.linspace(0, steps - 1, frames).round().astype(int))
+    tiles = [annotate(record["frames"][t], None if indices is None else indices[t], layer,
+                      float(returns[t]), scale=scale, step=int(t)) for t in picks]
+    rows = [tiles[i:i + columns] for i in range(0, len(tiles), columns)]
+    blank = np.zeros_like(tiles[0])
+    gap = np.full((tiles[0].shape[0], 4, 3), 255, np.uint8)
+    lines = [np.concatenate([part for tile in row + [blank] * (columns - len(row)) for part in (tile, gap)][:-1], axis=1)
+             for row in rows]
+    rule = np.full((4, lines[0].shape[1], 3), 255, np.uint8)
+    image = np.concatenate([part for line in lines for part in (line, rule)][:-1], axis=0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(image).save(path)
+    logger.info("wrote %s (%d frames)", path, len(picks))
+    return path, float(returns[-1])
