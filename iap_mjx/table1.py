@@ -78,7 +78,7 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
     out = {}
     for name, condition in conditions.items():
         key = f"{name}@{step}x{episodes}s{EVAL_SEED}"
-        if key not in stored:
+        if len(stored.get(key, ())) != episodes:  # missing, or stored short by an older evaluate_run
             logger.info("%s: evaluating %s (%d episodes)", run_dir.name, name, episodes)
             returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
             stored[key] = [float(r) for r in returns]

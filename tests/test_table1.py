@@ -72,6 +72,15 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
                             tasks=("cartpole-swingup",))
     assert len(calls) == 4  # read back, not evaluated again
+    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / table1.EVAL_FILE
+    short = json.loads(eval_path.read_text())
+    key = next(k for k in short if k.startswith("none@"))
+    short[key] = short[key][:2]  # as an evaluate_run that returned one device's share stored it
+    eval_path.write_text(json.dumps(short))
+    table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
+                            tasks=("cartpole-swingup",))
+    assert len(calls) == 5 and calls[-1][1] == table1.CONDITIONS["none"]
+    assert len(json.loads(eval_path.read_text())[key]) == 4
     assert (tmp_path / "table1.png").stat().st_size > 0
     results = tmp_path / "RESULTS.md"
     results.write_text("# Results\n\n<!-- BEGIN table1 -->\nold\n<!-- END table1 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n")

@@ -530,5 +530,8 @@ def evaluate_run(
     parts = build(config, env=env, policy=policy)
     state = _restore(parts, run_dir, init_state(parts))
     state = state.replace(key=jax.random.PRNGKey(seed))
-    returns = jax.jit(make_centre_evaluation(parts, episodes))(state)
+    # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
+    # device's copy, which would otherwise hold only that device's share of the episodes
+    replicated = NamedSharding(parts.mesh, PartitionSpec())
+    returns = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=replicated)(state)
     return checkpoint.to_host(returns)
