@@ -1,0 +1,35 @@
+"""The trained policies that ship in ``pretrained/`` are run directories ``iap-mjx eval`` and
+``iap-mjx video`` read: each holds one checkpoint with its config and metrics, and one is
+evaluated for a few steps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from iap_mjx import configs, es
+from iap_mjx.es import checkpoint
+
+PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained"
+RUNS = sorted(path.parent.parent for path in PRETRAINED.glob("*/*/checkpoints/*"))
+
+
+def test_every_shipped_run_has_one_checkpoint_its_config_and_metrics():
+    assert RUNS, f"no trained policy in {PRETRAINED}"
+    for run in RUNS:
+        assert len(list((run / checkpoint.CHECKPOINT_DIR).iterdir())) == 1, run
+        assert (run / "config.json").exists() and (run / "metrics.csv").exists(), run
+        config = configs.TrainConfig.from_dict(checkpoint.load_config(run))
+        assert checkpoint.latest_step(run) <= config.run.iterations
+
+
+@pytest.mark.slow
+def test_a_shipped_dcs_policy_loads_and_evaluates_for_a_few_steps():
+    run = next(run for run in RUNS if run.parent.name == "dcs")
+    config = configs.TrainConfig.from_dict(checkpoint.load_config(run))
+    # small background frames and 5-step episodes: the trained policy, a quick program
+    returns = es.evaluate_run(run, episodes=2, seed=0, overrides=("env.episode_length=5", "env.background_size=64",
+                                                                    "env.background_frames=4"))
+    assert returns.shape == (2,) and np.all(np.isfinite(returns)) and np.all(returns >= 0)
