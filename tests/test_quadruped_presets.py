@@ -69,8 +69,8 @@ def test_preset_trains_one_iteration(name, tmp_path):
 
 @pytest.mark.slow
 def test_iap_preset_trains_from_the_command_line(tmp_path, capsys):
-    """``iap-mjx train quadruped-walls-iap ...``: one iteration, its metrics, and the episode
-    video with the high level's patches outlined."""
+    """``iap-mjx train quadruped-walls-iap ...``: one iteration, its metrics, the episode video
+    with the high level's patches outlined, and ``iap-mjx eval`` with the course statistics."""
     run_dir = tmp_path / "run"
     assert cli.main(["train", "quadruped-walls-iap", *SHRINK, "--run-dir", str(run_dir), "--no-progress"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -80,3 +80,8 @@ def test_iap_preset_trains_from_the_command_line(tmp_path, capsys):
         (row,) = list(reader)
     assert set(COURSE_COLUMNS) <= set(reader.fieldnames) and row["parameters"] == "873"
     assert (run_dir / "episode.mp4").stat().st_size > 0
+    # iap-mjx eval reports the course statistics of fresh episodes too
+    assert cli.main(["eval", str(run_dir), "--episodes", "2"]) == 0
+    evaluated = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert evaluated["episodes"] == 2 and 0 <= evaluated["walls_passed_mean"] <= 3
+    assert {f"{name}_mean" for name in ("fell_off", "wall_contacts", "distance")} <= set(evaluated)
