@@ -110,6 +110,10 @@ def test_metrics_files_and_policy_fn(tmp_path):
     assert action.shape == (2,) and state == ()
     returns = evaluate_run(tmp_path, episodes=5, env=env)
     assert returns.shape == (5,) and np.all(np.isfinite(returns))
+    # an even split over the two devices (no padding row) returns every episode too, not one
+    # device's share (it returned 2 of 4 before the evaluation's output was replicated)
+    four = evaluate_run(tmp_path, episodes=4, env=env)
+    assert four.shape == (4,) and len(set(four.tolist())) == 4
 
 
 def test_nan_episodes_are_counted_and_do_not_poison_the_update():

@@ -560,5 +560,8 @@ def evaluate_run_episodes(
     parts = build(config, env=env, policy=policy)
     state = _restore(parts, run_dir, init_state(parts))
     state = state.replace(key=jax.random.PRNGKey(seed))
-    results = jax.jit(make_centre_evaluation(parts, episodes, with_metrics=True))(state)
+    # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
+    # device's copy, which would otherwise hold only that device's share of the episodes
+    replicated = NamedSharding(parts.mesh, PartitionSpec())
+    results = jax.jit(make_centre_evaluation(parts, episodes, with_metrics=True), out_shardings=replicated)(state)
     return checkpoint.to_host(results)

@@ -87,18 +87,17 @@ def duration_steps(duration: jax.Array, duration_range: tuple[int, int]) -> jax.
     return jnp.round(lo + fraction * (hi - lo)).astype(jnp.int32)
 
 
-def hold(state_counter: jax.Array, held: jax.Array, new: jax.Array,
+def hold(counter: jax.Array, held: jax.Array, new: jax.Array,
          new_duration: jax.Array) -> tuple[jax.Array, jax.Array]:
     """One step of the countdown: ``(latent, counter)`` after this step.
 
-    Where ``state_counter <= 0`` the command is replaced by ``new`` and the counter set to
+    Where ``counter <= 0`` the command is replaced by ``new`` and the counter set to
     ``new_duration``; elsewhere ``held`` stays. Either way the counter then counts this step
     (minus one). Shapes: counters ``()`` int32, commands ``(k,)`` (one episode; ``vmap`` it).
     """
-    expired = state_counter <= 0
+    expired = counter <= 0
     latent = jnp.where(expired, new, held)
-    counter = jnp.where(expired, new_duration, state_counter) - 1
-    return latent, counter
+    return latent, jnp.where(expired, new_duration, counter) - 1
 
 
 @dataclasses.dataclass(frozen=True)
