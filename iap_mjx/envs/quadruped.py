@@ -18,6 +18,9 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
   the ground) or, on the platform, when the trunk's centre leaves the platform's footprint.
 - Control step 0.02 s = 5 physics steps of 0.004 s (Playground's MJX quadrupeds). Episodes:
   500 control steps (10 s) on the flat, 1000 (20 s) on the course.
+- On the course ``State.metrics`` also keeps the episode's course statistics (walls passed,
+  falls off the platform, wall contacts, distance: :meth:`QuadrupedWalls.course_metrics`),
+  which training logs per iteration (``iap_mjx.es.rollout``, ``metrics.csv``).
 
 Batch size: vmap at most ``max_chunk_size`` (102 for this robot) envs together per device
 (chunk larger populations, ``lax.map``). See :func:`iap_mjx.envs.dmc.serial_lapack_batch`: with
