@@ -16,7 +16,9 @@ trained flat checkpoint: ``policy.low_level_init=PATH.npz`` does that). The high
 deterministic ReLU features over 4x4 patches (top 10 centres -> a linear map; Table 2 varies
 ``policy.patch_size`` and ``policy.stride``), the paper's CNN (``ConvNet``), or the IAP one on a
 zeroed image (blind, the control). A latent of 4, commands held 10 to 50 control steps. Same
-ES and budget for the three, so that their curves compare.
+ES and budget for the three, so that their curves compare: the flat preset's OpenES settings
+(sigma 0.05, Adam 0.02, weight decay 0.005), not yet tuned on the course, without observation
+normalisation (it needs vector observations; the low level reads the raw state).
 """
 
 from __future__ import annotations
