@@ -9,7 +9,7 @@ What is hashed (SHA-256, one JSON entry each):
   patches and at 240x320 with 2x2 patches; lowered only, never compiled or run.
 - ``lowered/training/<preset>``: the whole ES training call of ``cheetah-run-pixels`` and
   ``dcs-cartpole-swingup`` (``iap_mjx.es.train.make_train_call``, lowered as ``train`` lowers it,
-  on the devices the CLI makes: one per core).
+  on the devices the CLI makes: one per core); ``--presets`` names others.
 - ``compiled/...`` (with ``--compiled``): the same programs compiled, XLA's optimised HLO text
   without debug information (each instruction's ``metadata={...}`` and the module's tables of
   source files, Python function names and stack frames).
@@ -28,6 +28,7 @@ of such a function changes the lowered hash alone: ``--compiled`` and ``outputs/
         # (extracted with git archive into a temporary directory, run in a child process) against
         # this checkout's, entry by entry; exit status 1 if any entry differs
     python benchmarks/hlo_identity.py --only attention|training|outputs ...   # a subset
+    python benchmarks/hlo_identity.py --only training --presets quadruped-flat-pmtg cheetah-run-state --base 2a54c1a
 
 Hashes depend on the jax/jaxlib version (pinned in ``constraints.txt``); compiled hashes and
 output bytes also on the CPU and ``XLA_FLAGS``: compare runs on one machine.
@@ -128,7 +129,7 @@ def attention_programs():
             yield f"attention/{kernel}/{size}", jax.jit(attention_layer).lower(params, projections, images)
 
 
-def training_programs():
+def training_programs(presets=PRESETS):
     """``(name, Lowered)`` of each preset's training call, lowered as ``train`` lowers it."""
     import jax
     from jax.sharding import NamedSharding, PartitionSpec
@@ -137,7 +138,7 @@ def training_programs():
 
     train = importlib.import_module("iap_mjx.es.train")  # the module (``iap_mjx.es.train`` is also a function)
 
-    for preset in PRESETS:
+    for preset in presets:
         config = configs.get(preset)
         parts = train.build(config)
         state = train.init_state(parts)
@@ -171,7 +172,7 @@ def output_hashes() -> dict[str, str]:
     return hashes
 
 
-def collect(parts: tuple[str, ...], compiled: bool) -> dict[str, str]:
+def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = PRESETS) -> dict[str, str]:
     """Every hash of ``parts``, as ``{entry: sha256}``."""
     import iap_mjx
 
@@ -179,7 +180,7 @@ def collect(parts: tuple[str, ...], compiled: bool) -> dict[str, str]:
     if expected_root and not Path(iap_mjx.__file__).resolve().is_relative_to(Path(expected_root).resolve()):
         raise RuntimeError(f"iap_mjx imported from {iap_mjx.__file__}, not from {expected_root}")
     hashes = {}
-    for part, programs in (("attention", attention_programs), ("training", training_programs)):
+    for part, programs in (("attention", attention_programs), ("training", lambda: training_programs(presets))):
         if part not in parts:
             continue
         for name, lowered in programs():
@@ -202,7 +203,7 @@ def run_base(commit: str, args: argparse.Namespace) -> dict[str, str]:
         with tarfile.open(archive_path) as tar:
             tar.extractall(tmp, filter="data")
         out = Path(tmp) / "base.json"
-        command = [sys.executable, __file__, "--out", str(out), "--only", *args.only]
+        command = [sys.executable, __file__, "--out", str(out), "--only", *args.only, "--presets", *args.presets]
         if args.compiled:
             command.append("--compiled")
         env = {**os.environ, "PYTHONPATH": tmp + os.pathsep + os.environ.get("PYTHONPATH", ""),
@@ -232,6 +233,7 @@ def main(argv=None) -> int:
     parser.add_argument("--base", help="compare with this commit's iap_mjx (run in a child process)")
     parser.add_argument("--compiled", action="store_true", help="also hash the compiled (optimised) HLO")
     parser.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS))
+    parser.add_argument("--presets", nargs="+", default=list(PRESETS), help="presets whose training call is hashed")
     args = parser.parse_args(argv)
     args.only = tuple(args.only)
 
@@ -245,7 +247,7 @@ def main(argv=None) -> int:
         before = json.loads(args.against.read_text())["hashes"]
     import jax
 
-    after = collect(args.only, args.compiled)
+    after = collect(args.only, args.compiled, tuple(args.presets))
     if args.out:
         args.out.write_text(json.dumps({"jax": jax.__version__, "devices": jax.device_count(),
                                         "hashes": after}, indent=1, sort_keys=True) + "\n")

@@ -72,6 +72,8 @@ def cmd_show(args: argparse.Namespace) -> int:
         "policy": {
             "settings": dataclasses.asdict(policy) if dataclasses.is_dataclass(policy) else repr(policy),
             "parameters": parts.num_dims,
+            **({"parameters_per_level": parts.policy.level_param_counts(parts.template_params)}
+               if hasattr(parts.policy, "level_param_counts") else {}),
         },
         "env_steps_per_iteration": parts.steps_per_iteration,
     }
@@ -137,15 +139,17 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluates a run's latest checkpoint on fresh seeds, in the run's env or in the condition
-    its ``env.*`` overrides set; prints mean and std return."""
+    its ``env.*`` overrides set; prints mean and std return (and the mean of each per-episode
+    statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
     from iap_mjx import es
 
     try:
-        returns = es.evaluate_run(args.run_dir, episodes=args.episodes, seed=args.seed,
-                                  overrides=tuple(args.overrides))
+        results = es.evaluate_run_episodes(args.run_dir, episodes=args.episodes, seed=args.seed,
+                                           overrides=tuple(args.overrides))
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    returns = results.pop("return")
     print(json.dumps({
         "run_dir": str(args.run_dir),
         "overrides": list(args.overrides),
@@ -153,6 +157,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "return_mean": float(returns.mean()),
         "return_std": float(returns.std()),
         "returns": [float(r) for r in returns],
+        **{f"{name}_mean": float(values.mean()) for name, values in results.items()},
     }))
     return 0
 

@@ -283,3 +283,64 @@ def test_max_chunk_size_keeps_the_batched_cholesky_on_its_calling_thread():
         assert env.max_chunk_size == 102
     else:  # open-source jaxlib >= 0.11.1 never splits the batch
         assert env.max_chunk_size is None
+
+
+def test_course_statistics_count_walls_passed_falls_contacts_and_distance(walls):
+    """The per-episode course statistics (``QuadrupedWalls.course_metrics``) on states placed
+    by hand, and over a push into a wall against native MuJoCo's contacts."""
+    env, reset, step = walls
+    state = reset(jax.random.key(5))
+    assert {name: float(state.metrics[name]) for name in env.episode_metrics} == dict.fromkeys(env.episode_metrics, 0.0)
+    forward, metrics = jax.jit(env.forward), jax.jit(env.course_metrics)
+    wall0 = float(env.walls(state.data)[0, 0])
+    beyond = wall0 + env.WALL_HALF_SIZE[0] + a1.TRUNK_HALF_SIZE[0]  # the trunk box wholly past wall 0
+
+    def at(x, y=0.0, done=0.0):
+        placed = _placed(state, x=x, y=y)
+        return placed.replace(data=forward(placed.data), done=jnp.asarray(done, jnp.float32))
+
+    short, past = metrics(state, at(beyond - 0.01)), metrics(state, at(beyond + 0.01))
+    assert (float(short["walls_passed"]), float(past["walls_passed"])) == (0.0, 1.0)
+    np.testing.assert_allclose(past["distance"], beyond + 0.01, rtol=1e-6)
+    # there the rear legs (hips 0.183 m behind the trunk's centre) stand inside wall 0; a metre
+    # on, nothing touches
+    clear = metrics(state, at(wall0 + 1.0))
+    assert (float(past["wall_contacts"]), float(clear["wall_contacts"])) == (1.0, 0.0)
+    assert float(clear["walls_passed"]) == 1.0
+    assert float(past["fell_off"]) == 0.0 and float(clear["fell_off"]) == 0.0
+    # over the side: a fall, and a wall passed off the platform does not count
+    side = metrics(state, at(beyond + 0.5, y=1.05))
+    assert (float(side["fell_off"]), float(side["walls_passed"])) == (1.0, 0.0)
+    # past the far end: the finish, every wall passed on the way (the step before), no fall
+    end = metrics(at(env.PLATFORM[1] - 0.02).replace(metrics={**state.metrics, "walls_passed": jnp.float32(3.0)}),
+                  at(env.PLATFORM[1] + 0.02))
+    assert (float(end["fell_off"]), float(end["walls_passed"])) == (0.0, 3.0)
+    # an ended episode's statistics stay as they were, wherever its (frozen) state says it is
+    ended = metrics(at(0.0, done=1.0), at(beyond + 0.5, y=1.05))
+    assert {k: float(v) for k, v in ended.items()} == dict.fromkeys(env.episode_metrics, 0.0)
+
+    # walking into wall 1 (placed 0.1 m ahead of the trunk's front) at 1.5 m/s for 40 steps:
+    # the steps ending in a wall contact, ours against native MuJoCo with every wall colliding
+    walls_now = np.asarray(env.walls(state.data)).copy()
+    walls_now[1] = [a1.TRUNK_HALF_SIZE[0] + 0.1 + env.WALL_HALF_SIZE[0], 0.0, env.WALL_HALF_SIZE[2]]
+    data0 = forward(env.place_walls(state.data, walls_now).replace(qvel=state.data.qvel.at[0].set(1.5)))
+    pushed = state.replace(data=data0)
+    hold = jnp.asarray(a1.targets_to_action(a1.HOME_JOINTS), jnp.float32)
+    ours = []
+    for _ in range(40):
+        pushed = step(pushed, hold)
+        ours.append(bool(env.touches_wall(pushed.data)))
+    assert float(pushed.metrics["wall_contacts"]) == sum(ours)
+    m = _all_walls_collide(env)
+    data = mujoco.MjData(m)
+    data.qpos[:], data.qvel[:], data.mocap_pos[:] = (np.asarray(x) for x in (data0.qpos, data0.qvel, data0.mocap_pos))
+    data.ctrl[:] = a1.HOME_JOINTS
+    wall = m.geom("wall1").id
+    native = []
+    for _ in range(40):
+        for _ in range(env.n_sub_steps):
+            mujoco.mj_step(m, data)
+        mujoco.mj_forward(m, data)
+        native.append(any(wall in (c.geom1, c.geom2) and c.dist <= 0 for c in data.contact[: data.ncon]))
+    assert sum(native) >= 5  # the push keeps the robot on the wall for several steps (7 of the 40 measured)
+    assert sum(a != b for a, b in zip(ours, native)) <= 2, (ours, native)

@@ -31,3 +31,26 @@ def test_a_damaged_line_before_the_last_is_an_error(tmp_path):
     (tmp_path / "metrics.jsonl").write_text('{"iteration": 1}\n{"iter\n{"iteration": 3}\n')
     with pytest.raises(ValueError, match="line 2"):
         read_history(tmp_path)
+
+
+def test_an_envs_episode_statistics_get_their_columns_and_keep_them_on_resume(tmp_path):
+    """``metric_columns``: two columns per statistic after ``contact_saturated_episodes``;
+    a resumed writer with the same columns rewrites the header it had."""
+    import csv
+
+    from iap_mjx.es.metrics_log import COLUMNS, metric_columns
+
+    columns = metric_columns(("walls_passed", "distance"))
+    at = COLUMNS.index("contact_saturated_episodes") + 1
+    assert columns[at:at + 4] == ("walls_passed_mean", "eval_walls_passed", "distance_mean", "eval_distance")
+    assert tuple(c for c in columns if c not in columns[at:at + 4]) == COLUMNS and metric_columns() == COLUMNS
+    writer = MetricsWriter(tmp_path, None, tensorboard=False, columns=columns)
+    for i in (1, 2):
+        writer.write({"iteration": i, "walls_passed_mean": 0.5 * i, "eval_distance": 1.5})
+    writer.close()
+    MetricsWriter(tmp_path, 1, tensorboard=False, columns=columns).close()
+    with open(tmp_path / "metrics.csv") as f:
+        reader = csv.DictReader(f)
+        stored = list(reader)
+    assert tuple(reader.fieldnames) == columns
+    assert [(r["walls_passed_mean"], r["eval_distance"]) for r in stored] == [("0.5", "1.5")]

@@ -1,4 +1,5 @@
-"""Presets on the A1-class quadruped: the PMTG low level learning to walk on the flat.
+"""Presets on the A1-class quadruped: the PMTG low level learning to walk on the flat, and the
+hierarchical policies on the walled course (the paper's Figure 11 and Table 2).
 
 ``quadruped-flat-pmtg``: ES trains the linear PMTG policy (``iap_mjx.policies.pmtg``) from the
 state (IMU and joint angles; the TG phase is the policy's own) with a constant latent command,
@@ -6,11 +7,23 @@ on ``quadruped-flat``'s 10 s episodes, starting from the policy's default ``init
 at 2.5 Hz that walks about 0.8 m/s with no residuals); the return is the capped distance walked in metres, so
 the mean forward speed is ``return / 10 s``. ``RESULTS.md`` (section ``quadruped-walking``)
 has its three seeds.
+
+``quadruped-walls-iap``, ``-cnn``, ``-blind``: the hierarchical policy
+(``iap_mjx.policies.hierarchical``) on ``quadruped-walls`` from ``"pixels+state"`` (the 24x32
+first-person camera for the high level, the 17-d state for the PMTG low level), 20 s episodes,
+both levels trained together by ES from the low level's walking ``initial_tg`` (not from a
+trained flat checkpoint: ``policy.low_level_init=PATH.npz`` does that). The high level: IAP with
+deterministic ReLU features over 4x4 patches (top 10 centres -> a linear map; Table 2 varies
+``policy.patch_size`` and ``policy.stride``), the paper's CNN (``ConvNet``), or the IAP one on a
+zeroed image (blind, the control). A latent of 4, commands held 10 to 50 control steps. Same
+ES and budget for the three, so that their curves compare: the flat preset's OpenES settings
+(sigma 0.05, Adam 0.02, weight decay 0.005), not yet tuned on the course, without observation
+normalisation (it needs vector observations; the low level reads the raw state).
 """
 
 from __future__ import annotations
 
-from iap_mjx.configs.presets import Preset, register
+from iap_mjx.configs.presets import Options, Preset, register
 from iap_mjx.configs.training import ESConfig, RunConfig
 
 FLAT_PMTG = Preset(
@@ -23,3 +36,23 @@ FLAT_PMTG = Preset(
 )
 
 register(FLAT_PMTG)
+
+COURSE_ENV: Options = (("obs_mode", "pixels+state"),)
+"""The course seen through the first-person camera (24x32 RGB, its default size), the state
+beside it for the low level."""
+HIERARCHY: Options = (("latent_size", 4), ("duration_range", (10, 50)))
+IAP_HIGH: Options = (("high_level", "iap"), ("kernel", "relu"), ("patch_size", 4), ("top_l", 10), ("d_qk", 4),
+                     ("controller", "linear"))
+CNN_HIGH: Options = (("high_level", "cnn"),)
+COURSE_ES = ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005,
+                     normalize_observations=False)
+COURSE_RUN = RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)
+
+for _name, _high, _what in (
+        ("iap", IAP_HIGH, "IAP high level (ReLU features, 4x4 patches, top 10 -> linear)"),
+        ("cnn", CNN_HIGH, "CNN high level (3 conv 3x3, 2x2 max pool, dense tanh 16)"),
+        ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed image: the control)")):
+    register(Preset(f"quadruped-walls-{_name}",
+                    f"quadruped-walls, hierarchical: {_what} -> latent (4) held 10-50 steps -> linear PMTG "
+                    "low level; return = metres along the course in 20 s",
+                    "quadruped-walls", "hierarchical", COURSE_ENV, _high + HIERARCHY, COURSE_ES, COURSE_RUN))

@@ -18,6 +18,9 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
   the ground) or, on the platform, when the trunk's centre leaves the platform's footprint.
 - Control step 0.02 s = 5 physics steps of 0.004 s (Playground's MJX quadrupeds). Episodes:
   500 control steps (10 s) on the flat, 1000 (20 s) on the course.
+- On the course ``State.metrics`` also keeps the episode's course statistics (walls passed,
+  falls off the platform, wall contacts, distance: :meth:`QuadrupedWalls.course_metrics`),
+  which training logs per iteration (``iap_mjx.es.rollout``, ``metrics.csv``).
 
 Batch size: vmap at most ``max_chunk_size`` (102 for this robot) envs together per device
 (chunk larger populations, ``lax.map``). See :func:`iap_mjx.envs.dmc.serial_lapack_batch`: with
@@ -184,6 +187,9 @@ class QuadrupedWalls(QuadrupedFlat):
     WALL_HALF_SIZE = (0.05, 0.6, 0.25)
     WALL_START, WALL_SPACING, WALL_JITTER = 1.5, 2.5, 0.3
     GAP_RANGE = (0.6, 1.0)
+    #: Per-episode course statistics in ``State.metrics`` (:meth:`course_metrics`), reported
+    #: by the ES's rollouts at the episode's end (``iap_mjx.es.rollout``).
+    episode_metrics = ("walls_passed", "fell_off", "wall_contacts", "distance")
 
     def _world_xml(self) -> str:
         return a1.world_xml(platform=self.PLATFORM, n_walls=self.config.n_walls,
@@ -247,3 +253,49 @@ class QuadrupedWalls(QuadrupedFlat):
         """``(n_walls, 3)`` the walls' centres (``mocap_pos``'s last row is the colliding
         wall's)."""
         return data.mocap_pos[: self.config.n_walls]
+
+    # ---- per-episode course statistics ----------------------------------------------------
+
+    def step(self, state, action):
+        after = super().step(state, action)
+        return after.replace(metrics={**after.metrics, **self.course_metrics(state, after)})
+
+    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]):
+        state = super()._first_state(data, task_info)
+        zeros = {name: jnp.zeros((), jnp.float32) for name in self.episode_metrics}
+        return state.replace(metrics={**state.metrics, **zeros})
+
+    def course_metrics(self, before, after) -> dict[str, jax.Array]:
+        """The episode's course statistics after the control step ``before -> after`` (two
+        ``State``), each ``()`` float32; a step of an ended episode changes none of them.
+
+        - ``walls_passed``: the most walls the trunk box has been wholly beyond (its centre
+          more than the wall's and the trunk's half-lengths past the wall's centre along x)
+          while its centre was over the platform.
+        - ``fell_off``: 1 once the trunk's centre has left the platform's footprint over a
+          side or the back (which ends the episode), else 0. Walking off the far end
+          (``x > x_max``, past every wall) is the course's finish, not a fall.
+        - ``wall_contacts``: control steps at whose end some robot geom touches a wall.
+        - ``distance``: the trunk's x (m; it starts at 0), where the episode ended.
+        """
+        live = before.done == 0
+        data, metrics = after.data, before.metrics
+        on = self.on_platform(data)
+        beyond = self.walls(data)[:, 0] + self.WALL_HALF_SIZE[0] + a1.TRUNK_HALF_SIZE[0]
+        passed = jnp.sum(data.qpos[0] > beyond).astype(jnp.float32)
+        counts = lambda flag: jnp.where(live & flag, 1.0, 0.0)  # noqa: E731
+        finished = data.qpos[0] > self.PLATFORM[1]
+        return {
+            "walls_passed": jnp.where(live & on, jnp.maximum(metrics["walls_passed"], passed),
+                                      metrics["walls_passed"]),
+            "fell_off": jnp.maximum(metrics["fell_off"], counts(~on & ~finished)),
+            "wall_contacts": metrics["wall_contacts"] + counts(self.touches_wall(data)),
+            "distance": jnp.where(live, data.qpos[0], metrics["distance"]),
+        }
+
+    def touches_wall(self, data: mjx.Data) -> jax.Array:
+        """``()`` bool: a contact of ``data`` (its position stage current) has the colliding
+        wall in it at zero or negative distance."""
+        contact = data._impl.contact
+        wall = self._id(mujoco.mjtObj.mjOBJ_GEOM, "wall_contact")
+        return jnp.any(((contact.geom1 == wall) | (contact.geom2 == wall)) & (contact.dist <= 0.0))

@@ -6,9 +6,9 @@
 
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
-from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, load_run, train
+from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, evaluate_run_episodes, load_run, train
 
 __all__ = [
     "EvosaxStrategy", "OpenES", "SHAPINGS", "TrainResult", "TrainState", "build",
-    "centred_ranks", "estimate_gradient", "evaluate_run", "load_run", "train",
+    "centred_ranks", "estimate_gradient", "evaluate_run", "evaluate_run_episodes", "load_run", "train",
 ]

@@ -5,12 +5,16 @@ TensorBoard events.
 Columns: ``env_steps`` counts training steps so far (population x episodes x horizon, the
 sample budget); ``return_*`` are over the population's fitness (mean return per member);
 ``eval_return``/``eval_return_std`` over the centre's evaluation episodes at the start of the
-iteration; ``nan_episodes`` counts episodes that met a bad state; ``contact_saturated_episodes``
+iteration; ``parameters`` is the policy's number of trainable scalars (the same in every row);
+``nan_episodes`` counts episodes that met a bad state; ``contact_saturated_episodes``
 counts population episodes that filled every MJX contact slot at some step (a contact may have
 been dropped: raise ``env.max_contacts`` if it is not 0); ``env_steps_per_s`` counts
 every simulated step (training, evaluation, padding) per second of run time; ``run_s`` is one
 iteration's run time, ``compile_s`` the compile time so far, ``wall_s`` the time since
-``train`` started (this session).
+``train`` started (this session). An env with per-episode statistics (``episode_metrics``, e.g.
+the quadruped course's ``walls_passed``) adds two columns per statistic after
+``contact_saturated_episodes`` (:func:`metric_columns`): ``<name>_mean`` over the population's
+episodes and ``eval_<name>`` over the centre's evaluation episodes.
 """
 
 from __future__ import annotations
@@ -40,11 +44,20 @@ COLUMNS = (
     "contact_saturated_episodes",
     "sigma",
     "params_norm",
+    "parameters",
     "env_steps_per_s",
     "run_s",
     "compile_s",
     "wall_s",
 )
+
+
+def metric_columns(episode_metrics: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """:data:`COLUMNS` with ``<name>_mean`` and ``eval_<name>`` for each of an env's
+    per-episode statistics, after ``contact_saturated_episodes``."""
+    at = COLUMNS.index("contact_saturated_episodes") + 1
+    extra = tuple(column for name in episode_metrics for column in (f"{name}_mean", f"eval_{name}"))
+    return COLUMNS[:at] + extra + COLUMNS[at:]
 
 
 def write_config(run_dir: str | Path, config: dict[str, Any]) -> Path:
@@ -90,7 +103,9 @@ def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str
 class MetricsWriter:
     """Appends rows to the run's metrics files; on resume, drops rows past the checkpoint."""
 
-    def __init__(self, run_dir: str | Path, resume_from: int | None, tensorboard: bool):
+    def __init__(self, run_dir: str | Path, resume_from: int | None, tensorboard: bool,
+                 columns: tuple[str, ...] = COLUMNS):
+        self.columns = tuple(columns)
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         kept = read_history(self.run_dir, up_to=resume_from if resume_from is not None else -1)
@@ -112,19 +127,19 @@ class MetricsWriter:
                 f.write(json.dumps(row) + "\n")
         table = self.run_dir / "metrics.csv.tmp"
         with open(table, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+            writer = csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(rows)
         os.replace(jsonl, self.run_dir / "metrics.jsonl")
         os.replace(table, self.run_dir / "metrics.csv")
 
     def write(self, row: dict[str, Any]) -> None:
-        """Appends one iteration's row (keys from ``COLUMNS``; missing ones stay empty)."""
+        """Appends one iteration's row (keys from ``columns``; missing ones stay empty)."""
         self.history.append(row)
         with open(self.run_dir / "metrics.jsonl", "a") as f:
             f.write(json.dumps(row) + "\n")
         with open(self.run_dir / "metrics.csv", "a", newline="") as f:
-            csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore").writerow(row)
+            csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore").writerow(row)
         if self._tb is not None:
             for name, value in row.items():
                 if name != "iteration" and isinstance(value, (int, float)) and math.isfinite(value):

@@ -35,7 +35,10 @@ class EpisodeResult:
     ``metrics["nan_terminations"]``, ``saturated`` ``()`` 1.0 if the env flagged
     ``metrics["contact_saturated"]`` (every contact slot filled at some step, so a contact
     may have been dropped; 0.0 for envs without the flag), ``obs_sum``/``obs_sq_sum``
-    ``(obs_size,)`` sums over the live steps (zeros when not tracked).
+    ``(obs_size,)`` sums over the live steps (zeros when not tracked), ``metrics`` the
+    env's per-episode statistics at the episode's end: ``{name: ()}`` for each name in the
+    env's ``episode_metrics`` (e.g. the quadruped course's walls passed; empty for envs
+    without them, which then add nothing to the program).
     """
 
     ret: jax.Array
@@ -44,13 +47,20 @@ class EpisodeResult:
     saturated: jax.Array
     obs_sum: jax.Array
     obs_sq_sum: jax.Array
+    metrics: dict[str, jax.Array] = dataclasses.field(default_factory=dict)
 
 
 jax.tree_util.register_dataclass(
     EpisodeResult,
-    data_fields=["ret", "steps", "bad", "saturated", "obs_sum", "obs_sq_sum"],
+    data_fields=["ret", "steps", "bad", "saturated", "obs_sum", "obs_sq_sum", "metrics"],
     meta_fields=[],
 )
+
+
+def episode_metric_names(env: Any) -> tuple[str, ...]:
+    """The names of ``env``'s per-episode statistics in ``State.metrics`` (its
+    ``episode_metrics``; none for most envs)."""
+    return tuple(getattr(env, "episode_metrics", ()))
 
 
 def run_episode(
@@ -103,7 +113,8 @@ def run_episode(
     final, _, ret, _, bad, obs_sum, obs_sq_sum = carry
     saturated = (final.metrics["contact_saturated"] > 0).astype(jnp.float32) \
         if "contact_saturated" in final.metrics else zero
-    return EpisodeResult(ret, jnp.sum(steps_alive), bad, saturated, obs_sum, obs_sq_sum)
+    metrics = {name: final.metrics[name] for name in episode_metric_names(env)}
+    return EpisodeResult(ret, jnp.sum(steps_alive), bad, saturated, obs_sum, obs_sq_sum, metrics)
 
 
 def make_mesh(num_devices: int = 0, devices: Any = None) -> Mesh:

@@ -28,9 +28,9 @@ from jax.sharding import NamedSharding, PartitionSpec
 from iap_mjx.es import checkpoint
 from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import OPEN_ES, ESConfig, TrainConfig
-from iap_mjx.es.metrics_log import MetricsWriter, read_history, write_config
+from iap_mjx.es.metrics_log import MetricsWriter, metric_columns, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
-from iap_mjx.es.rollout import EpisodeResult, make_evaluator, make_mesh, padded_share
+from iap_mjx.es.rollout import EpisodeResult, episode_metric_names, make_evaluator, make_mesh, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
 
@@ -182,6 +182,16 @@ def build(
                       mesh, evaluate)
 
 
+def describe_parameters(parts: Components) -> str:
+    """``"873 parameters (high 489, low 384)"``: the policy's trainable scalars, per level for a
+    policy that has levels (``level_param_counts``)."""
+    text = f"{parts.num_dims} parameters"
+    levels = getattr(parts.policy, "level_param_counts", None)
+    if levels is not None:
+        text += " (" + ", ".join(f"{name} {count}" for name, count in levels(parts.template_params).items()) + ")"
+    return text
+
+
 def check_chunk_size(chunk_size: int, env: Any, num_devices: int) -> None:
     """Refuses ``run.chunk_size`` above the env's ``max_chunk_size`` on two or more devices,
     where a larger vmapped batch deadlocks XLA:CPU (``iap_mjx.envs.dmc.serial_lapack_batch``)."""
@@ -263,6 +273,10 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         if eval_episodes:
             metrics["eval_return"] = jnp.mean(eval_returns)
             metrics["eval_return_std"] = jnp.std(eval_returns)
+        for name, values in result.metrics.items():  # the env's per-episode statistics, if any
+            metrics[f"{name}_mean"] = jnp.mean(values)
+            if eval_episodes:
+                metrics[f"eval_{name}"] = jnp.mean(everything.metrics[name][members:])
         if isinstance(parts.strategy, OpenES):
             metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
@@ -286,15 +300,17 @@ def _eval_keys(state: TrainState, episodes: int | None = None) -> jax.Array:
     return jax.random.split(key, episodes) if episodes is not None else key
 
 
-def make_centre_evaluation(parts: Components, episodes: int):
-    """``state -> returns (episodes,)`` of the centre params on the evaluation seeds."""
+def make_centre_evaluation(parts: Components, episodes: int, *, with_metrics: bool = False):
+    """``state -> returns (episodes,)`` of the centre params on the evaluation seeds; with
+    ``with_metrics``, ``{"return": (episodes,), name: (episodes,) ...}`` with the env's
+    per-episode statistics (``EpisodeResult.metrics``) too."""
 
     def evaluate(state: TrainState):
         keys = jax.random.split(_eval_keys(state), episodes)
         centre = parts.strategy.mean(state.strategy_state)
         flat = jnp.broadcast_to(centre, (episodes, centre.shape[0]))
         result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
-        return result.ret
+        return {"return": result.ret, **result.metrics} if with_metrics else result.ret
 
     return evaluate
 
@@ -413,12 +429,14 @@ def train(
         start = int(_scalar(state.iteration))
     if run_dir is not None and primary:
         write_config(run_dir, config.to_dict())
-    writer = (MetricsWriter(run_dir, start if start else None, run.tensorboard)
+    columns = metric_columns(episode_metric_names(parts.env))
+    writer = (MetricsWriter(run_dir, start if start else None, run.tensorboard, columns=columns)
               if run_dir is not None and primary else None)
     history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])
 
     calls: dict[int, Any] = {}
     compile_s = 0.0
+    logger.info("policy %r: %s", config.policy.kind, describe_parameters(parts))
 
     def compiled_call(count: int):
         nonlocal compile_s
@@ -456,6 +474,7 @@ def train(
                     "env_steps_per_s": parts.simulated_steps_per_iteration * count / run_s,
                     "run_s": run_s / count,
                     "compile_s": compile_s,
+                    "parameters": parts.num_dims,
                 })
             for row in rows:
                 row["wall_s"] = time.perf_counter() - started
@@ -516,6 +535,17 @@ def evaluate_run(
     ``env.distraction=none`` also drops the run's other distraction settings
     (``configs.overrides.apply_condition``).
     """
+    return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides,
+                                 env=env, policy=policy)["return"]
+
+
+def evaluate_run_episodes(
+    run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, overrides: Sequence[str] = (),
+    env: Any = None, policy: Any = None,
+) -> dict[str, np.ndarray]:
+    """:func:`evaluate_run` with the env's per-episode statistics: ``{"return": (episodes,),
+    name: (episodes,) ...}`` for each of the env's ``episode_metrics`` (the quadruped course's
+    walls passed, falls, wall contacts, distance; nothing more for other envs)."""
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     check_condition(overrides)
@@ -533,5 +563,5 @@ def evaluate_run(
     # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
     replicated = NamedSharding(parts.mesh, PartitionSpec())
-    returns = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=replicated)(state)
-    return checkpoint.to_host(returns)
+    results = jax.jit(make_centre_evaluation(parts, episodes, with_metrics=True), out_shardings=replicated)(state)
+    return checkpoint.to_host(results)

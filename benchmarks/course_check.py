@@ -1,0 +1,147 @@
+"""Does the course need vision? A walker that goes straight, on many ``quadruped-walls`` episodes.
+
+The walker is the PMTG low level with a constant latent (it sees the IMU and joint angles, never
+the walls): by default the policy's initial params (the TG's trot at ``initial_tg``, zero
+weights and residuals: about 0.8 m/s on the flat), or with ``--low-level RUN_DIR`` a trained
+``quadruped-flat-pmtg`` run's centre params and observation statistics. It runs ``--episodes``
+episodes of the course (each with its own wall placement), through the ES's own rollout
+(``iap_mjx.es.rollout``), and reports per-episode course statistics (the env's
+``episode_metrics``): the fraction that pass every wall, touch a wall, fall off the platform,
+and the mean walls passed and distance. If the straight walker passes most episodes, the
+course does not need eyes.
+
+    python benchmarks/course_check.py --episodes 64
+    python benchmarks/course_check.py --episodes 64 --low-level runs/flat0 --section course-check
+    python benchmarks/course_check.py --low-level runs/flat0 --export-low-level low.npz
+        # the run's weights with its observation normalisation folded in, for
+        # policy.low_level_init=low.npz of the quadruped-walls-* presets
+
+``key=value`` arguments set ``quadruped-walls`` env settings (e.g. ``n_walls=3``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import os
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from iap_mjx import runtime  # noqa: E402
+
+runtime.set_host_device_count()
+runtime.enable_compilation_cache()
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+from jax.flatten_util import ravel_pytree  # noqa: E402
+
+from iap_mjx import configs, es  # noqa: E402
+from iap_mjx.configs.overrides import parse_value  # noqa: E402
+from iap_mjx.policies.hierarchical import fold_normalisation  # noqa: E402
+
+
+def walker(low_level: str | None, env_overrides: tuple) -> tuple[configs.TrainConfig, object, object]:
+    """``(config, params, obs_stats)`` of the straight walker on the course."""
+    if low_level is None:
+        config = configs.TrainConfig(
+            env=configs.EnvSpec("quadruped-walls", env_overrides),
+            policy=configs.PolicySpec("pmtg"),
+            es=configs.ESConfig(population_size=2, normalize_observations=False),
+            run=configs.RunConfig(eval_episodes=0))
+        parts = es.build(config)
+        return config, parts.template_params, None
+    trained = es.load_run(low_level)
+    if trained.config.policy.kind != "pmtg":
+        raise SystemExit(f"{low_level} trained a {trained.config.policy.kind!r} policy; a pmtg one is needed")
+    config = dataclasses.replace(trained.config, env=configs.EnvSpec("quadruped-walls", env_overrides),
+                                 run=dataclasses.replace(trained.config.run, eval_episodes=0))
+    return config, trained.params, trained.obs_stats
+
+
+def run(config: configs.TrainConfig, params, obs_stats, episodes: int, seed: int) -> dict[str, np.ndarray]:
+    """Per-episode ``{"return", "steps", "walls_passed", "fell_off", "wall_contacts", "distance"}``
+    and the env."""
+    chunk = min(32, episodes)
+    config = dataclasses.replace(config, run=dataclasses.replace(config.run, chunk_size=chunk))
+    parts = es.build(config)
+    flat, _ = ravel_pytree(params)
+    population = np.broadcast_to(np.asarray(flat), (episodes, flat.shape[0]))
+    keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
+    result = jax.jit(parts.evaluate)(population, keys, obs_stats)
+    host = jax.tree_util.tree_map(np.asarray, result)
+    return {"return": host.ret, "steps": host.steps, **host.metrics}, parts.env
+
+
+def summary(results: dict[str, np.ndarray], env) -> dict[str, float]:
+    """Fractions of episodes by outcome, and means."""
+    passed, contacts = results["walls_passed"], results["wall_contacts"]
+    fell = results["fell_off"] > 0
+    ended = results["steps"] < env.episode_length
+    finished = results["distance"] > env.PLATFORM[1]
+    return {
+        "episodes": len(passed),
+        "passed every wall": float(np.mean(passed >= env.config.n_walls)),
+        "passed no wall": float(np.mean(passed == 0)),
+        "touched a wall": float(np.mean(contacts > 0)),
+        "fell off the platform": float(np.mean(fell)),
+        "fell over on it (trunk down)": float(np.mean(ended & ~fell & ~finished)),
+        "touched a wall or fell off": float(np.mean((contacts > 0) | fell)),
+        "reached the far end": float(np.mean(finished)),
+        "walls passed (mean)": float(np.mean(passed)),
+        "distance m (mean)": float(np.mean(results["distance"])),
+        "return (mean)": float(np.mean(results["return"])),
+    }
+
+
+def markdown(label: str, stats: dict[str, float], command: str, n_walls: int) -> str:
+    when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    load = os.getloadavg()[0]
+    rows = "\n".join(f"| {name} | {value:.2f} |" if isinstance(value, float) else f"| {name} | {value} |"
+                     for name, value in stats.items())
+    return (f"### {label}\n\nCommand: `{command}` ({when}; 1-min load average {load:.1f}; "
+            f"{n_walls} walls)\n\n| statistic | value |\n|---|---:|\n{rows}\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("overrides", nargs="*", metavar="key=value", help="quadruped-walls env settings")
+    parser.add_argument("--episodes", type=int, default=64)
+    parser.add_argument("--seed", type=int, default=2024, help="course draws (not a training seed)")
+    parser.add_argument("--low-level", metavar="RUN_DIR", help="a trained quadruped-flat-pmtg run (default: "
+                        "the PMTG policy's initial params, the TG's trot)")
+    parser.add_argument("--export-low-level", metavar="OUT.npz",
+                        help="with --low-level: write its w and b with the normalisation folded in, and stop")
+    parser.add_argument("--section", help="also write this section of RESULTS.md")
+    args = parser.parse_args(argv)
+    env_overrides = tuple(sorted((k, parse_value(v)) for k, v in (o.split("=", 1) for o in args.overrides)))
+    config, params, obs_stats = walker(args.low_level, env_overrides)
+    if args.export_low_level:
+        if args.low_level is None or obs_stats is None:
+            raise SystemExit("--export-low-level needs --low-level RUN_DIR of a run with observation statistics")
+        latent = len(dict(config.policy.options).get("latent", (0.0,) * 4))
+        w, b = fold_normalisation(params["w"], params["b"], obs_stats.mean, obs_stats.var, latent)
+        np.savez(args.export_low_level, w=w, b=b)
+        print(f"wrote {args.export_low_level}: w {w.shape}, b {b.shape}")
+        return 0
+    results, env = run(config, params, obs_stats, args.episodes, args.seed)
+    n_walls = env.config.n_walls
+    stats = summary(results, env)
+    label = (f"Trained flat low level `{args.low_level}`, constant latent" if args.low_level
+             else "The TG's trot (`PMTGPolicy.initial_tg`, zero weights and residuals)")
+    command = "python benchmarks/course_check.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    text = markdown(label, stats, command.strip(), n_walls)
+    print(text)
+    if args.section:
+        import report
+
+        report.write_section(ROOT / "RESULTS.md", args.section, text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

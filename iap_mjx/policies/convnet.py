@@ -1,0 +1,113 @@
+"""The CNN high level of the paper's quadruped experiment (its appendix A.2): three convolutions
+of small filters, a pooling layer, a fully connected ``tanh`` layer, and an output clipped to
+``[-1, 1]``.
+
+The extraction lost the sizes; ours (:class:`ConvNet`'s defaults) on the course's 24x32 RGB
+camera: 3x3 filters with 8, 16 and 16 channels at strides 2, 2 and 1 ("SAME" padding,
+ReLU), so 24x32 -> 12x16x8 -> 6x8x16 -> 6x8x16; a 2x2 max pool -> 3x4x16 = 192 numbers;
+a 16-unit ``tanh`` layer; a linear output clipped to ``[-1, 1]``. The pool is local, not global:
+the flattened 3x4 grid keeps *where* in the image a wall is, which is what steering needs (a
+global average, as :class:`iap_mjx.policies.attention.CNNPolicy` takes, keeps only *what*).
+With 5 outputs (a duration and a 4-d latent command) that is 6,885 parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from iap_mjx.policies.attention import split_observation
+from iap_mjx.policies.base import check_positive, check_sizes
+from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
+
+
+@dataclasses.dataclass(frozen=True)
+class ConvNet:
+    """Convolutions -> max pool -> flatten (+ state) -> dense ``tanh`` -> linear, clipped.
+
+    Attributes:
+      image_shape: ``(H, W, C)`` of the pixel observation.
+      output_size: outputs in ``[-1, 1]`` (clipped, not squashed).
+      channels: output channels of the convolutions (ReLU), one entry per layer.
+      strides: their strides, one per layer.
+      filter_size: the convolutions' square filter side.
+      pool: side (and stride) of the max pool after the last convolution.
+      hidden_size: the fully connected ``tanh`` layer.
+      state_size: length of a state vector concatenated to the flattened pool (0: none).
+    """
+
+    image_shape: tuple[int, int, int]
+    output_size: int
+    channels: tuple[int, ...] = (8, 16, 16)
+    strides: tuple[int, ...] = (2, 2, 1)
+    filter_size: int = 3
+    pool: int = 2
+    hidden_size: int = 16
+    state_size: int = 0
+
+    def __post_init__(self):
+        check_positive("ConvNet", "output_size", self.output_size)
+        check_sizes("ConvNet", "channels", self.channels, non_empty=True)
+        check_sizes("ConvNet", "strides", self.strides, non_empty=True)
+        if len(self.strides) != len(self.channels):
+            raise ValueError(f"ConvNet.strides = {self.strides!r} needs one stride per convolution "
+                             f"(channels = {self.channels!r})")
+        for name in ("filter_size", "pool", "hidden_size"):
+            check_positive("ConvNet", name, getattr(self, name))
+        if not isinstance(self.state_size, int) or self.state_size < 0:
+            raise ValueError(f"ConvNet.state_size = {self.state_size!r} must be a non-negative int")
+        rows, cols = self.pooled_grid
+        if rows < 1 or cols < 1:
+            raise ValueError(f"ConvNet: a {self.image_shape[:2]} image shrinks to nothing under strides "
+                             f"{self.strides} and a {self.pool}x{self.pool} pool; use smaller strides or pool")
+
+    @property
+    def pooled_grid(self) -> tuple[int, int]:
+        """``(rows, cols)`` after the convolutions ("SAME": ``ceil(size / stride)``) and the pool."""
+        rows, cols = self.image_shape[:2]
+        for stride in self.strides:
+            rows, cols = -(-rows // stride), -(-cols // stride)
+        return rows // self.pool, cols // self.pool
+
+    @property
+    def flat_size(self) -> int:
+        """The dense layer's input: the pooled grid's ``rows x cols x channels[-1]`` (+ state)."""
+        rows, cols = self.pooled_grid
+        return rows * cols * self.channels[-1] + self.state_size
+
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"conv": [{"w": (f, f, in, out), "b": (out,)}], "dense": [(flat, hidden), (hidden,
+        output)]}``: LeCun-normal weights, zero biases."""
+        keys = jax.random.split(key, len(self.channels) + 1)
+        ins = (self.image_shape[2], *self.channels[:-1])
+        f = self.filter_size
+        conv = [{"w": jax.random.normal(k, (f, f, c_in, c_out), jnp.float32) / math.sqrt(f * f * c_in),
+                 "b": jnp.zeros((c_out,), jnp.float32)} for k, c_in, c_out in zip(keys, ins, self.channels)]
+        dense = init_dense_layers(keys[-1], (self.flat_size, self.hidden_size, self.output_size))
+        return {"conv": conv, "dense": dense}
+
+    def initial_state(self, key: jax.Array) -> tuple:
+        """Stateless: the empty tuple."""
+        del key
+        return ()
+
+    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
+        """``obs`` (pixels ``(H, W, C)`` or ``{"pixels", "state"}``) -> ``(output
+        (output_size,) in [-1, 1], policy_state)``."""
+        pixels, state = split_observation(obs)
+        x = pixels[None]
+        for layer, stride in zip(params["conv"], self.strides):
+            x = jax.lax.conv_general_dilated(x, layer["w"], (stride, stride), "SAME",
+                                             dimension_numbers=("NHWC", "HWIO", "NHWC"))
+            x = jax.nn.relu(x + layer["b"])
+        window = (1, self.pool, self.pool, 1)
+        x = jax.lax.reduce_window(x, -jnp.inf, jax.lax.max, window, window, "VALID")
+        features = jnp.ravel(x)
+        if self.state_size:
+            features = jnp.concatenate([features, state])
+        out = apply_dense_layers(params["dense"], features, jnp.tanh)
+        return jnp.clip(out, -1.0, 1.0), policy_state
