@@ -10,12 +10,21 @@ What is hashed (SHA-256, one JSON entry each):
 - ``lowered/training/<preset>``: the whole ES training call of ``cheetah-run-pixels`` and
   ``dcs-cartpole-swingup`` (``iap_mjx.es.train.make_train_call``, lowered as ``train`` lowers it,
   on the devices the CLI makes: one per core); ``--presets`` names others.
+- ``lowered/camera/<task>/<case>``: ``iap_mjx.render.Camera`` programs, ``jax.jit(jax.vmap(...))``
+  over a batch of 8 states (``-single``: one state, no ``vmap``): ``render``, ``render_ids`` and
+  ``trace`` on cheetah-run (whose capsules are culled per tile) at 100x100 and 240x320 (and at
+  64x64 with a pair budget its states overflow, so its outputs come from the dense fallback), and
+  cartpole-swingup with each input and setting the distraction layer or a config can choose (a
+  background image, per-geom colours, a skybox frame shared or one per image, a frame stack
+  and row, flat shading, a flat sky colour).
 - ``compiled/...`` (with ``--compiled``): the same programs compiled, XLA's optimised HLO text
   without debug information (each instruction's ``metadata={...}`` and the module's tables of
   source files, Python function names and stack frames).
 - ``outputs/<case>``: the bytes of the layer's ``Selection.indices`` and ``Selection.scores`` on
   fixed random images, for every kernel and the projection paths (non-overlapping and
   overlapping patches, biases, each input scaling): equal hashes mean bit-identical outputs.
+- ``outputs/camera/<task>/<case>``: the bytes of the camera's rgb, depth and geom ids on fixed
+  states, for the ``camera`` part's cases.
 
 The lowered text is taken without debug information (``Lowered.as_text(debug_info=False)``: no
 ``loc(...)`` source locations); any ``loc(...)`` left is removed before hashing. Names of private
@@ -27,7 +36,7 @@ of such a function changes the lowered hash alone: ``--compiled`` and ``outputs/
     python benchmarks/hlo_identity.py --base 2a54c1a [--compiled]      # the base commit's iap_mjx
         # (extracted with git archive into a temporary directory, run in a child process) against
         # this checkout's, entry by entry; exit status 1 if any entry differs
-    python benchmarks/hlo_identity.py --only attention|training|outputs ...   # a subset
+    python benchmarks/hlo_identity.py --only attention|camera|training|outputs ...   # a subset
     python benchmarks/hlo_identity.py --only training --presets quadruped-flat-pmtg cheetah-run-state --base 2a54c1a
 
 Hashes depend on the jax/jaxlib version (pinned in ``constraints.txt``); compiled hashes and
@@ -50,7 +59,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 EXPECTED_ROOT_VAR = "HLO_IDENTITY_EXPECTED_ROOT"
-PARTS = ("attention", "training", "outputs")
+PARTS = ("attention", "camera", "training", "outputs")
 PRESETS = ("cheetah-run-pixels", "dcs-cartpole-swingup")
 ATTENTION_SIZES = (("100x100-p4", (100, 100, 3), 4), ("240x320-p2", (240, 320, 3), 2))
 ATTENTION_KERNELS = ("brute", "relu", "hybrid")
@@ -129,6 +138,97 @@ def attention_programs():
             yield f"attention/{kernel}/{size}", jax.jit(attention_layer).lower(params, projections, images)
 
 
+CAMERA_STATES = 8  # batch of the vmapped camera programs and of their outputs
+
+
+def _camera_states(model, count: int):
+    """``count`` ``mjx.Data`` (stacked) at fixed random joint positions after ``mj_forward``."""
+    import jax
+    import mujoco
+    import numpy as np
+    from mujoco import mjx
+
+    rng = np.random.default_rng(0)
+    states = []
+    for _ in range(count):
+        data = mujoco.MjData(model)
+        data.qpos[:] = model.qpos0 + rng.uniform(-0.3, 0.3, model.nq)
+        mujoco.mj_forward(model, data)
+        states.append(mjx.put_data(model, data))
+    return jax.tree.map(lambda *x: np.stack(x), *states)
+
+
+def camera_cases():
+    """``(name, function of a stacked batch of states -> outputs, states)`` per camera case:
+    each function vmaps the camera over the batch, or (``-single``) renders the first state."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from iap_mjx import envs
+    from iap_mjx.render import Camera, sky
+
+    cheetah = envs.make("cheetah-run").mj_model
+    cartpole = envs.make("cartpole-swingup").mj_model
+    cheetah_states = _camera_states(cheetah, CAMERA_STATES)
+    cartpole_states = _camera_states(cartpole, CAMERA_STATES)
+    rng = np.random.default_rng(1)
+    small = Camera(cheetah, height=100, width=100)
+    large = Camera(cheetah, height=240, width=320)
+    yield "cheetah-run/100x100-render", jax.vmap(small.render), cheetah_states
+    yield "cheetah-run/100x100-render_ids", jax.vmap(small.render_ids), cheetah_states
+    yield "cheetah-run/100x100-trace", jax.vmap(small.trace), cheetah_states
+    yield "cheetah-run/100x100-render-single", lambda d: small.render(jax.tree.map(lambda x: x[0], d)), cheetah_states
+    yield "cheetah-run/240x320-render", jax.vmap(large.render), cheetah_states
+    # a pair budget these states overflow: the dense fallback
+    overflowing = Camera(cheetah, height=64, width=64, cull_pairs_per_tile=0.05, tile=8)
+    yield "cheetah-run/64x64-overflow-render", jax.vmap(overflowing.render), cheetah_states
+
+    camera = Camera(cartpole, height=64, width=80)
+    background = jnp.asarray(rng.uniform(size=(64, 80, 3)), jnp.float32)
+    geom_rgb = jnp.asarray(rng.uniform(size=(len(camera.geom_ids), 3)), jnp.float32)
+    face = jnp.asarray(rng.integers(0, 256, (16, 16, 3)), jnp.uint8)
+    stack = sky.pack_rgb(jnp.asarray(rng.integers(0, 256, (5, 16, 16, 3)), jnp.uint8))
+    rows = jnp.arange(CAMERA_STATES, dtype=jnp.int32) % 5
+    yield "cartpole-swingup/64x80-render", jax.vmap(camera.render), cartpole_states
+    yield ("cartpole-swingup/64x80-background-geom_rgb",
+           jax.vmap(lambda d: camera.render(d, background=background, geom_rgb=geom_rgb)), cartpole_states)
+    yield ("cartpole-swingup/64x80-sky-face",
+           jax.vmap(lambda d: camera.render(d, sky_texture=face)), cartpole_states)
+    yield ("cartpole-swingup/64x80-sky-stack-row-geom_rgb",
+           jax.vmap(lambda d, row: camera.render(d, geom_rgb=geom_rgb, sky_texture=(stack, row))),
+           (cartpole_states, rows))
+    yield ("cartpole-swingup/64x80-sky-face-per-image",
+           jax.vmap(lambda d, f: camera.render(d, sky_texture=f)),
+           (cartpole_states, jnp.broadcast_to(sky.pack_rgb(face), (CAMERA_STATES, 16 * 16))))
+    flat = Camera(cartpole, height=64, width=80, shading="flat", sky="color", background_color=(0.2, 0.3, 0.4))
+    yield "cartpole-swingup/64x80-flat-color", jax.vmap(flat.render_ids), cartpole_states
+
+
+def camera_programs():
+    """``(name, Lowered)`` of each camera case, jitted over its batch of states."""
+    import jax
+
+    for name, fn, args in camera_cases():
+        args = args if isinstance(args, tuple) else (args,)
+        shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
+        yield f"camera/{name}", jax.jit(fn).lower(*shapes)
+
+
+def camera_output_hashes() -> dict[str, str]:
+    """SHA-256 of each camera case's output bytes (rgb, depth, ids) on its fixed states."""
+    import jax
+    import numpy as np
+
+    hashes = {}
+    for name, fn, args in camera_cases():
+        args = args if isinstance(args, tuple) else (args,)
+        for i, value in enumerate(jax.tree.leaves(jax.jit(fn)(*args))):
+            value = np.asarray(value)
+            hashes[f"outputs/camera/{name}/{i}"] = sha256(value.tobytes() + str(value.dtype).encode())
+    return hashes
+
+
 def training_programs(presets=PRESETS):
     """``(name, Lowered)`` of each preset's training call, lowered as ``train`` lowers it."""
     import jax
@@ -180,7 +280,8 @@ def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = P
     if expected_root and not Path(iap_mjx.__file__).resolve().is_relative_to(Path(expected_root).resolve()):
         raise RuntimeError(f"iap_mjx imported from {iap_mjx.__file__}, not from {expected_root}")
     hashes = {}
-    for part, programs in (("attention", attention_programs), ("training", lambda: training_programs(presets))):
+    for part, programs in (("attention", attention_programs), ("camera", camera_programs),
+                           ("training", lambda: training_programs(presets))):
         if part not in parts:
             continue
         for name, lowered in programs():
@@ -188,6 +289,8 @@ def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = P
             if compiled:
                 hashes[f"compiled/{name}"] = sha256(compiled_text(lowered))
             print(f"  hashed {name}", file=sys.stderr, flush=True)
+    if "camera" in parts:
+        hashes.update(camera_output_hashes())
     if "outputs" in parts:
         hashes.update(output_hashes())
     return hashes

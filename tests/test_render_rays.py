@@ -136,9 +136,9 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
     dense = Camera(model, height=48, width=40, cull_pairs_per_tile=0)
     culled = Camera(model, height=48, width=40, cull_pairs_per_tile=cull_pairs_per_tile,
                     batch_chunk=2, tile=8)
-    assert culled._culled_groups, "walker's capsules should be culled"
-    frames = jax.vmap(culled._frames)(jax.vmap(culled._poses)(batch))
-    _, overflow = jax.jit(jax.vmap(culled._trace_culled_keys))(frames)
+    assert culled.tracer.culled_groups, "walker's capsules should be culled"
+    frames = jax.vmap(culled.tracer.geom_frames)(jax.vmap(culled._poses)(batch))
+    _, overflow = jax.jit(jax.vmap(culled.tracer.culled_keys))(frames)
     assert bool(np.all(overflow)) == overflows, "the test should reach the intended path"
     want = jax.jit(jax.vmap(dense.trace))(batch)
     got = jax.jit(jax.vmap(culled.trace))(batch)
@@ -150,13 +150,13 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
 
 
 def test_first_pairs_lists_the_first_true_entries_sorted():
-    """``_first_pairs`` against ``np.flatnonzero``: the first ``budget`` true entries in order,
+    """``first_pairs`` against ``np.flatnonzero``: the first ``budget`` true entries in order,
     the valid mask, and a list that stays sorted through its empty slots (the tile scatter
     is told its indices are sorted)."""
-    from iap_mjx.render.camera import _first_pairs
+    from iap_mjx.render.tracing import first_pairs
 
     rng = np.random.default_rng(0)
-    first_pairs = jax.jit(_first_pairs, static_argnums=1)
+    first_pairs = jax.jit(first_pairs, static_argnums=1)
     for n, budget, density in ((700, 64, 0.05), (700, 16, 0.05), (97, 40, 0.2), (128, 8, 0.0)):
         overlap = rng.uniform(size=n) < density
         pair, valid = (np.asarray(a) for a in first_pairs(jnp.asarray(overlap), budget))
@@ -203,7 +203,7 @@ def test_lights_are_placed_as_mj_camlight_places_them():
         quat = rng.normal(size=4)
         data.qpos[:] = np.concatenate([quat / np.linalg.norm(quat), rng.uniform(-1, 1, 1)])
         mujoco.mj_forward(model, data)
-        position, direction = (np.asarray(a) for a in cam._lights(cam._poses(mjx.put_data(model, data))))
+        position, direction = (np.asarray(a) for a in cam.shader.lights_in_camera_frame(cam._poses(mjx.put_data(model, data))))
         rot = data.cam_xmat[0].reshape(3, 3)
         np.testing.assert_allclose(position, (data.light_xpos - data.cam_xpos[0]) @ rot, atol=1e-5)
         np.testing.assert_allclose(direction, data.light_xdir @ rot, atol=1e-5)
