@@ -195,14 +195,11 @@ def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -
 def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int,
                   seed: int) -> None:
     """The ``fig7`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import write_section
+    from iap_mjx.viz.sections import image_link, write_section
 
     command_line = " ".join(["iap-mjx reproduce fig7", *overrides, f"--episodes {episodes}",
                              f"--out {png.parent}", f"--results {path.name}"])
-    try:
-        image = png.resolve().relative_to(path.resolve().parent)
-    except ValueError:
-        image = png
+    image = image_link(png, path)
     body = (f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
             f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "
             f"evaluation episodes in the training condition.\n\n![fig7]({image})\n\n{markdown}\n")

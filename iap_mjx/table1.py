@@ -145,14 +145,11 @@ def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[st
 def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...],
                   episodes: int) -> None:
     """The ``table1`` section of ``path``: the command, the table and the curves."""
-    from iap_mjx.viz.sections import write_section
+    from iap_mjx.viz.sections import image_link, write_section
 
     command = " ".join(["iap-mjx reproduce table1", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
                         f"--out {png.parent}", f"--results {path.name}"])
-    try:
-        image = png.resolve().relative_to(path.resolve().parent)
-    except ValueError:
-        image = png
+    image = image_link(png, path)
     body = (f"## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
             f"the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
             "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "

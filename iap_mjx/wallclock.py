@@ -200,13 +200,10 @@ def table(rows: list[dict[str, Any]], timings: dict[str, Any]) -> str:
 def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...],
                   timings: dict[str, Any]) -> None:
     """The ``fig8`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import write_section
+    from iap_mjx.viz.sections import image_link, write_section
 
     command_line = " ".join(["iap-mjx reproduce fig8", *overrides, f"--out {png.parent}", f"--results {path.name}"])
-    try:
-        image = png.resolve().relative_to(path.resolve().parent)
-    except ValueError:
-        image = png
+    image = image_link(png, path)
     body = (f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
             f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "
             f"process on {timings['machine']}, {timings['started']}, one after another with the machine alone "

@@ -6,6 +6,15 @@ import re
 from pathlib import Path
 
 
+def image_link(image: Path, markdown: Path) -> Path:
+    """``image`` as a markdown file at ``markdown`` links it: relative to that file's folder
+    where it lies below it, else as given."""
+    try:
+        return image.resolve().relative_to(markdown.resolve().parent)
+    except ValueError:
+        return image
+
+
 def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmarks") -> None:
     """Replaces the text between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` in ``path``.
 
