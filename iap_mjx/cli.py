@@ -228,7 +228,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             tasks = tuple(t.strip() for t in args.tasks.split(",")) if args.tasks else table1.TASKS
             markdown = table1.reproduce_table1(args.out, seeds=args.seeds, overrides=tuple(args.overrides),
                                                episodes=args.episodes, train=not args.report_only,
-                                               tasks=tasks, results=args.results, export=args.export)
+                                               tasks=tasks, results=args.results, export=args.export,
+                                               policy=args.policy)
         else:
             markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
                                            overrides=tuple(args.overrides), passes=args.passes,
@@ -345,7 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "each method's seconds per iteration measured first (leave the machine alone). "
                     "table1: trains dcs-<task> for every Distracting Control "
                     "task and seed, then evaluates each finished run in four conditions (training "
-                    "backgrounds, held-out backgrounds, dynamic, no distraction). key=value overrides "
+                    "backgrounds, held-out backgrounds, dynamic, no distraction); --policy cnn does the same "
+                    "for the convolutional baseline. key=value overrides "
                     "apply to every preset (e.g. run.iterations=100).")
     repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "fig8", "table1"])
     repro.add_argument("overrides", nargs="*", metavar="key=value")
@@ -361,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     repro.add_argument("--export", default=None, metavar="DIR",
                        help="table1: copy each run's newest checkpoint, config and metrics to "
                             "DIR/<task>-seed<k> (e.g. pretrained/dcs, tracked by git)")
+    repro.add_argument("--policy", default="iap", choices=["iap", "cnn"],
+                       help="table1: iap (dcs-<task>) or cnn, the same-budget convolutional baseline "
+                            "(dcs-<task>-cnn), reported beside the IAP runs in --out")
     repro.add_argument("--report-only", action="store_true",
                        help="train nothing: report the runs already in --out, however far they got")
     repro.set_defaults(func=cmd_reproduce)

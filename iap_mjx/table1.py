@@ -15,6 +15,11 @@ Each evaluation is stored in the run directory (``eval.json``, keyed by conditio
 episodes and seed), so a report reads it instead of evaluating again. Writes
 ``<out>/table1.json`` and ``<out>/table1.png`` and returns the markdown table, next to the
 paper's SAC and QT-Opt baselines.
+
+``policy="cnn"`` trains the same-budget convolutional baseline instead (``dcs-<task>-cnn``,
+run directories ``dcs-<task>-cnn-seed<k>``, the same ES, frames and controller) and reports it
+beside the IAP runs of the same tasks found in ``out`` (``table1-cnn.json``/``.png``, section
+``table1-cnn``), parameter counts included.
 """
 
 from __future__ import annotations
@@ -44,20 +49,39 @@ EVAL_SEED = 2021  # not a training seed: evaluation episodes are fresh draws
 EVAL_FILE = "eval.json"
 
 
-def preset(task: str) -> str:
-    return f"dcs-{task}"
+POLICIES = {"iap": "", "cnn": "-cnn"}
+"""The policies a table can train, and their presets' suffix (``dcs-<task><suffix>``)."""
 
 
-def check(tasks: tuple[str, ...], overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
+def preset(task: str, policy: str = "iap") -> str:
+    return f"dcs-{task}{POLICIES[policy]}"
+
+
+def parameters(config: configs.TrainConfig) -> int:
+    """The trainable parameters of a ``dcs-*`` config's policy (built for its RGB frame)."""
+    import jax
+
+    from iap_mjx import envs, policies
+
+    env_config = envs.check(config.env.name, **dict(config.env.overrides))
+    action_size = envs.make(config.env.name).action_size  # the state env's: pixels do not change it
+    policy = policies.make(config.policy.kind, (env_config.height, env_config.width, 3), action_size,
+                           **dict(config.policy.options))
+    return policies.param_count(policy.init(jax.random.PRNGKey(0)))
+
+
+def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap") -> dict[str, configs.TrainConfig]:
     """Every task's config and every condition's env, validated before anything compiles."""
     from iap_mjx import envs
 
+    if policy not in POLICIES:
+        raise ValueError(f"policy {policy!r}: choose from {', '.join(POLICIES)}")
     unknown = [task for task in tasks if task not in TASKS]
     if unknown or not tasks:
         raise ValueError(f"tasks {list(tasks)}: choose from {', '.join(TASKS)}")
     result = {}
     for task in tasks:
-        config = configs.apply_overrides(configs.get(preset(task)), overrides)
+        config = configs.apply_overrides(configs.get(preset(task, policy)), overrides)
         if config.run.eval_episodes < 1:
             raise ValueError("table1 reads the evaluation return: run.eval_episodes must be >= 1")
         for condition in CONDITIONS.values():
@@ -90,71 +114,93 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
 
 
 def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool,
-            episodes: int, export: Path | None = None) -> dict[str, Any] | None:
+            episodes: int, export: Path | None = None, policy: str = "iap") -> dict[str, Any] | None:
     """One run: its curve, env steps, seconds, and (finished runs) every condition's returns;
-    with ``export``, its newest checkpoint and files are copied to ``export/<task>-seed<k>``."""
+    with ``export``, its newest checkpoint and files are copied to
+    ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     from iap_mjx.es import checkpoint
     from iap_mjx.es.metrics_log import read_history
     from iap_mjx.reproduce import trained_curve
 
-    run_dir = out_dir / f"{preset(task)}-seed{seed}"
+    run_dir = out_dir / f"{preset(task, policy)}-seed{seed}"
     trained = trained_curve(config, seed, run_dir, train=train)
     if trained is None or not trained[0]:
         return None
     curve, seconds = trained
     history = read_history(run_dir, up_to=len(curve))
-    row = {"task": task, "seed": seed, "curve": curve, "seconds": seconds,
+    row = {"task": task, "policy": policy, "parameters": parameters(config), "seed": seed, "curve": curve,
+           "seconds": seconds,
            "iterations": len(curve), "env_steps": int(history[-1]["env_steps"]) if history else 0,
            "finished": len(curve) == config.run.iterations}
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
         row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes)
     if export is not None:
-        checkpoint.export_latest(run_dir, export / f"{task}-seed{seed}")
+        checkpoint.export_latest(run_dir, export / f"{task}{POLICIES[policy]}-seed{seed}")
     return row
 
 
 def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
                      episodes: int = 20, train: bool = True, tasks: tuple[str, ...] = TASKS,
-                     results: str | Path | None = None, export: str | Path | None = None) -> str:
+                     results: str | Path | None = None, export: str | Path | None = None,
+                     policy: str = "iap") -> str:
     """Trains (``train=False``: only reads) every task and seed, evaluates the finished runs,
-    writes ``table1.json`` / ``table1.png`` in ``out_dir`` and returns the markdown table;
-    ``results``: a markdown file (RESULTS.md) whose ``table1`` section is rewritten with it;
-    ``export``: a folder (e.g. ``pretrained/dcs``, tracked by git) that receives each run's
-    newest checkpoint, config and metrics as ``<task>-seed<k>`` as soon as the run is trained
-    (finished or not), so trained policies ship and unfinished runs survive a lost ``out_dir``."""
+    writes ``<name>.json`` / ``<name>.png`` in ``out_dir`` (``name``: ``table1``, or
+    ``table1-cnn`` for ``policy="cnn"``) and returns the markdown table; ``results``: a
+    markdown file (RESULTS.md) whose ``<name>`` section is rewritten with it; ``export``: a
+    folder (e.g. ``pretrained/dcs``, tracked by git) that receives each run's newest checkpoint,
+    config and metrics as ``<task><suffix>-seed<k>`` as soon as the run is trained (finished or
+    not), so trained policies ship and unfinished runs survive a lost ``out_dir``."""
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
-    task_configs = check(tuple(tasks), tuple(overrides))
+    task_configs = check(tuple(tasks), tuple(overrides), policy)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     export = None if export is None else Path(export)
     rows = [row for task, config in task_configs.items() for seed in range(seeds)
             if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes,
-                               export=export)) is not None]
+                               export=export, policy=policy)) is not None]
     if not rows:
-        raise ValueError(f"no table1 runs in {out_dir} to report")
-    (out_dir / "table1.json").write_text(json.dumps(rows, indent=1))
-    png = plot(rows, out_dir / "table1.png")
-    markdown = table(rows, seeds=seeds)
+        raise ValueError(f"no table1 {policy} runs in {out_dir} to report")
+    name = "table1" + POLICIES[policy]
+    (out_dir / f"{name}.json").write_text(json.dumps(rows, indent=1))
+    png = plot(rows, out_dir / f"{name}.png")
+    if policy == "iap":
+        markdown = table(rows, seeds=seeds)
+    else:  # beside the IAP runs of the same tasks, read (and evaluated) but never trained here
+        iap = [row for task, config in check(tuple(tasks), tuple(overrides)).items() for seed in range(seeds)
+               if (row := run_row(task, config, seed, out_dir, train=False, episodes=episodes)) is not None]
+        markdown = comparison(rows, iap, seeds=seeds)
     if results is not None:
-        write_results(Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes)
+        write_results(Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes,
+                      policy=policy)
     return markdown
 
 
 def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...],
-                  episodes: int) -> None:
-    """The ``table1`` section of ``path``: the command, the table and the curves."""
+                  episodes: int, policy: str = "iap") -> None:
+    """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
+    curves."""
     from iap_mjx.viz.sections import image_link, write_section
 
+    name = "table1" + POLICIES[policy]
     command = " ".join(["iap-mjx reproduce table1", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
-                        f"--out {png.parent}", f"--results {path.name}"])
+                        *([f"--policy {policy}"] if policy != "iap" else []), f"--out {png.parent}",
+                        f"--results {path.name}"])
     image = image_link(png, path)
-    body = (f"## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
-            f"the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
-            "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
-            f"Stone et al. 2021).\n\n![table1]({image})\n\n{markdown}\n")
-    write_section(path, "table1", body, title="# Results")
+    if policy == "iap":
+        title = ("## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
+                 "the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
+                 "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
+                 "Stone et al. 2021).")
+    else:
+        title = ("## Table 1's baseline: convolutions against attention, the same budget\n\nCommand: "
+                 "`{command}`. The `dcs-<task>-cnn` presets: the same frames, ES setting, iterations and "
+                 "LSTM(16) controller as `dcs-<task>`, with three convolutions, a max pool and a dense "
+                 "embedding in place of the attention. Return: the final centre's mean over {episodes} "
+                 "evaluation episodes per seed; mean ± std over seeds.")
+    body = f"{title.format(command=command, episodes=episodes)}\n\n![{name}]({image})\n\n{markdown}\n"
+    write_section(path, name, body, title="# Results")
 
 
 def _mean_std(values: list[float]) -> str:
@@ -166,8 +212,9 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
     (mean ± std over seeds; the per-seed means of ``episodes`` evaluation episodes), the other
     conditions, env steps and wall-clock; then the bar's summary."""
     lines = ["| task | SAC | QT-Opt | IAP (ours), train condition | per seed | held-out backgrounds | "
-             "dynamic | no distraction | seeds finished | iterations | env steps per run | wall-clock per run (s) |",
-             "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "dynamic | no distraction | seeds finished | iterations | env steps per run | wall-clock per run (s) "
+             "| parameters |",
+             "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     met, means = 0, {}
     for task in TASKS:
         task_rows = [row for row in rows if row["task"] == task]
@@ -184,13 +231,39 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
             f"{_mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
             f"{_mean_std(per['held-out'])} | {_mean_std(per['dynamic'])} | {_mean_std(per['none'])} | "
             f"{len(done)} of {seeds} | {max(row['iterations'] for row in task_rows)} | "
-            f"{max(row['env_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} |")
+            f"{max(row['env_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} | "
+            f"{task_rows[0]['parameters']:,} |")
     scored = [task for task in BASELINES if task in means]
     lines.append("")
     lines.append(f"At or above the better of SAC and QT-Opt: {met} of {len(scored)} finished tasks (bar: 4 of 5).")
     if len(means) == len(TASKS):
         lines.append(f"Six-task mean: {np.mean(list(means.values())):.1f} (bar: {SUITE_BEST_MEAN:.0f}, the suite "
                      f"paper's best, at {SUITE_BEST_STEPS:,} env steps).")
+    return "\n".join(lines)
+
+
+def comparison(cnn: list[dict[str, Any]], iap: list[dict[str, Any]], *, seeds: int) -> str:
+    """Markdown: per task, the parameter counts and each policy's returns in the training
+    condition and on held-out backgrounds (mean ± std over finished seeds), then the CNN's in
+    the other two conditions."""
+    lines = ["| task | IAP parameters | IAP, train | IAP, held-out | CNN parameters | CNN, train | CNN, held-out "
+             "| CNN, dynamic | CNN, no distraction | seeds finished (IAP, CNN) | iterations |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|"]
+    for task in TASKS:
+        ours = [row for row in cnn if row["task"] == task]
+        if not ours:
+            continue
+        theirs = [row for row in iap if row["task"] == task]
+        per = {policy: {name: [float(np.mean(row["conditions"][name])) for row in task_rows if row["finished"]]
+                        for name in CONDITIONS}
+               for policy, task_rows in (("iap", theirs), ("cnn", ours))}
+        counts = [f"{task_rows[0]['parameters']:,}" if task_rows else "-" for task_rows in (theirs, ours)]
+        finished = [sum(row["finished"] for row in task_rows) for task_rows in (theirs, ours)]
+        lines.append(
+            f"| {task} | {counts[0]} | {_mean_std(per['iap']['train'])} | {_mean_std(per['iap']['held-out'])} | "
+            f"{counts[1]} | {_mean_std(per['cnn']['train'])} | {_mean_std(per['cnn']['held-out'])} | "
+            f"{_mean_std(per['cnn']['dynamic'])} | {_mean_std(per['cnn']['none'])} | "
+            f"{finished[0]} and {finished[1]} of {seeds} | {max(row['iterations'] for row in ours)} |")
     return "\n".join(lines)
 
 

@@ -7,6 +7,8 @@ frames, and never touching the physics."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,7 +27,35 @@ SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reach
 def test_every_suite_task_has_a_preset():
     assert sorted(distraction.TASKS) == sorted(SUITE)
     names = [name for name in configs.names() if name.startswith("dcs-")]
-    assert sorted(names) == sorted([f"dcs-{t}" for t in SUITE] + [f"dcs-{t}-quick" for t in SUITE])
+    assert sorted(names) == sorted(f"dcs-{t}{suffix}" for t in SUITE for suffix in ("", "-quick", "-cnn", "-cnn-quick"))
+
+
+@pytest.mark.parametrize("task", sorted(SUITE))
+def test_cnn_preset_is_the_iap_preset_with_convolutions_for_attention(task):
+    """The baseline differs from ``dcs-<task>`` in its features alone: the same frames, ES, run
+    and controller (an LSTM(16)); convolutions that shrink 240x320 to a 4x5 grid of 16 channels."""
+    iap, cnn = configs.get(f"dcs-{task}"), configs.get(f"dcs-{task}-cnn")
+    assert (cnn.env, cnn.es, cnn.run) == (iap.env, iap.es, iap.run)
+    assert configs.get(f"dcs-{task}-cnn-quick").env == configs.get(f"dcs-{task}-quick").env
+    action_size = envs.make(task).action_size
+    baseline = policies.make(cnn.policy.kind, (240, 320, 3), action_size, **dict(cnn.policy.options))
+    attention = policies.make(iap.policy.kind, (240, 320, 3), action_size, **dict(iap.policy.options))
+    assert baseline.head == dataclasses.replace(attention.head, input_size=16, owner="ConvNetPolicy")
+    assert baseline.body.pooled_grid == (4, 5) and baseline.body.flat_size == 4 * 5 * 16
+    conv = (27 * 8 + 8) + (72 * 16 + 16) + (144 * 16 + 16)
+    head = (16 + 16) * 64 + 64 + 16 * action_size + action_size
+    assert policies.param_count(baseline.init(jax.random.PRNGKey(0))) == conv + (320 * 16 + 16) + head
+
+
+@pytest.mark.slow
+def test_cnn_quick_preset_trains_from_the_command_line(tmp_path):
+    from iap_mjx import cli, es
+
+    run_dir = tmp_path / "run"
+    assert cli.main(["train", "dcs-cartpole-swingup-cnn-quick", "env.height=48", "env.width=64", "run.iterations=1",
+                     "--run-dir", str(run_dir), "--no-progress"]) == 0
+    result = es.load_run(run_dir)
+    assert result.config.policy.kind == "convnet" and np.isfinite(result.history[-1]["eval_return"])
 
 
 @pytest.mark.parametrize("task", sorted(SUITE))

@@ -108,3 +108,74 @@ def test_bad_pixel_policy_settings_fail_early():
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm", hidden_sizes=())
     with pytest.raises(ValueError, match="CNNPolicy.channels"):
         policies.make("cnn", SHAPE, 2, channels=())
+
+
+def _lstm_reference(params, features, hidden, cell):
+    """The LSTM equations in numpy (gates in the order input, forget, candidate, output)."""
+    w, b = np.asarray(params["cell"]["w"], np.float64), np.asarray(params["cell"]["b"], np.float64)
+    gates = np.concatenate([features, hidden]) @ w + b
+    i, f, g, o = np.split(gates, 4)
+    sigmoid = lambda x: 1 / (1 + np.exp(-x))  # noqa: E731
+    cell = sigmoid(f) * cell + sigmoid(i) * np.tanh(g)
+    hidden = sigmoid(o) * np.tanh(cell)
+    out = params["out"][0]
+    return np.tanh(hidden @ np.asarray(out["w"], np.float64) + np.asarray(out["b"], np.float64)), hidden, cell
+
+
+def test_lstm_controller_is_the_lstm_equations():
+    from iap_mjx.policies.controller import Controller
+
+    head = Controller("lstm", 7, 3, (5,))
+    params = head.init(jax.random.PRNGKey(3))
+    carry, hidden, cell = head.initial_carry(), np.zeros(5), np.zeros(5)
+    for t in range(4):
+        features = np.asarray(jax.random.normal(jax.random.PRNGKey(10 + t), (7,)))
+        action, carry = jax.jit(head.apply)(params, features, carry)
+        expected, hidden, cell = _lstm_reference(params, features, hidden, cell)
+        np.testing.assert_allclose(action, expected, rtol=0, atol=1e-5)
+        np.testing.assert_allclose(carry[0], hidden, rtol=0, atol=1e-5)
+
+
+def _conv_same_reference(x, w, b, stride):
+    """XLA's "SAME" strided convolution in numpy: ``ceil(n / stride)`` outputs per axis, the
+    padding split with the smaller half first."""
+    f = w.shape[0]
+    out_shape = [-(-n // stride) for n in x.shape[:2]]
+    pads = [max((o - 1) * stride + f - n, 0) for o, n in zip(out_shape, x.shape[:2])]
+    padded = np.pad(x, ((pads[0] // 2, pads[0] - pads[0] // 2), (pads[1] // 2, pads[1] - pads[1] // 2), (0, 0)))
+    out = np.zeros((*out_shape, w.shape[-1]))
+    for i in range(out_shape[0]):
+        for j in range(out_shape[1]):
+            window = padded[i * stride:i * stride + f, j * stride:j * stride + f]
+            out[i, j] = np.tensordot(window, w, axes=3) + b
+    return out
+
+
+def test_convnet_policy_is_convolutions_pool_embedding_and_the_iap_controller():
+    """The baseline's features against a numpy convolution, ReLU and max pool; its controller is
+    IAP's (the same ``Controller``), its parameter count the sum of its layers."""
+    shape = (24, 40, 3)
+    policy = policies.make("convnet", shape, 2, channels=[4, 6], strides=[2, 3], pool=2, embedding_size=5,
+                           hidden_sizes=[7])
+    params = policy.init(jax.random.PRNGKey(0))
+    image = np.asarray(jax.random.uniform(jax.random.PRNGKey(1), shape))
+    x = image
+    for layer, stride in zip(params["conv"], (2, 3)):
+        x = np.maximum(_conv_same_reference(x, np.asarray(layer["w"]), np.asarray(layer["b"]), stride), 0)
+    rows, cols = x.shape[0] // 2, x.shape[1] // 2  # 24x40 -> 12x20 -> 4x7 -> pooled 2x3
+    pooled = x[:2 * rows, :2 * cols].reshape(rows, 2, cols, 2, -1).max(axis=(1, 3))
+    np.testing.assert_allclose(policy.body.embed(params["conv"], jnp.asarray(image)), pooled.ravel(), atol=1e-5)
+    embed = params["embed"][0]
+    features = np.tanh(pooled.ravel() @ np.asarray(embed["w"]) + np.asarray(embed["b"]))
+    action, carry = jax.jit(policy.apply)(params, jnp.asarray(image), policy.initial_state(None))
+    expected, hidden, _ = _lstm_reference(params["controller"], features, np.zeros(7), np.zeros(7))
+    np.testing.assert_allclose(action, expected, atol=1e-5)
+    np.testing.assert_allclose(carry[0], hidden, atol=1e-5)
+    iap = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm", hidden_sizes=(7,))
+    assert type(policy.head) is type(iap.head) and policy.head.kind == iap.head.kind == "lstm"
+    conv = (27 * 4 + 4) + (9 * 4 * 6 + 6)
+    assert param_count(params) == conv + (2 * 3 * 6 * 5 + 5) + ((5 + 7) * 28 + 28) + (7 * 2 + 2)
+    with pytest.raises(ValueError, match="ConvNetPolicy.controller"):
+        policies.make("convnet", shape, 2, strides=(2, 2, 1), controller="gru")
+    with pytest.raises(ValueError, match="shrinks to nothing"):
+        policies.make("convnet", (8, 8, 3), 2, strides=(4, 4, 2))

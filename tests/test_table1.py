@@ -94,7 +94,7 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
 
 def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
     def rows(task, value):
-        return [{"task": task, "seed": s, "curve": [value], "seconds": 1.0, "iterations": 1, "env_steps": 10,
+        return [{"task": task, "parameters": 1, "seed": s, "curve": [value], "seconds": 1.0, "iterations": 1, "env_steps": 10,
                  "finished": True, "conditions": {name: [value] for name in table1.CONDITIONS}} for s in range(3)]
 
     markdown = table1.table(rows("cartpole-swingup", 196.0) + rows("walker-walk", 110.0)
@@ -126,3 +126,36 @@ def test_export_copies_the_newest_checkpoint_and_the_run_files(tmp_path, monkeyp
     assert np.array_equal(checkpoint.restore(copied, {"x": np.ones(2)})[1]["x"], np.full(2, 3.0))
     assert checkpoint.export_latest(tmp_path / "nothing", tmp_path / "dest") is None
     assert not (tmp_path / "dest").exists()
+
+
+def test_cnn_baseline_is_reported_beside_the_iap_runs_with_both_parameter_counts(tmp_path, monkeypatch):
+    """``--policy cnn``: its own run directories and section, the IAP runs of the same tasks
+    read beside it (never trained by it), and each policy's parameter count, the sum of its
+    layers' shapes."""
+    overrides = ("run.iterations=2",)
+    for policy, returns in (("iap", [150.0, 160.0]), ("cnn", [100.0, 120.0])):
+        config = configs.apply_overrides(configs.get(table1.preset("cartpole-swingup", policy)), overrides)
+        _fake_run(tmp_path / f"{table1.preset('cartpole-swingup', policy)}-seed0", config, 2, returns)
+
+    def evaluate_run(run_dir, *, episodes, seed, overrides):
+        return np.full(episodes, 100.0 if "-cnn-" in run_dir.name else 160.0) + 10 * len(overrides)
+
+    from iap_mjx import es
+
+    monkeypatch.setattr(es, "evaluate_run", evaluate_run)
+    results = tmp_path / "RESULTS.md"
+    markdown = table1.reproduce_table1(tmp_path, seeds=1, overrides=overrides, episodes=2, train=False,
+                                       tasks=("cartpole-swingup",), results=results, policy="cnn",
+                                       export=tmp_path / "pretrained")
+    iap_count = 2 * 12 * 4 + (20 + 16) * 64 + 64 + 16 + 1  # W_Q, W_K (12 -> 4); LSTM(16) on 10 centres
+    cnn_count = (27 * 8 + 8) + (72 * 16 + 16) + (144 * 16 + 16) + (320 * 16 + 16) + (16 + 16) * 64 + 64 + 16 + 1
+    row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
+    assert row == (f"| cartpole-swingup | {iap_count:,} | 160.0 ± 0.0 | 170.0 ± 0.0 | {cnn_count:,} | 100.0 ± 0.0 | "
+                   "110.0 ± 0.0 | 110.0 ± 0.0 | 110.0 ± 0.0 | 1 and 1 of 1 | 2 |")
+    assert (tmp_path / "table1-cnn.png").stat().st_size > 0 and not (tmp_path / "table1.png").exists()
+    assert [r["policy"] for r in json.loads((tmp_path / "table1-cnn.json").read_text())] == ["cnn"]
+    text = results.read_text()
+    assert "<!-- BEGIN table1-cnn -->" in text and "--policy cnn" in text and row in text
+    assert sorted(p.name for p in (tmp_path / "pretrained").iterdir()) == ["cartpole-swingup-cnn-seed0"]
+    with pytest.raises(ValueError, match="policy 'rnn': choose from iap, cnn"):
+        table1.reproduce_table1(tmp_path, policy="rnn")

@@ -7,7 +7,8 @@ features ``(m, r) = (10, 5)``; the action repeat of PlaNet/DrQ-style benchmarks 
 OpenES with a population of 64, Adam at learning rate 0.1 and sigma 0.1 (:data:`DCS_ES`):
 one setting for every task and seed, chosen on short runs of cartpole-swingup and
 cheetah-run (``RESULTS.md``, section ``dcs-tuning``, has every run that informed it).
-``dcs-<task>-quick`` is the same policy on 10-step episodes, a population of 8 and small
+``dcs-<task>-cnn`` swaps the attention for a small convolutional network (:data:`CONVNET`)
+and keeps everything else. ``dcs-<task>-quick`` is the same policy on 10-step episodes, a population of 8 and small
 background frames: a smoke run for tests.
 """
 
@@ -23,6 +24,10 @@ TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", 
 
 IAP_NATIVE: Options = (("patch_size", 2), ("top_l", 10), ("d_qk", 4), ("kernel", "hybrid"), ("m", 10),
                        ("r", 5), ("controller", "lstm"), ("hidden_sizes", (16,)))
+CONVNET: Options = (("channels", (8, 16, 16)), ("strides", (4, 4, 2)), ("embedding_size", 16),
+                    ("controller", "lstm"), ("hidden_sizes", (16,)))
+"""The convolutional baseline (``ConvNetPolicy``): the same controller as IAP's, fed by three
+3x3 convolutions (strides 4, 4, 2), a 2x2 max pool and a 16-unit embedding."""
 
 
 DCS_ES = dataclasses.replace(PIXEL_ES, learning_rate=0.1, sigma=0.1)
@@ -45,5 +50,13 @@ for _task in TASKS:
                     _task, "iap", native(_task), IAP_NATIVE, DCS_ES, PIXEL_RUN))
     register(Preset(f"dcs-{_task}-quick", f"dcs-{_task} on 10-step episodes, population 8, 2 iterations (smoke)",
                     _task, "iap", native(_task, quick=True), IAP_NATIVE,
+                    dataclasses.replace(DCS_ES, population_size=8),
+                    RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8)))
+    register(Preset(f"dcs-{_task}-cnn",
+                    f"dcs-{_task} with the convolutional baseline in place of attention (3 conv 3x3, "
+                    "strides 4, 4, 2, 2x2 max pool, dense 16 -> LSTM(16)); the same frames and ES",
+                    _task, "convnet", native(_task), CONVNET, DCS_ES, PIXEL_RUN))
+    register(Preset(f"dcs-{_task}-cnn-quick", f"dcs-{_task}-cnn on 10-step episodes, population 8, 2 iterations "
+                    "(smoke)", _task, "convnet", native(_task, quick=True), CONVNET,
                     dataclasses.replace(DCS_ES, population_size=8),
                     RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8)))

@@ -1,6 +1,7 @@
 """Policies: observation -> action (linear and MLP over states; IAP and CNN over pixels; PMTG,
 a trajectory generator modulated by a linear policy, for the quadruped; the hierarchical
-quadruped policy, a camera high level over the PMTG low level).
+quadruped policy, a camera high level over the PMTG low level; ``convnet``, the convolutional
+baseline of the Distracting Control experiments).
 
 ``make(kind, observation_shape, action_size, **options)`` builds a policy by name;
 ``names()`` lists the kinds; ``register(kind, factory)`` adds one (the IAP policies do).
@@ -14,7 +15,7 @@ from typing import Any, Callable
 
 from iap_mjx.policies.attention import CNNPolicy, IAPPolicy, make_cnn_policy, make_iap_policy
 from iap_mjx.policies.base import Policy, param_count
-from iap_mjx.policies.convnet import ConvNet
+from iap_mjx.policies.convnet import ConvNet, ConvNetPolicy, make_convnet_policy
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
@@ -66,8 +67,9 @@ register(
 
 register("iap", make_iap_policy)
 register("cnn", make_cnn_policy)
+register("convnet", make_convnet_policy)
 register("pmtg", make_pmtg_policy)
 register("hierarchical", make_hierarchical_policy)
 
-__all__ = ["CNNPolicy", "ConvNet", "HierarchicalPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "PMTGPolicy",
+__all__ = ["CNNPolicy", "ConvNet", "ConvNetPolicy", "HierarchicalPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "PMTGPolicy",
            "Policy", "make", "names", "param_count", "register"]

@@ -21,11 +21,9 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive, check_sizes
+from iap_mjx.policies.base import check_positive, check_sizes
+from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
-
-CONTROLLERS = ("linear", "mlp", "lstm")
-
 
 def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
     """``(pixels (H, W, C), state (n,) or None)`` from an array or a ``{"pixels", "state"}`` dict."""
@@ -76,12 +74,10 @@ class IAPPolicy:
 
     def __post_init__(self):
         check_positive("IAPPolicy", "action_size", self.action_size)
-        check_choice("IAPPolicy", "controller", self.controller, CONTROLLERS)
-        check_choice("IAPPolicy", "activation", self.activation, ACTIVATIONS)
-        check_sizes("IAPPolicy", "hidden_sizes", self.hidden_sizes, non_empty=self.controller == "lstm")
         if not isinstance(self.state_size, int) or self.state_size < 0:
             raise ValueError(f"IAPPolicy.state_size = {self.state_size!r} must be a non-negative int")
         IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
+        _ = self.head  # builds the controller, which checks its settings
 
     @property
     def layer(self) -> IAPAttention:
@@ -95,24 +91,16 @@ class IAPPolicy:
         patches = top_l * self.layer.patch_dim if self.with_patches else 0
         return 2 * top_l + patches + self.state_size
 
-    def init(self, key: jax.Array) -> dict[str, Any]:
-        """``{"attention": AttentionParams, "controller": ...}``.
+    @property
+    def head(self) -> Controller:
+        """The controller over :attr:`feature_size` features."""
+        return Controller(self.controller, self.feature_size, self.action_size, self.hidden_sizes,
+                          self.activation, owner="IAPPolicy")
 
-        Linear/MLP: a list of dense layers. LSTM: ``{"cell": {"w": (n_in + h, 4h), "b": (4h,)},
-        "out": [dense layer h -> action]}``.
-        """
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"attention": AttentionParams, "controller": Controller params}``."""
         attention_key, controller_key = jax.random.split(key)
-        params = {"attention": self.layer.init(attention_key)}
-        if self.controller == "lstm":
-            cell_key, out_key = jax.random.split(controller_key)
-            hidden = self.hidden_sizes[0]
-            (cell,) = init_dense_layers(cell_key, (self.feature_size + hidden, 4 * hidden))
-            params["controller"] = {"cell": cell, "out": init_dense_layers(out_key, (hidden, self.action_size))}
-        else:
-            sizes = (self.feature_size, *(self.hidden_sizes if self.controller == "mlp" else ()),
-                     self.action_size)
-            params["controller"] = init_dense_layers(controller_key, sizes)
-        return params
+        return {"attention": self.layer.init(attention_key), "controller": self.head.init(controller_key)}
 
     def initial_state(self, key: jax.Array):
         """The episode's random projections (fixed seed unless ``redraw_projections``); with an
@@ -121,8 +109,7 @@ class IAPPolicy:
             key = jax.random.PRNGKey(self.projection_seed)
         projections = self.layer.draw_projections(key)
         if self.controller == "lstm":
-            zeros = jnp.zeros((self.hidden_sizes[0],), jnp.float32)
-            return projections, (zeros, zeros)
+            return projections, self.head.initial_carry()
         return projections
 
     def features(self, params: dict[str, Any], obs: Any, projections) -> tuple[jax.Array, Any]:
@@ -140,17 +127,12 @@ class IAPPolicy:
         """One control step: ``obs`` -> ``(action (action_size,), policy_state)``."""
         if self.controller != "lstm":
             features, _ = self.features(params, obs, policy_state)
-            out = apply_dense_layers(params["controller"], features, ACTIVATIONS[self.activation])
-            return jnp.tanh(out), policy_state
-        projections, (hidden, cell) = policy_state
+            action, _ = self.head.apply(params["controller"], features, ())
+            return action, policy_state
+        projections, carry = policy_state
         features, _ = self.features(params, obs, projections)
-        layer = params["controller"]["cell"]
-        gates = jnp.concatenate([features, hidden]) @ layer["w"] + layer["b"]
-        in_gate, forget_gate, candidate, out_gate = jnp.split(gates, 4)
-        cell = jax.nn.sigmoid(forget_gate) * cell + jax.nn.sigmoid(in_gate) * jnp.tanh(candidate)
-        hidden = jax.nn.sigmoid(out_gate) * jnp.tanh(cell)
-        out = apply_dense_layers(params["controller"]["out"], hidden, jnp.tanh)
-        return jnp.tanh(out), (projections, (hidden, cell))
+        action, carry = self.head.apply(params["controller"], features, carry)
+        return action, (projections, carry)
 
     def select(self, params: dict[str, Any], obs: Any, policy_state):
         """The attention layer's ``Selection`` for ``obs`` (for videos and figures)."""

@@ -9,6 +9,9 @@ a 16-unit ``tanh`` layer; a linear output clipped to ``[-1, 1]``. The pool is lo
 the flattened 3x4 grid keeps *where* in the image a wall is, which is what steering needs (a
 global average, as :class:`iap_mjx.policies.attention.CNNPolicy` takes, keeps only *what*).
 With 5 outputs (a duration and a 4-d latent command) that is 6,885 parameters.
+
+:class:`ConvNetPolicy` (policy kind ``"convnet"``) is the same convolutions and pool as a
+flat policy on the Distracting Control Suite, its embedding read by IAP's controller.
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.attention import split_observation
+from iap_mjx.policies.attention import pixel_shape, split_observation
 from iap_mjx.policies.base import check_positive, check_sizes
+from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 
 
@@ -83,10 +87,7 @@ class ConvNet:
         """``{"conv": [{"w": (f, f, in, out), "b": (out,)}], "dense": [(flat, hidden), (hidden,
         output)]}``: LeCun-normal weights, zero biases."""
         keys = jax.random.split(key, len(self.channels) + 1)
-        ins = (self.image_shape[2], *self.channels[:-1])
-        f = self.filter_size
-        conv = [{"w": jax.random.normal(k, (f, f, c_in, c_out), jnp.float32) / math.sqrt(f * f * c_in),
-                 "b": jnp.zeros((c_out,), jnp.float32)} for k, c_in, c_out in zip(keys, ins, self.channels)]
+        conv = init_convolutions(keys[:-1], self.image_shape[2], self.channels, self.filter_size)
         dense = init_dense_layers(keys[-1], (self.flat_size, self.hidden_size, self.output_size))
         return {"conv": conv, "dense": dense}
 
@@ -95,12 +96,11 @@ class ConvNet:
         del key
         return ()
 
-    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
-        """``obs`` (pixels ``(H, W, C)`` or ``{"pixels", "state"}``) -> ``(output
-        (output_size,) in [-1, 1], policy_state)``."""
+    def embed(self, conv: list[dict[str, jax.Array]], obs: Any) -> jax.Array:
+        """The convolutions, the pool and any state: ``(flat_size,)``."""
         pixels, state = split_observation(obs)
         x = pixels[None]
-        for layer, stride in zip(params["conv"], self.strides):
+        for layer, stride in zip(conv, self.strides):
             x = jax.lax.conv_general_dilated(x, layer["w"], (stride, stride), "SAME",
                                              dimension_numbers=("NHWC", "HWIO", "NHWC"))
             x = jax.nn.relu(x + layer["b"])
@@ -109,5 +109,96 @@ class ConvNet:
         features = jnp.ravel(x)
         if self.state_size:
             features = jnp.concatenate([features, state])
-        out = apply_dense_layers(params["dense"], features, jnp.tanh)
+        return features
+
+    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
+        """``obs`` (pixels ``(H, W, C)`` or ``{"pixels", "state"}``) -> ``(output
+        (output_size,) in [-1, 1], policy_state)``."""
+        out = apply_dense_layers(params["dense"], self.embed(params["conv"], obs), jnp.tanh)
         return jnp.clip(out, -1.0, 1.0), policy_state
+
+
+def init_convolutions(keys: jax.Array, in_channels: int, channels: tuple[int, ...],
+                      filter_size: int) -> list[dict[str, jax.Array]]:
+    """One ``{"w": (f, f, in, out), "b": (out,)}`` per entry of ``channels`` (one key each):
+    LeCun-normal weights, zero biases."""
+    ins = (in_channels, *channels[:-1])
+    f = filter_size
+    return [{"w": jax.random.normal(k, (f, f, c_in, c_out), jnp.float32) / math.sqrt(f * f * c_in),
+             "b": jnp.zeros((c_out,), jnp.float32)} for k, c_in, c_out in zip(keys, ins, channels)]
+
+
+@dataclasses.dataclass(frozen=True)
+class ConvNetPolicy:
+    """The convolutional baseline of the Distracting Control experiments: :class:`ConvNet`'s
+    convolutions and pool -> a dense ``tanh`` embedding -> the IAP policy's controller.
+
+    With the same controller as :class:`~iap_mjx.policies.attention.IAPPolicy` (an LSTM in the
+    ``dcs-*`` presets), a comparison of the two differs in the features alone. The defaults
+    suit the suite's 240x320 frames: 3x3 filters with 8, 16 and 16 channels at strides 4, 4 and
+    2 (240x320 -> 60x80 -> 15x20 -> 8x10), a 2x2 max pool (4x5x16 = 320 numbers, the grid
+    keeping where things are), a 16-unit embedding.
+
+    Attributes:
+      image_shape: ``(H, W, C)``; action_size: actions in ``[-1, 1]``.
+      channels, strides, filter_size, pool: :class:`ConvNet`'s.
+      embedding_size: the dense ``tanh`` layer between the pool and the controller.
+      controller, hidden_sizes, activation: the :class:`~iap_mjx.policies.controller.Controller`.
+      state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
+    """
+
+    image_shape: tuple[int, int, int]
+    action_size: int
+    channels: tuple[int, ...] = (8, 16, 16)
+    strides: tuple[int, ...] = (4, 4, 2)
+    filter_size: int = 3
+    pool: int = 2
+    embedding_size: int = 16
+    controller: str = "lstm"
+    hidden_sizes: tuple[int, ...] = (16,)
+    activation: str = "tanh"
+    state_size: int = 0
+
+    def __post_init__(self):
+        check_positive("ConvNetPolicy", "action_size", self.action_size)
+        _ = self.body, self.head  # build both, which checks their settings
+
+    @property
+    def body(self) -> ConvNet:
+        """The convolutions and pool (its ``output_size`` unused: the embedding is ours)."""
+        return ConvNet(tuple(self.image_shape), self.embedding_size, self.channels, self.strides,
+                       self.filter_size, self.pool, self.embedding_size, self.state_size)
+
+    @property
+    def head(self) -> Controller:
+        return Controller(self.controller, self.embedding_size, self.action_size, self.hidden_sizes,
+                          self.activation, owner="ConvNetPolicy")
+
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"conv": [...], "embed": [dense (flat, embedding)], "controller": ...}``."""
+        conv_key, embed_key, head_key = jax.random.split(key, 3)
+        body = self.body
+        conv = init_convolutions(jax.random.split(conv_key, len(self.channels)), self.image_shape[2],
+                                 self.channels, self.filter_size)
+        return {"conv": conv, "embed": init_dense_layers(embed_key, (body.flat_size, self.embedding_size)),
+                "controller": self.head.init(head_key)}
+
+    def initial_state(self, key: jax.Array):
+        """The controller's carry (``(h, c)`` zeros for an LSTM, else ``()``)."""
+        del key
+        return self.head.initial_carry()
+
+    def apply(self, params: dict[str, Any], obs: Any, policy_state):
+        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``."""
+        (embed,) = params["embed"]
+        features = jnp.tanh(self.body.embed(params["conv"], obs) @ embed["w"] + embed["b"])
+        return self.head.apply(params["controller"], features, policy_state)
+
+
+def make_convnet_policy(observation_shape: Any, action_size: int, **options: Any) -> ConvNetPolicy:
+    """Factory for ``policies.make("convnet", ...)``."""
+    image_shape, state_size = pixel_shape(observation_shape)
+    for name in ("channels", "strides", "hidden_sizes"):
+        if isinstance(options.get(name), list):
+            options[name] = tuple(options[name])
+    return ConvNetPolicy(image_shape, action_size, state_size=state_size, **options)
