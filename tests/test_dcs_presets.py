@@ -15,7 +15,7 @@ import spread
 from dm_control import suite
 
 from iap_mjx import configs, envs, policies
-from iap_mjx.envs import distraction
+from iap_mjx.configs.distraction import TASKS
 
 SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reacher-easy": 4,
          "walker-walk": 2, "finger-spin": 2}
@@ -23,7 +23,7 @@ SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reach
 
 
 def test_every_suite_task_has_a_preset():
-    assert sorted(distraction.TASKS) == sorted(SUITE)
+    assert sorted(TASKS) == sorted(SUITE)
     names = [name for name in configs.names() if name.startswith("dcs-")]
     assert sorted(names) == sorted([f"dcs-{t}" for t in SUITE] + [f"dcs-{t}-quick" for t in SUITE])
 
