@@ -16,6 +16,7 @@ from dm_control import suite
 
 from iap_mjx import configs, envs, policies
 from iap_mjx.configs.distraction import TASKS
+from iap_mjx.configs.presets import ACTION_REPEAT
 
 SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reacher-easy": 4,
          "walker-walk": 2, "finger-spin": 2}
@@ -26,6 +27,12 @@ def test_every_suite_task_has_a_preset():
     assert sorted(TASKS) == sorted(SUITE)
     names = [name for name in configs.names() if name.startswith("dcs-")]
     assert sorted(names) == sorted([f"dcs-{t}" for t in SUITE] + [f"dcs-{t}-quick" for t in SUITE])
+
+
+def test_action_repeat_has_one_entry_per_suite_task():
+    """``ACTION_REPEAT`` (the pixel presets' table) is keyed by the suite's tasks, whose one
+    list is ``configs.distraction.TASKS``."""
+    assert sorted(ACTION_REPEAT) == sorted(TASKS)
 
 
 @pytest.mark.parametrize("task", sorted(SUITE))
