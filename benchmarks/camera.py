@@ -227,12 +227,13 @@ def _per_task(args, mesh, sharding) -> list[dict]:
 def _distraction(args) -> None:
     """Undistracted vs distracted 240x320 camera on each task, one device, same run."""
     from iap_mjx import envs
-    from iap_mjx.envs import backgrounds, distraction
+    from iap_mjx.configs import distraction as dcs
+    from iap_mjx.envs import backgrounds
     from iap_mjx.envs.pixels import with_pixels
 
     tasks = [t for t in DISTRACTION_TASKS if t in envs.names()]
     videos = backgrounds.load("medium")
-    config = distraction.DistractionConfig(difficulty="medium", dynamic=False)
+    config = dcs.DistractionConfig(difficulty="medium", dynamic=False)
     rows = []
     for task in tasks:
         domain, name = task.split("-")

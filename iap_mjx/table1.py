@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.configs.dcs_presets import TASKS
+from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 
 logger = logging.getLogger(__name__)

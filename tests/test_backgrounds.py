@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from iap_mjx.configs import distraction as dcs
 from iap_mjx.envs import backgrounds
 
-EASY = backgrounds.DAVIS17_TRAINING_VIDEOS[:4]
+EASY = dcs.DAVIS17_TRAINING_VIDEOS[:4]
 FRAME_COUNTS = (3, 5, 2, 4)  # of the four easy videos: padding to 5 is exercised
 
 
@@ -91,14 +92,14 @@ def test_davis_loader_reads_both_layouts(tmp_path, layout):
 
 
 def test_davis_levels_take_the_first_videos_of_the_training_list(tmp_path):
-    medium = backgrounds.DAVIS17_TRAINING_VIDEOS[:8]
+    medium = dcs.DAVIS17_TRAINING_VIDEOS[:8]
     _write_davis(tmp_path, medium, (1,) * 8, shape=(6, 6))
     assert backgrounds.load("medium", tmp_path, size=4).names == medium
     assert backgrounds.load("easy", tmp_path, size=4).names == medium[:4]
-    assert len(backgrounds.DAVIS17_TRAINING_VIDEOS) == 60
-    assert len(set(backgrounds.DAVIS17_TRAINING_VIDEOS)) == 60
+    assert len(dcs.DAVIS17_TRAINING_VIDEOS) == 60
+    assert len(set(dcs.DAVIS17_TRAINING_VIDEOS)) == 60
     with pytest.raises(ValueError, match="lacks 52 of the 60") as error:
-        backgrounds.check("hard", tmp_path)
+        dcs.check_backgrounds("hard", tmp_path)
     assert "'walking'" in str(error.value) and "'bear'" not in str(error.value).split("missing")[1].split("]")[0]
 
 
@@ -106,19 +107,19 @@ def test_davis_validation_videos_are_the_references_held_out_list(tmp_path):
     """``videos="val"`` reads the reference's DAVIS17_VALIDATION_VIDEOS (its 30 names as
     distracting_control/background.py lists them; a level takes the first N), none of them a
     training video, and names the validation videos it misses."""
-    val = backgrounds.DAVIS17_VALIDATION_VIDEOS
-    assert len(val) == 30 and len(set(val)) == 30 and not set(val) & set(backgrounds.DAVIS17_TRAINING_VIDEOS)
+    val = dcs.DAVIS17_VALIDATION_VIDEOS
+    assert len(val) == 30 and len(set(val)) == 30 and not set(val) & set(dcs.DAVIS17_TRAINING_VIDEOS)
     assert (val[0], val[9], val[-1]) == ("bike-packing", "dog", "soapbox")
     _write_davis(tmp_path, val[:8], (1,) * 8, shape=(6, 6))
     held_out = backgrounds.load("medium", tmp_path, size=4, videos="val")
     assert held_out.names == val[:8] and held_out.source.endswith(":val")
     with pytest.raises(ValueError, match="lacks 8 of the 8 DAVIS-2017 training"):
-        backgrounds.check("medium", tmp_path)  # the training videos are not there
+        dcs.check_backgrounds("medium", tmp_path)  # the training videos are not there
     with pytest.raises(ValueError, match="lacks 22 of the 30 DAVIS-2017 validation") as error:
-        backgrounds.check("hard", tmp_path, videos="val")
+        dcs.check_backgrounds("hard", tmp_path, videos="val")
     assert "'soapbox'" in str(error.value)
     with pytest.raises(ValueError, match="background_videos = 'test': valid train, val"):
-        backgrounds.check("medium", videos="test")
+        dcs.check_backgrounds("medium", videos="test")
 
 
 def test_missing_videos_are_all_named(tmp_path):
@@ -134,7 +135,7 @@ def test_a_background_dir_that_is_not_a_directory(tmp_path, make):
     path = tmp_path / "davis"
     if make == "file":
         path.write_text("")
-    for call in (backgrounds.check, backgrounds.load):
+    for call in (dcs.check_backgrounds, backgrounds.load):
         with pytest.raises(ValueError, match="background_dir .*does not exist.*None for the built-in"):
             call("easy", path)
 
@@ -144,14 +145,14 @@ def test_a_video_without_frames(tmp_path):
     for frame in (tmp_path / EASY[2]).glob("*.jpg"):
         frame.unlink()
     with pytest.raises(ValueError, match=f"background_dir: video '{EASY[2]}' .*holds no frames"):
-        backgrounds.check("easy", tmp_path)
+        dcs.check_backgrounds("easy", tmp_path)
 
 
 def test_a_frame_that_does_not_decode_is_named(tmp_path):
     _write_davis(tmp_path)
     broken = tmp_path / EASY[3] / "00001.jpg"
     broken.write_bytes(b"not a jpeg")
-    backgrounds.check("easy", tmp_path)  # check does not decode
+    dcs.check_backgrounds("easy", tmp_path)  # check does not decode
     with pytest.raises(ValueError, match="background_dir: cannot decode frame") as error:
         backgrounds.load("easy", tmp_path, size=8)
     assert str(broken) in str(error.value)
@@ -161,7 +162,7 @@ def test_a_frame_that_does_not_decode_is_named(tmp_path):
 
 
 def test_unknown_difficulty_lists_the_valid_ones(tmp_path):
-    for call in (backgrounds.check, backgrounds.load, backgrounds.num_videos):
+    for call in (dcs.check_backgrounds, backgrounds.load, dcs.num_videos):
         with pytest.raises(ValueError, match="difficulty 'extreme'; valid: easy, medium, hard"):
             call("extreme")
     _write_davis(tmp_path)
@@ -193,10 +194,10 @@ def test_videos_validate_their_arrays():
 def test_photographs_ship_inside_their_wheels():
     """Every photograph, training and held out, is a file of an installed wheel (its RECORD),
     not one that a package fetches on demand."""
-    for photo in backgrounds.PHOTOGRAPHS + backgrounds.VALIDATION_PHOTOGRAPHS:
+    for photo in dcs.PHOTOGRAPHS + dcs.VALIDATION_PHOTOGRAPHS:
         distribution = {"skimage": "scikit-image", "matplotlib": "matplotlib"}[photo.package]
         shipped = {str(path) for path in importlib.metadata.files(distribution)}
-        folder = "/".join((photo.package,) + backgrounds.PACKAGE_DATA[photo.package])
+        folder = "/".join((photo.package,) + dcs.PACKAGE_DATA[photo.package])
         assert f"{folder}/{photo.filename}" in shipped, photo.filename
 
 
@@ -204,10 +205,10 @@ def test_held_out_photographs_are_other_pictures():
     """The held-out set shares no file and no picture with the training set: names, files and
     pixels all differ (the pan/zoom videos' first frames are compared too), and each level has
     as many held-out videos as training ones, so a compiled program takes either."""
-    train, val = backgrounds.PHOTOGRAPHS, backgrounds.VALIDATION_PHOTOGRAPHS
+    train, val = dcs.PHOTOGRAPHS, dcs.VALIDATION_PHOTOGRAPHS
     assert not {p.name for p in train} & {p.name for p in val}
     assert not {p.filename for p in train} & {p.filename for p in val}
-    for difficulty in backgrounds.DIFFICULTIES:
+    for difficulty in dcs.DIFFICULTIES:
         seen = backgrounds.load(difficulty, size=16, num_frames=2)
         held = backgrounds.load(difficulty, size=16, num_frames=2, videos="val")
         assert held.frames.shape == seen.frames.shape and held.source == "builtin:val"
@@ -222,7 +223,7 @@ def test_builtin_videos_load_without_network(monkeypatch):
 
     monkeypatch.setattr(socket.socket, "connect", refuse)
     monkeypatch.setattr(socket, "create_connection", refuse)
-    names = tuple(photo.name for photo in backgrounds.PHOTOGRAPHS)
+    names = tuple(photo.name for photo in dcs.PHOTOGRAPHS)
     for difficulty, count in (("easy", 4), ("medium", 8), ("hard", 10)):
         videos = backgrounds.load(difficulty, size=16, num_frames=4)
         assert videos.names == names[:count] and videos.source == "builtin"
@@ -252,6 +253,6 @@ def test_pan_zoom_stays_inside_the_photo_and_moves_smoothly():
 def test_every_photograph_is_documented_with_its_licence():
     doc = (Path(__file__).resolve().parent.parent / "docs" / "backgrounds.md").read_text()
     rows = {line.split("|")[2].strip(): line for line in doc.splitlines() if line.startswith("| ") and "`" in line}
-    for photo in backgrounds.PHOTOGRAPHS + backgrounds.VALIDATION_PHOTOGRAPHS:
+    for photo in dcs.PHOTOGRAPHS + dcs.VALIDATION_PHOTOGRAPHS:
         assert photo.name in rows, photo.name
         assert f"`{photo.filename}`" in rows[photo.name] and photo.licence in rows[photo.name]

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import subprocess
+import sys
 
 import pytest
 
 from iap_mjx import configs
-from iap_mjx.configs import ESConfig, PolicySpec, RunConfig, TrainConfig, apply_overrides
+from iap_mjx.configs import EnvConfig, ESConfig, PolicySpec, RunConfig, TrainConfig, apply_overrides
+from iap_mjx.configs.distraction import DistractionConfig
+from iap_mjx.configs.env import DISTRACTION_FIELDS, DISTRACTION_SETTINGS
 
 
 @pytest.mark.parametrize("name", configs.names())
@@ -91,3 +95,26 @@ def test_none_is_a_string_setting_and_None_or_null_is_None():
                                                                   "env.episode_length=None"])
     assert dict(config.policy.options)["scaling"] == "none"
     assert dict(config.env.overrides)["episode_length"] is None
+
+
+def test_env_config_distraction_fields_are_distraction_configs():
+    """``EnvConfig``'s distraction fields set ``DistractionConfig``'s, every one of them, by
+    ``DISTRACTION_FIELDS``; left at their defaults they give ``DistractionConfig``'s."""
+    env_fields = {field.name: field.default for field in dataclasses.fields(EnvConfig)}
+    assert set(DISTRACTION_FIELDS) <= set(env_fields)
+    assert sorted(DISTRACTION_FIELDS.values()) == sorted(f.name for f in dataclasses.fields(DistractionConfig))
+    assert all(env_fields[name] in (None, False) for name in DISTRACTION_SETTINGS)
+    config = EnvConfig(obs_mode="pixels", distraction="hard")
+    assert config.distraction_config() == DistractionConfig(difficulty="hard")
+
+
+def test_distraction_settings_are_validated_without_the_envs():
+    """Configs sit below the envs: importing them and validating a distraction (its background
+    set included) in a fresh interpreter loads no ``iap_mjx.envs``, ``iap_mjx.es`` or MuJoCo.
+    (jax is loaded: validating ``PolicySpec``'s default looks up the policy kinds.)"""
+    code = ("import sys; from iap_mjx.configs import EnvConfig; "
+            "EnvConfig(obs_mode='pixels', distraction='medium').distraction_config(); "
+            "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('mujoco', 'orbax') "
+            "or m.startswith(('iap_mjx.envs', 'iap_mjx.es'))))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert loaded.split() == []

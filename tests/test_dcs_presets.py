@@ -17,7 +17,8 @@ import spread
 from dm_control import suite
 
 from iap_mjx import configs, envs, policies
-from iap_mjx.envs import distraction
+from iap_mjx.configs.distraction import TASKS
+from iap_mjx.configs.presets import ACTION_REPEAT
 
 SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reacher-easy": 4,
          "walker-walk": 2, "finger-spin": 2}
@@ -25,7 +26,7 @@ SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reach
 
 
 def test_every_suite_task_has_a_preset():
-    assert sorted(distraction.TASKS) == sorted(SUITE)
+    assert sorted(TASKS) == sorted(SUITE)
     names = [name for name in configs.names() if name.startswith("dcs-")]
     assert sorted(names) == sorted(f"dcs-{t}{suffix}" for t in SUITE for suffix in ("", "-quick", "-cnn", "-cnn-quick"))
 
@@ -56,6 +57,12 @@ def test_cnn_quick_preset_trains_from_the_command_line(tmp_path):
                      "--run-dir", str(run_dir), "--no-progress"]) == 0
     result = es.load_run(run_dir)
     assert result.config.policy.kind == "convnet" and np.isfinite(result.history[-1]["eval_return"])
+
+
+def test_action_repeat_has_one_entry_per_suite_task():
+    """``ACTION_REPEAT`` (the pixel presets' table) is keyed by the suite's tasks, whose one
+    list is ``configs.distraction.TASKS``."""
+    assert sorted(ACTION_REPEAT) == sorted(TASKS)
 
 
 @pytest.mark.parametrize("task", sorted(SUITE))

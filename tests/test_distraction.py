@@ -18,7 +18,8 @@ import pytest
 from mujoco import mjx
 
 from iap_mjx import envs
-from iap_mjx.envs import backgrounds, camera_walk, distraction
+from iap_mjx.configs import distraction as dcs
+from iap_mjx.envs import backgrounds, camera_walk
 from iap_mjx.envs.pixels import with_pixels
 from iap_mjx.envs.registry import _task_classes
 from iap_mjx.viz import render_compare
@@ -35,9 +36,9 @@ def videos():
                                         names=("a", "b", "c"), source="test")
 
 
-def _layer(name, videos, dynamic, difficulty="medium", action_repeat=2, kinds=distraction.KINDS):
+def _layer(name, videos, dynamic, difficulty="medium", action_repeat=2, kinds=dcs.KINDS):
     base = _task_classes()[name](envs.EnvConfig(action_repeat=action_repeat))
-    config = distraction.DistractionConfig(difficulty=difficulty, dynamic=dynamic, kinds=kinds)
+    config = dcs.DistractionConfig(difficulty=difficulty, dynamic=dynamic, kinds=kinds)
     return with_pixels(base, height=SIZE[0], width=SIZE[1], distraction=config,
                        videos=videos if "background" in kinds else None)
 
@@ -88,7 +89,7 @@ def test_bad_settings_fail_before_compiling_naming_the_setting(tmp_path):
     assert config.distraction_config().kinds == ("camera", "colour")
     assert check("cartpole-swingup", **px, distraction="none").distraction is None
     root = tmp_path / "davis"  # listed, not decoded, before anything compiles
-    for video in backgrounds.DAVIS17_TRAINING_VIDEOS[:4]:
+    for video in dcs.DAVIS17_TRAINING_VIDEOS[:4]:
         (root / video).mkdir(parents=True)
         (root / video / "00000.jpg").write_bytes(b"not decoded by check")
     config = check("cartpole-swingup", **px, distraction="easy", background_dir=root)
@@ -97,7 +98,7 @@ def test_bad_settings_fail_before_compiling_naming_the_setting(tmp_path):
 
 def test_undecodable_frame_fails_when_the_env_is_made(tmp_path):
     root = tmp_path / "davis"
-    for video in backgrounds.DAVIS17_TRAINING_VIDEOS[:4]:
+    for video in dcs.DAVIS17_TRAINING_VIDEOS[:4]:
         (root / video).mkdir(parents=True)
         (root / video / "00000.jpg").write_bytes(b"not a jpeg")
     with pytest.raises(ValueError, match="background_dir"):
@@ -190,7 +191,7 @@ def test_each_kind_switches_on_alone(videos):
     """One kind at a time: only its part of the scene changes (the camera pose, the geoms'
     colours, the sky and the floor's alpha), drawn from the episode's key."""
     name = "cartpole-swingup"
-    envs_by_kind = {kind: _layer(name, videos, dynamic=False, kinds=(kind,)) for kind in distraction.KINDS}
+    envs_by_kind = {kind: _layer(name, videos, dynamic=False, kinds=(kind,)) for kind in dcs.KINDS}
     data = _dm_state(name)
 
     @jax.jit

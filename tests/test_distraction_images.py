@@ -41,7 +41,8 @@ with warnings.catch_warnings():
     from distracting_control import suite_utils as ref_suite
 
 from iap_mjx import envs
-from iap_mjx.envs import backgrounds, distraction
+from iap_mjx.configs import distraction as dcs
+from iap_mjx.envs import backgrounds
 from iap_mjx.envs.pixels import with_pixels
 from iap_mjx.envs.registry import _task_classes
 from iap_mjx.viz import render_compare
@@ -70,11 +71,11 @@ def _interior(mask, ids):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", distraction.TASKS)
+@pytest.mark.parametrize("name", dcs.TASKS)
 def test_distracted_frames_match_mujoco_renderer(name, videos):
     domain, task = name.split("-")
     env = with_pixels(_task_classes()[name](envs.EnvConfig()), height=HEIGHT, width=WIDTH,
-                      distraction=distraction.DistractionConfig(difficulty="hard"), videos=videos)
+                      distraction=dcs.DistractionConfig(difficulty="hard"), videos=videos)
     layer, camera = env.distraction, env.camera
     states = render_compare.suite_states(domain, task, n_states=2, seed=4)
     data = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])

@@ -43,6 +43,7 @@ with warnings.catch_warnings():
 from dm_control import suite
 
 from iap_mjx import envs
+from iap_mjx.configs import distraction as dcs
 from iap_mjx.envs import backgrounds, camera_walk, distraction
 from iap_mjx.envs.pixels import with_pixels
 from iap_mjx.envs.registry import _task_classes
@@ -66,9 +67,9 @@ def _base(task, action_repeat=1):
     return _task_classes()[task](envs.EnvConfig(action_repeat=action_repeat))
 
 
-def _layer(task, difficulty="hard", dynamic=True, kinds=distraction.KINDS, action_repeat=1, videos=None):
+def _layer(task, difficulty="hard", dynamic=True, kinds=dcs.KINDS, action_repeat=1, videos=None):
     base = _base(task, action_repeat)
-    config = distraction.DistractionConfig(difficulty=difficulty, dynamic=dynamic, kinds=kinds)
+    config = dcs.DistractionConfig(difficulty=difficulty, dynamic=dynamic, kinds=kinds)
     if "background" in kinds and videos is None:
         videos = _videos()
     return with_pixels(base, height=8, width=8, distraction=config, videos=videos)
@@ -84,21 +85,21 @@ def _reference_constant(name):
 
 
 def test_levels_and_settings_are_the_reference_modules():
-    assert distraction.DIFFICULTY_SCALE == ref_suite.DIFFICULTY_SCALE
-    for level in distraction.DIFFICULTY_SCALE:
-        assert backgrounds.num_videos(level) == ref_suite.DIFFICULTY_NUM_VIDEOS[level]
-    assert list(backgrounds.DAVIS17_TRAINING_VIDEOS) == _reference_constant("DAVIS17_TRAINING_VIDEOS")
+    assert dcs.DIFFICULTY_SCALE == ref_suite.DIFFICULTY_SCALE
+    for level in dcs.DIFFICULTY_SCALE:
+        assert dcs.num_videos(level) == ref_suite.DIFFICULTY_NUM_VIDEOS[level]
+    assert list(dcs.DAVIS17_TRAINING_VIDEOS) == _reference_constant("DAVIS17_TRAINING_VIDEOS")
     # the reference's six domains (its get_camera_kwargs asserts them), one task each
-    assert sorted(t.split("-")[0] for t in distraction.TASKS) == sorted(
+    assert sorted(t.split("-")[0] for t in dcs.TASKS) == sorted(
         ["reacher", "cartpole", "finger", "cheetah", "ball_in_cup", "walker"])
     videos = _videos()
-    for task in distraction.TASKS:
+    for task in dcs.TASKS:
         domain = task.split("-")[0]
         env = _layer(task, "medium", False)
         for level, scale in ref_suite.DIFFICULTY_SCALE.items():
             for dynamic in (False, True):
                 layer = distraction.Distraction(
-                    env.env, env.camera, distraction.DistractionConfig(level, dynamic), videos)
+                    env.env, env.camera, dcs.DistractionConfig(level, dynamic), videos)
                 kwargs = ref_suite.get_camera_kwargs(domain, scale, dynamic)
                 s = layer.walk_settings
                 ours = dict(vertical_delta=s.delta, horizontal_delta=s.delta, roll_delta=s.delta,
@@ -161,7 +162,7 @@ def _snapshot(ref):
         velocity_scale=_f32(ref._vel_scaling), lookat=_f32(ref._cam_initial_lookat_point))
 
 
-@pytest.mark.parametrize("task", distraction.TASKS)
+@pytest.mark.parametrize("task", dcs.TASKS)
 def test_layer_matches_the_reference_wrappers_on_dm_control(task):
     """Fixed cameras (cartpole, ball_in_cup, finger), tracking cameras (cheetah, walker) and
     the axis-angle look-at without the upper-quadrant limit (reacher); hard, dynamic."""

@@ -10,8 +10,10 @@ import optax
 import pytest
 import scipy.stats
 
-from iap_mjx.es.shaping import centred_ranks, identity, z_scores
+from iap_mjx.configs import ESConfig, training
+from iap_mjx.es.shaping import SHAPINGS, centred_ranks, identity, z_scores
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, antithetic_noise
+from iap_mjx.es.train import make_optimizer
 
 
 def test_centred_ranks_match_scipy_ordinal_ranks():
@@ -28,6 +30,38 @@ def test_nan_fitness_ranks_and_scores_lowest():
         shaped = shaping(fitness)
         assert np.all(np.isfinite(shaped))
         assert float(shaped[1]) == float(jnp.min(shaped))
+
+
+def test_each_shaping_name_gives_the_shaping_it_names():
+    """``es.shaping``'s names live in ``configs.training``; ``es`` builds its table from them
+    by position, so a reordered list would hand a name another function: each is checked by
+    what it computes (ranks in [-0.5, 0.5], zero mean and unit std, the raw values)."""
+    assert tuple(SHAPINGS) == training.SHAPINGS
+    fitness = jnp.array([3.0, 1.0, 2.0])
+    np.testing.assert_allclose(SHAPINGS["centred_rank"](fitness), [0.5, -0.5, 0.0])
+    np.testing.assert_allclose(SHAPINGS["z_score"](fitness), (np.array([3.0, 1.0, 2.0]) - 2.0) / np.sqrt(2 / 3),
+                               rtol=1e-6)
+    np.testing.assert_array_equal(SHAPINGS["identity"](fitness), fitness)
+
+
+def test_each_optimizer_name_gives_the_optimizer_it_names():
+    """As the shapings: ``es.optimizer``'s names index a table built from them. Two steps on a
+    constant gradient ``g`` at learning rate ``lr`` tell them apart: sgd moves ``-lr g`` twice,
+    momentum (0.9) ``-lr g`` then ``-1.9 lr g``, Adam ``-lr sign(g)`` (its bias-corrected first
+    step) then the same again (to float32's rounding of the corrections: 1e-5 relative; the
+    three differ by 50% or more)."""
+    grad, lr = jnp.array([2.0, -0.5]), 0.1
+    expected = {"sgd": (-lr * grad, -lr * grad), "momentum": (-lr * grad, -1.9 * lr * grad),
+                "adam": (-lr * jnp.sign(grad), -lr * jnp.sign(grad))}
+    assert set(expected) == set(training.OPTIMIZERS)
+    for name, (first, second) in expected.items():
+        optimizer = make_optimizer(ESConfig(optimizer=name, learning_rate=lr))
+        params = jnp.zeros(2)
+        state = optimizer.init(params)
+        step_one, state = optimizer.update(grad, state, params)
+        step_two, _ = optimizer.update(grad, state, params)
+        np.testing.assert_allclose(step_one, first, rtol=1e-4, err_msg=name)
+        np.testing.assert_allclose(step_two, second, rtol=1e-4, err_msg=name)
 
 
 def test_antithetic_noise_is_mirrored_and_population_symmetric():

@@ -5,6 +5,9 @@
   options), ``es`` (:class:`ESConfig`) and ``run`` (:class:`RunConfig`).
 - :class:`EnvConfig` (``env.py``): an env's own settings (action repeat, solver, observation
   mode, camera size, ...): the names ``env.<field>=...`` overrides may set.
+- the Distracting Control Suite's settings (``distraction.py``): its tasks, difficulties,
+  kinds, background sets and ``DistractionConfig``, which validates ``EnvConfig``'s
+  distraction fields.
 - the presets (``presets.py``): one table of named rows; ``get(name)`` gives its ``TrainConfig``.
 - ``apply_overrides`` (``overrides.py``): ``key=value`` strings as typed on the command line.
 

@@ -16,11 +16,9 @@ from __future__ import annotations
 
 import dataclasses
 
+from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, register
 from iap_mjx.configs.training import RunConfig
-
-TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
-"""The suite's six tasks (``iap_mjx.envs.distraction.TASKS``; not imported here: configs load first)."""
 
 IAP_NATIVE: Options = (("patch_size", 2), ("top_l", 10), ("d_qk", 4), ("kernel", "hybrid"), ("m", 10),
                        ("r", 5), ("controller", "lstm"), ("hidden_sizes", (16,)))

@@ -8,14 +8,21 @@ field and its valid values before any model is built.
 from __future__ import annotations
 
 import dataclasses
-import os
+from typing import Any
 
-OBS_MODES = ("state", "pixels", "pixels_depth", "pixels+state")
+from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
+
+PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state")
+"""The observation modes ``iap_mjx.envs.pixels`` renders."""
+OBS_MODES = ("state",) + PIXEL_MODES
 SOLVERS = ("newton", "cg")  # QuadrupedConfig.solver: MuJoCo's mjSOL_NEWTON, mjSOL_CG
 
-
-DISTRACTION_SETTINGS = ("dynamic", "distraction_kinds", "background_dir", "background_size",
-                        "background_frames", "background_videos")
+DISTRACTION_FIELDS = {"distraction": "difficulty", "dynamic": "dynamic", "distraction_kinds": "kinds",
+                      "background_dir": "background_dir", "background_size": "background_size",
+                      "background_frames": "background_frames", "background_videos": "background_videos"}
+"""The ``EnvConfig`` fields of the distraction and the ``DistractionConfig`` field each sets
+(the names stay those typed on a command line: ``env.distraction=medium``)."""
+DISTRACTION_SETTINGS = tuple(name for name in DISTRACTION_FIELDS if name != "distraction")
 """The ``EnvConfig`` fields that belong to ``distraction`` (meaningless without one)."""
 
 
@@ -45,14 +52,16 @@ class EnvConfig:
       distraction: the Distracting Control Suite's difficulty, ``"easy"``, ``"medium"`` or
         ``"hard"`` (``None`` or ``"none"``: no distraction); pixel modes of the suite's six
         tasks, camera 0 only; see ``iap_mjx.envs.distraction``. The settings below belong to
-        it: setting one without ``distraction`` is an error, not silently ignored.
+        it: setting one without ``distraction`` is an error, not silently ignored. They are
+        ``DistractionConfig``'s (``iap_mjx.configs.distraction``, which validates them; the
+        names map by :data:`DISTRACTION_FIELDS`); ``None`` means its default.
       dynamic: distractions move every control step (else one draw per episode).
       distraction_kinds: which are on: a subset of ``background``, ``camera``, ``colour``
         (a tuple or a comma-separated string; ``None``: all three).
       background_dir: a DAVIS-2017 directory for the backgrounds (``None``: the photographs
         that ship in scikit-image, ``iap_mjx.envs.backgrounds``); needs the background kind.
       background_size, background_frames: the square sky texture's side in texels, and the
-        frames per built-in video (``None``: ``backgrounds.DEFAULT_SIZE`` /
+        frames per built-in video (``None``: ``distraction.DEFAULT_SIZE`` /
         ``DEFAULT_NUM_FRAMES``).
       background_videos: ``"train"`` (``None`` too), the backgrounds training draws from, or
         ``"val"``, a disjoint held-out set for evaluating generalisation (the reference's 30
@@ -108,46 +117,44 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
         self._check_distraction()
 
-    def _check_distraction(self):
-        from iap_mjx.envs import distraction
-
+    def _check_distraction(self) -> None:
+        """The settings ``DistractionConfig`` cannot check alone: none without a distraction,
+        a pixel ``obs_mode``, camera 0 for the camera kind. Stores the canonical forms of
+        ``distraction_kinds`` and ``background_dir``, so equal settings make equal configs."""
         if self.distraction == "none":
             object.__setattr__(self, "distraction", None)
         if self.distraction is None:
-            given = [f"{name}={getattr(self, name)!r}" for name in DISTRACTION_SETTINGS
-                     if name != "dynamic" and getattr(self, name) is not None] + (
-                         ["dynamic=True"] if self.dynamic is True else [])
+            given = [f"{name}={value!r}" for name, value in self._distraction_settings().items()]
             if given:
                 raise ValueError(f"EnvConfig: {', '.join(given)} set without a distraction; set "
-                                 f"distraction to one of {', '.join(distraction.DIFFICULTY_SCALE)}.")
+                                 f"distraction to one of {', '.join(DIFFICULTIES)}.")
             return
         if self.obs_mode == "state":
             raise ValueError(f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
-                             f"(one of {OBS_MODES[1:]}), got obs_mode='state'.")
-        if self.distraction_kinds is not None:
-            object.__setattr__(self, "distraction_kinds", distraction.parse_kinds(self.distraction_kinds))
-        if isinstance(self.background_dir, os.PathLike):
-            object.__setattr__(self, "background_dir", os.fspath(self.background_dir))
-        if self.background_dir is not None and not isinstance(self.background_dir, str):
-            raise ValueError(f"EnvConfig.background_dir must be a path (str), got {self.background_dir!r}.")
+                             f"(one of {PIXEL_MODES}), got obs_mode='state'.")
         config = self.distraction_config()
+        for name in ("distraction_kinds", "background_dir"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, getattr(config, DISTRACTION_FIELDS[name]))
         if "camera" in config.kinds and self.camera_id != 0:
             raise ValueError(f"EnvConfig.camera_id = {self.camera_id}: the camera distraction perturbs the "
                              "suite's camera 0 (valid camera_id: 0), or leave 'camera' out of "
                              "distraction_kinds.")
 
-    def distraction_config(self):
-        """The ``distraction.DistractionConfig`` of these settings (``None`` without one);
-        validates them, background directory included, without decoding an image."""
-        from iap_mjx.envs import distraction
+    def _distraction_settings(self) -> dict[str, Any]:
+        """The :data:`DISTRACTION_SETTINGS` set away from their defaults (``None``, and
+        ``False`` for ``dynamic``: compared by identity, so ``0`` is not ``False``)."""
+        defaults = {field.name: field.default for field in dataclasses.fields(EnvConfig)}
+        return {name: getattr(self, name) for name in DISTRACTION_SETTINGS
+                if getattr(self, name) is not defaults[name]}
 
+    def distraction_config(self) -> DistractionConfig | None:
+        """The ``DistractionConfig`` of these settings (``None`` without one); building it
+        validates them, background directory included, without decoding an image."""
         if self.distraction is None:
             return None
-        given = {"kinds": self.distraction_kinds, "background_size": self.background_size,
-                 "background_frames": self.background_frames, "background_videos": self.background_videos}
-        return distraction.DistractionConfig(
-            difficulty=self.distraction, dynamic=self.dynamic, background_dir=self.background_dir,
-            **{name: value for name, value in given.items() if value is not None})
+        given = {DISTRACTION_FIELDS[name]: value for name, value in self._distraction_settings().items()}
+        return DistractionConfig(difficulty=self.distraction, **given)
 
 
 @dataclasses.dataclass(frozen=True)

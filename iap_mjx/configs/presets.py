@@ -25,7 +25,9 @@ Options = tuple[tuple[str, Any], ...]
 
 ACTION_REPEAT = {"cheetah-run": 4, "walker-walk": 2, "cartpole-swingup": 8,
                  "ball_in_cup-catch": 4, "reacher-easy": 4, "finger-spin": 2}
-"""Control steps per frame from pixels, per task (PlaNet/DrQ's settings)."""
+"""Control steps per frame from pixels, per task (PlaNet/DrQ's settings): one entry for each
+of the suite's tasks (``configs.distraction.TASKS``; ``tests/test_dcs_presets.py`` holds them
+equal)."""
 
 KERNELS: dict[str, Options] = {
     "relu": (("kernel", "relu"),),

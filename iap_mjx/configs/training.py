@@ -14,6 +14,8 @@ from typing import Any
 
 OPTIMIZERS = ("adam", "sgd", "momentum")
 SHAPINGS = ("centred_rank", "z_score", "identity")
+"""The names ``es.optimizer`` and ``es.shaping`` take; ``iap_mjx.es`` builds its tables from
+these (configs import nothing of ``es``, whose ``__init__`` loads orbax)."""
 SIGMA_SCHEDULES = ("constant", "linear", "exponential")
 OPEN_ES = "open_es"
 

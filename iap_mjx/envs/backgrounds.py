@@ -8,7 +8,9 @@ to uint8; the aspect ratio is not kept). Here every frame is resized once, at lo
 that a compiled step only indexes it (the distraction layer draws the video and frame per
 episode and samples the sky by ray direction).
 
-Two sources:
+Which videos a level shows, and the checks of a setting that need no decoding, are the
+suite's settings (``iap_mjx.configs.distraction``: the DAVIS-2017 lists, the photographs,
+``check_backgrounds``); this module makes their pixels. Two sources:
 
 - ``load_davis(root, difficulty)``: a DAVIS-2017 directory, either the dataset's own layout
   ``<root>/JPEGImages/480p/<video>/<frame>.jpg`` or ``<root>/<video>/<frame>.jpg``; frames
@@ -16,9 +18,9 @@ Two sources:
   DAVIS-2017 training list (easy 4, medium 8, hard all 60).
 - ``builtin_videos(difficulty)``: works on a fresh machine with nothing downloaded. Natural
   photographs that ship inside the scikit-image wheel (``skimage/data``: public domain or
-  CC0, see ``PHOTOGRAPHS`` and ``docs/backgrounds.md``), each made into a short "video" by a
-  smooth, periodic pan and zoom through the photo (deterministic): ten videos, easy the first
-  4, medium the first 8, hard all 10.
+  CC0, see ``PHOTOGRAPHS`` and ``docs/backgrounds.md``), each made into a short "video" by
+  a smooth, periodic pan and zoom through the photo (deterministic): ten videos, easy the
+  first 4, medium the first 8, hard all 10.
 
 Each source has two disjoint sets, named as the reference names them (its
 ``background_dataset_videos``): ``"train"``, what training draws from, and ``"val"``, held out
@@ -27,9 +29,9 @@ DAVIS-2017 validation videos, or ten other photographs (``VALIDATION_PHOTOGRAPHS
 scikit-image and matplotlib), with the same counts per difficulty.
 
 ``load(difficulty, background_dir=None)`` picks one (``None``: the photographs);
-``check(difficulty, background_dir)`` runs the same validation without decoding an image,
-cheap enough to run before any compile. Every bad setting raises ``ValueError`` naming the
-setting and what is valid.
+``configs.distraction.check_backgrounds(difficulty, background_dir)`` runs the same validation
+without decoding an image, cheap enough to run before any compile. Every bad setting raises
+``ValueError`` naming the setting and what is valid.
 
 Memory: ``videos * frames * size**2 * 3`` bytes (``BackgroundVideos.nbytes``). DAVIS-2017
 480p training videos have up to about 100 frames, so at the default ``size=256``
@@ -52,120 +54,11 @@ from pathlib import Path
 
 import numpy as np
 
+from iap_mjx.configs.distraction import (
+    DEFAULT_NUM_FRAMES, DEFAULT_SIZE, PACKAGE_DATA, Photograph, check_backgrounds, davis_frame_paths,
+    level_photographs)
+
 logger = logging.getLogger(__name__)
-
-DIFFICULTIES = ("easy", "medium", "hard")
-VIDEO_SETS = ("train", "val")
-# distracting_control/suite_utils.py: DIFFICULTY_NUM_VIDEOS (None: every video).
-_NUM_VIDEOS = {"easy": 4, "medium": 8, "hard": None}
-DEFAULT_SIZE = 256
-DEFAULT_NUM_FRAMES = 32
-FRAME_EXTENSIONS = (".jpg", ".jpeg", ".png")
-
-# distracting_control/background.py: DAVIS17_TRAINING_VIDEOS, in the reference's order
-# (a level uses the first N).
-DAVIS17_TRAINING_VIDEOS = (
-    "bear", "bmx-bumps", "boat", "boxing-fisheye", "breakdance-flare", "bus",
-    "car-turn", "cat-girl", "classic-car", "color-run", "crossing",
-    "dance-jump", "dancing", "disc-jockey", "dog-agility", "dog-gooses",
-    "dogs-scale", "drift-turn", "drone", "elephant", "flamingo", "hike",
-    "hockey", "horsejump-low", "kid-football", "kite-walk", "koala",
-    "lady-running", "lindy-hop", "longboard", "lucia", "mallard-fly",
-    "mallard-water", "miami-surf", "motocross-bumps", "motorbike", "night-race",
-    "paragliding", "planes-water", "rallye", "rhino", "rollerblade",
-    "schoolgirls", "scooter-board", "scooter-gray", "sheep", "skate-park",
-    "snowboard", "soccerball", "stroller", "stunt", "surf", "swing", "tennis",
-    "tractor-sand", "train", "tuk-tuk", "upside-down", "varanus-cage", "walking",
-)
-# distracting_control/background.py: DAVIS17_VALIDATION_VIDEOS, in the reference's order
-# (``background_dataset_videos="val"``).
-DAVIS17_VALIDATION_VIDEOS = (
-    "bike-packing", "blackswan", "bmx-trees", "breakdance", "camel",
-    "car-roundabout", "car-shadow", "cows", "dance-twirl", "dog", "dogs-jump",
-    "drift-chicane", "drift-straight", "goat", "gold-fish", "horsejump-high",
-    "india", "judo", "kite-surf", "lab-coat", "libby", "loading", "mbike-trick",
-    "motocross-jump", "paragliding-launch", "parkour", "pigs", "scooter-black",
-    "shooting", "soapbox",
-)
-_DAVIS_SUBDIR = Path("JPEGImages") / "480p"
-_LAYOUTS = "<root>/JPEGImages/480p/<video>/<frame>.jpg or <root>/<video>/<frame>.jpg"
-
-
-@dataclasses.dataclass(frozen=True)
-class Photograph:
-    """One photograph shipped in an installed package, and the pan/zoom path made from it.
-
-    Attributes:
-      name: the video's name (the package's name for the image).
-      filename: the file inside the package's data directory (``PACKAGE_DATA``).
-      source: who made it, where from (as the package's documentation states it).
-      licence: its licence, as the package's documentation states it.
-      zoom: ``(min, max)``: the window's side is ``min(H, W) / zoom``.
-      pan: how far the window's centre moves, a fraction of the room the window leaves.
-      package: ``"skimage"`` or ``"matplotlib"``.
-    """
-
-    name: str
-    filename: str
-    source: str
-    licence: str
-    zoom: tuple[float, float] = (1.25, 1.6)
-    pan: float = 0.9
-    package: str = "skimage"
-
-
-# Where each package keeps its sample images.
-PACKAGE_DATA = {"skimage": ("data",), "matplotlib": ("mpl-data", "sample_data")}
-
-
-# Colour photographs first, so that easy and medium draw from them; all ten ship in the
-# scikit-image 0.26.0 wheel (listed in its RECORD), none is fetched on demand.
-PHOTOGRAPHS = (
-    Photograph("astronaut", "astronaut.png", "Eileen Collins, NASA Great Images database",
-               "public domain (NASA)"),
-    Photograph("coffee", "coffee.png", "coffee cup, Rachel Michetti, courtesy of Pikolo Espresso Bar",
-               "CC0"),
-    Photograph("chelsea", "chelsea.png", "Chelsea the cat, Stefan van der Walt", "CC0"),
-    Photograph("rocket", "rocket.jpg", "DSCOVR launch on Falcon 9, SpaceX Photos",
-               "public domain (released by SpaceX)"),
-    Photograph("hubble_deep_field", "hubble_deep_field.jpg", "Hubble eXtreme Deep Field, NASA/HubbleSite",
-               "public domain (NASA)"),
-    # A fundus photograph is a bright disc on black: stay near its centre.
-    Photograph("retina", "retina.jpg", "fundus photograph, Mikael Haggstrom, Wikimedia Commons",
-               "CC0", zoom=(2.0, 2.5), pan=0.3),
-    Photograph("camera", "camera.png", "photographer with a camera, Lav Varshney (greyscale)", "CC0"),
-    Photograph("brick", "brick.png", "brick wall, CC0Textures Bricks25 (greyscale)", "CC0"),
-    Photograph("grass", "grass.png", "grass, linolafett on DeviantArt (greyscale)", "CC0"),
-    Photograph("gravel", "gravel.png", "gravel, CC0Textures Gravel04 (greyscale)", "CC0"),
-)
-
-# Held out: none of these is in PHOTOGRAPHS. Colour first, as above; the set has fewer colour
-# photographs (3 of 10, against 6), so it also moves the colour statistics away from training.
-VALIDATION_PHOTOGRAPHS = (
-    Photograph("motorcycle_left", "motorcycle_left.png",
-               "Middlebury 2014 stereo benchmark (Nesic, Westling, Wang, Kitajima, Krathwohl, "
-               "Scharstein), left view", "not stated by scikit-image (Middlebury's research data)"),
-    Photograph("immunohistochemistry", "ihc.png",
-               "colonic glands, IHC staining, Center for Microscopy And Molecular Imaging",
-               "no known copyright restrictions"),
-    Photograph("grace_hopper", "grace_hopper.jpg", "Rear Admiral Grace Hopper, U.S. Navy photograph",
-               "public domain (U.S. Navy)", package="matplotlib"),
-    Photograph("coins", "coins.png", "Greek coins from Pompeii, Brooklyn Museum (greyscale)",
-               "no known copyright restrictions"),
-    Photograph("clock", "clock_motion.png", "motion-blurred wall clock, Stefan van der Walt (greyscale)",
-               "public domain"),
-    Photograph("cell", "cell.png", "cell in saline, quantitative phase image, Paul Mueller (greyscale)",
-               "CC0"),
-    Photograph("text", "text.png", "text for corner detection, Wikipedia File:Corner.png (greyscale)",
-               "public domain"),
-    Photograph("moon", "moon.png", "surface of the moon (greyscale)", "not stated by scikit-image"),
-    Photograph("page", "page.png", "scanned page of printed text (greyscale)",
-               "not stated by scikit-image"),
-    Photograph("microaneurysms", "microaneurysms.png",
-               "retina detail, HRF fundus image database, Andreas Maier (greyscale)", "CC0",
-               zoom=(1.1, 1.3), pan=0.5),
-)
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class BackgroundVideos:
@@ -213,21 +106,6 @@ class BackgroundVideos:
     @property
     def nbytes(self) -> int:
         return int(self.frames.nbytes)
-
-
-# ---- settings ----------------------------------------------------------------------------
-
-
-def num_videos(difficulty: str) -> int | None:
-    """The number of videos a difficulty uses (``None``: all of them)."""
-    if difficulty not in _NUM_VIDEOS:
-        raise ValueError(f"Unknown difficulty {difficulty!r}; valid: {', '.join(DIFFICULTIES)}.")
-    return _NUM_VIDEOS[difficulty]
-
-
-def _check_count(name: str, value: int) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"background {name} must be an int >= 1, got {value!r}.")
 
 
 # ---- resizing ----------------------------------------------------------------------------
@@ -296,17 +174,6 @@ def _stack(videos: Sequence[np.ndarray], names: Sequence[str], source: str) -> B
     return result
 
 
-def _first(sequence: Sequence, difficulty: str) -> tuple:
-    count = num_videos(difficulty)
-    return tuple(sequence if count is None else sequence[:count])
-
-
-def _check_videos(videos: str) -> None:
-    if videos not in VIDEO_SETS:
-        raise ValueError(f"background_videos = {videos!r}: valid {', '.join(VIDEO_SETS)} (training or "
-                         "held-out backgrounds)")
-
-
 # ---- the built-in photographs ------------------------------------------------------------
 
 
@@ -339,11 +206,9 @@ def builtin_videos(difficulty: str = "medium", size: int = DEFAULT_SIZE,
     """The offline default: the level's first photographs of ``PHOTOGRAPHS`` (``videos="val"``:
     of ``VALIDATION_PHOTOGRAPHS``) as pan/zoom videos of ``num_frames`` frames each,
     ``(V, num_frames, size, size, 3)``."""
-    _check_videos(videos)
+    check_backgrounds(difficulty, None, size, num_frames, videos)
     source = "builtin" if videos == "train" else "builtin:val"
-    photos = _first(PHOTOGRAPHS if videos == "train" else VALIDATION_PHOTOGRAPHS, difficulty)
-    _check_count("size", size)
-    _check_count("num_frames", num_frames)
+    photos = level_photographs(difficulty, videos)
     clips = []
     for photo in photos:
         pixels = _photograph_pixels(photo).astype(np.float32)
@@ -355,43 +220,6 @@ def builtin_videos(difficulty: str = "medium", size: int = DEFAULT_SIZE,
 
 
 # ---- DAVIS-2017 --------------------------------------------------------------------------
-
-
-def davis_frame_paths(root: str | os.PathLike, difficulty: str = "medium",
-                      videos: str = "train") -> dict[str, list[Path]]:
-    """The frame files of the level's DAVIS-2017 training videos (``videos="val"``: validation
-    videos) under ``root``, each video's sorted by file name; checks everything that can be
-    checked without decoding.
-
-    Raises:
-      ValueError: unknown difficulty; ``root`` missing or not a directory; a listed video
-        missing (all missing ones are named); a video directory without frames.
-    """
-    _check_videos(videos)
-    kind = "training" if videos == "train" else "validation"
-    videos = _first(DAVIS17_TRAINING_VIDEOS if videos == "train" else DAVIS17_VALIDATION_VIDEOS, difficulty)
-    root = Path(root).expanduser()
-    if not root.is_dir():
-        raise ValueError(f"background_dir {str(root)!r} does not exist or is not a directory; give a DAVIS-2017 "
-                         f"directory ({_LAYOUTS}) or None for the built-in photographs.")
-    video_root = root / _DAVIS_SUBDIR if (root / _DAVIS_SUBDIR).is_dir() else root
-    missing = [name for name in videos if not (video_root / name).is_dir()]
-    if missing:
-        raise ValueError(
-            f"background_dir {str(video_root)!r} lacks {len(missing)} of the {len(videos)} DAVIS-2017 {kind} "
-            f"videos that difficulty {difficulty!r} uses: missing {missing}; expected {_LAYOUTS} with the videos "
-            f"{list(videos)}.")
-    paths = {}
-    for name in videos:
-        frames = sorted(
-            path for path in (video_root / name).iterdir()
-            if path.is_file() and not path.name.startswith(".") and path.suffix.lower() in FRAME_EXTENSIONS
-        )
-        if not frames:
-            raise ValueError(f"background_dir: video {name!r} ({str(video_root / name)!r}) holds no frames "
-                             f"(files ending in {', '.join(FRAME_EXTENSIONS)}).")
-        paths[name] = frames
-    return paths
 
 
 def _decode(path: Path, what: str) -> np.ndarray:
@@ -417,7 +245,7 @@ def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = 
       ValueError: as ``davis_frame_paths``, a bad ``size``, or a frame that does not decode
         (the file is named).
     """
-    _check_count("size", size)
+    check_backgrounds(difficulty, size=size, videos=videos)
     paths = davis_frame_paths(root, difficulty, videos)
     clips = [
         np.stack([resize_frame(_decode(path, "background_dir"), size) for path in frames])
@@ -430,28 +258,13 @@ def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = 
 # ---- entry points ------------------------------------------------------------------------
 
 
-def check(difficulty: str, background_dir: str | os.PathLike | None = None, size: int = DEFAULT_SIZE,
-          num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> None:
-    """Validates ``load``'s arguments without decoding any image (run it before compiling).
-
-    Raises:
-      ValueError: as ``load`` would, except for frames that do not decode.
-    """
-    num_videos(difficulty)
-    _check_videos(videos)
-    _check_count("size", size)
-    _check_count("num_frames", num_frames)
-    if background_dir is not None:
-        davis_frame_paths(background_dir, difficulty, videos)
-
-
 def load(difficulty: str = "medium", background_dir: str | os.PathLike | None = None, size: int = DEFAULT_SIZE,
          num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> BackgroundVideos:
     """The level's background videos: DAVIS-2017 under ``background_dir``, or (``None``) the
     built-in photographs as ``num_frames``-frame pan/zoom videos. ``size``: the square
     frame's side (see the module docstring for the memory it implies); ``videos``: the
     training set or the held-out one (``"train"``, ``"val"``)."""
-    check(difficulty, background_dir, size, num_frames, videos)
+    check_backgrounds(difficulty, background_dir, size, num_frames, videos)
     if background_dir is None:
         return builtin_videos(difficulty, size, num_frames, videos)
     return load_davis(background_dir, difficulty, size, videos)

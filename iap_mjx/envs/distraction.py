@@ -13,8 +13,9 @@ The reference is google-research ``distracting_control/`` (``suite.py``, ``suite
   episode; dynamic: a random start frame and direction, one frame per control step,
   turning back at either end as the reference does.
 
-Difficulty ``easy``/``medium``/``hard`` sets the scale ``b`` = 0.1/0.2/0.3 (and the number of
-videos, in ``backgrounds``). ``static``: each episode draws one perturbation and holds it;
+The settings (tasks, difficulties, kinds, :class:`DistractionConfig`) are
+``iap_mjx.configs.distraction``'s. Difficulty ``easy``/``medium``/``hard`` sets the scale ``b`` =
+0.1/0.2/0.3 (and the number of videos). ``static``: each episode draws one perturbation and holds it;
 ``dynamic``: it moves once per control step, so ``action_repeat`` times per env step,
 drawing its noise from a key kept with it. The perturbation lives in
 ``State.info["distraction"]`` (a :class:`Perturbation`), drawn at reset from the episode's
@@ -31,7 +32,6 @@ the mode of the camera rendered (the same camera in every suite task).
 from __future__ import annotations
 
 import copy
-import dataclasses
 import logging
 from typing import Any
 
@@ -41,17 +41,11 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from iap_mjx.configs.distraction import DistractionConfig, check_task
 from iap_mjx.envs import backgrounds as backgrounds_lib
 from iap_mjx.envs import camera_walk
 from iap_mjx.render import sky as sky_lib
 
-DIFFICULTY_SCALE = {"easy": 0.1, "medium": 0.2, "hard": 0.3}
-KINDS = ("background", "camera", "colour")
-TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
-"""The suite's tasks (the reference's six domains; each renders camera 0, fixed or trackcom)."""
-MAX_BACKGROUND_SIZE = 1024
-MAX_BACKGROUND_BYTES = 2 << 30
-"""Limits on the device array of background frames (packed int32: 4 bytes a texel)."""
 # distracting_control/suite_utils.get_background_kwargs: ground_plane_alpha
 FLOOR_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
 DEFAULT_FLOOR_ALPHA = 0.3
@@ -62,91 +56,6 @@ logger = logging.getLogger(__name__)
 _DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
 _FIXED = int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
 _TRACKCOM = int(mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)
-
-
-@dataclasses.dataclass(frozen=True)
-class DistractionConfig:
-    """Which distractions (hashable; validated on construction, before anything compiles).
-
-    Attributes:
-      difficulty: ``"easy"``, ``"medium"`` or ``"hard"``.
-      dynamic: perturbations move every control step (else one draw per episode).
-      kinds: the perturbations on, a subset of ``("background", "camera", "colour")``.
-      background_dir: a DAVIS-2017 directory, or ``None`` for the photographs that ship in
-        scikit-image (``iap_mjx.envs.backgrounds``).
-      background_size: side of the square frames (the sky texture), in texels.
-      background_frames: frames per built-in video.
-      background_videos: ``"train"``, the backgrounds training draws from, or ``"val"``, a
-        disjoint held-out set (the reference's ``background_dataset_videos``).
-    """
-
-    difficulty: str = "medium"
-    dynamic: bool = False
-    kinds: tuple[str, ...] = KINDS
-    background_dir: str | None = None
-    background_size: int = backgrounds_lib.DEFAULT_SIZE
-    background_frames: int = backgrounds_lib.DEFAULT_NUM_FRAMES
-    background_videos: str = "train"
-
-    def __post_init__(self):
-        if not isinstance(self.difficulty, str) or self.difficulty not in DIFFICULTY_SCALE:
-            raise ValueError(f"distraction = {self.difficulty!r} is not a difficulty; valid: "
-                             f"{', '.join(DIFFICULTY_SCALE)} (or None for no distraction).")
-        if not isinstance(self.dynamic, bool):
-            raise ValueError(f"distraction dynamic = {self.dynamic!r} must be True or False.")
-        kinds = parse_kinds(self.kinds)
-        object.__setattr__(self, "kinds", kinds)
-        for name in ("background_size", "background_frames"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}.")
-        if self.background_size > MAX_BACKGROUND_SIZE:
-            raise ValueError(f"background_size = {self.background_size} texels: valid 1 to "
-                             f"{MAX_BACKGROUND_SIZE} (the reference's sky is 800).")
-        if "background" not in kinds:
-            for name, unset in (("background_dir", None), ("background_videos", "train")):
-                if getattr(self, name) != unset:
-                    raise ValueError(f"{name} = {getattr(self, name)!r} is set but the background "
-                                     f"distraction is off (distraction_kinds = {','.join(kinds)}); add "
-                                     f"'background' to distraction_kinds or drop {name}.")
-            return
-        backgrounds_lib.check(self.difficulty, self.background_dir, self.background_size,
-                              self.background_frames, self.background_videos)
-        if self.background_dir is None:
-            photos = (backgrounds_lib.PHOTOGRAPHS if self.background_videos == "train"
-                      else backgrounds_lib.VALIDATION_PHOTOGRAPHS)
-            frames = (backgrounds_lib.num_videos(self.difficulty) or len(photos)) * self.background_frames
-        else:
-            paths = backgrounds_lib.davis_frame_paths(self.background_dir, self.difficulty,
-                                                      self.background_videos)
-            frames = len(paths) * max(len(p) for p in paths.values())
-        nbytes = frames * self.background_size ** 2 * 4
-        if nbytes > MAX_BACKGROUND_BYTES:
-            raise ValueError(f"background_size = {self.background_size}: {frames} background frames "
-                             f"would take {nbytes / 2**30:.1f} GiB (limit {MAX_BACKGROUND_BYTES / 2**30:.0f} "
-                             "GiB); lower background_size (or background_frames, or the difficulty).")
-
-    @property
-    def scale(self) -> float:
-        return DIFFICULTY_SCALE[self.difficulty]
-
-
-def parse_kinds(kinds: Any) -> tuple[str, ...]:
-    """``kinds`` (a tuple, or a comma-separated string as typed on a command line) as a
-    tuple in canonical order; unknown, repeated or no kinds raise ``ValueError``."""
-    items = tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else tuple(kinds)
-    unknown = [k for k in items if k not in KINDS]
-    if unknown or not items or len(set(items)) != len(items):
-        raise ValueError(f"distraction_kinds {kinds!r}: give one or more of {', '.join(KINDS)}, "
-                         "each at most once.")
-    return tuple(k for k in KINDS if k in items)
-
-
-def check_task(name: str) -> None:
-    """Raises ``ValueError`` unless ``name`` is one of the suite's :data:`TASKS`."""
-    if name not in TASKS:
-        raise ValueError(f"distraction: {name!r} is not a Distracting Control Suite task; valid: "
-                         f"{', '.join(TASKS)}.")
 
 
 def domain_name(env: Any) -> str:

@@ -11,7 +11,7 @@ is an image rendered from ``State.data`` by ``iap_mjx.render.Camera``:
 Frames are stacked along channels, oldest first (the newest frame is the last ``C``
 channels); at ``reset`` the first frame fills the whole stack.
 
-With ``distraction`` (an ``iap_mjx.envs.distraction.DistractionConfig``) the frames are the
+With ``distraction`` (an ``iap_mjx.configs.distraction.DistractionConfig``) the frames are the
 Distracting Control Suite's: the episode's perturbation is drawn at reset, kept in
 ``State.info["distraction"]``, advanced once per control step, and handed to the camera
 (pose, colours, sky) without touching the physics.
@@ -24,11 +24,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.configs.distraction import DistractionConfig
+from iap_mjx.configs.env import PIXEL_MODES
 from iap_mjx.envs import distraction as distraction_lib
 from iap_mjx.envs.base import State
 from iap_mjx.render import Camera
-
-PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state")
 
 
 class PixelEnv:
@@ -46,7 +46,7 @@ class PixelEnv:
 
     def __init__(self, env: Any, obs_mode: str = "pixels", camera_id: int = 0,
                  height: int = 100, width: int = 100, frame_stack: int = 1,
-                 distraction: distraction_lib.DistractionConfig | None = None,
+                 distraction: DistractionConfig | None = None,
                  videos: Any = None, **camera_config: Any):
         if obs_mode not in PIXEL_MODES:
             raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
@@ -149,7 +149,7 @@ class PixelEnv:
 
 def with_pixels(env: Any, obs_mode: str = "pixels", camera_id: int = 0, height: int = 100,
                 width: int = 100, frame_stack: int = 1,
-                distraction: distraction_lib.DistractionConfig | None = None,
+                distraction: DistractionConfig | None = None,
                 videos: Any = None, **camera_config: Any) -> PixelEnv:
     """Wraps ``env`` (which must expose ``mj_model``) so its observations are camera images.
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from iap_mjx.configs.distraction import check_task
 from iap_mjx.configs.env import EnvConfig
 from iap_mjx.envs.dmc import DmControlEnv
 
@@ -56,9 +57,7 @@ def check(name: str, config: EnvConfig | None = None, **overrides: Any) -> EnvCo
         raise ValueError(f"{name!r} takes a {config_class.__name__}, got a {type(config).__name__}.")
     config = dataclasses.replace(config, **overrides) if overrides else config
     if config.distraction is not None:
-        from iap_mjx.envs import distraction
-
-        distraction.check_task(name)
+        check_task(name)
     return config
 
 

@@ -10,6 +10,8 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.configs.training import SHAPINGS as SHAPING_NAMES
+
 ShapingFn = Callable[[jax.Array], jax.Array]
 
 
@@ -45,8 +47,6 @@ def identity(fitness: jax.Array) -> jax.Array:
     return jnp.where(finite, fitness, jnp.min(jnp.where(finite, fitness, jnp.inf)))
 
 
-SHAPINGS: dict[str, ShapingFn] = {
-    "centred_rank": centred_ranks,
-    "z_score": z_scores,
-    "identity": identity,
-}
+SHAPINGS: dict[str, ShapingFn] = dict(zip(SHAPING_NAMES, (centred_ranks, z_scores, identity), strict=True))
+"""The function of each ``ESConfig.shaping`` name, listed in the order of
+``configs.training.SHAPINGS`` (the names' one home): a name without a function fails at import."""

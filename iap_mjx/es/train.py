@@ -27,7 +27,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 
 from iap_mjx.es import checkpoint
 from iap_mjx.configs.overrides import apply_condition, check_condition
-from iap_mjx.configs.training import OPEN_ES, ESConfig, TrainConfig
+from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig
 from iap_mjx.es.metrics_log import MetricsWriter, metric_columns, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
 from iap_mjx.es.rollout import EpisodeResult, episode_metric_names, make_evaluator, make_mesh, padded_share
@@ -116,13 +116,17 @@ def make_sigma(es: ESConfig, iterations: int) -> float | Callable[[jax.Array], j
     return es.sigma
 
 
+_OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = dict(zip(
+    OPTIMIZERS, (optax.adam, optax.sgd, lambda learning_rate: optax.sgd(learning_rate, momentum=0.9)),
+    strict=True))
+"""The optax optimizer of each ``ESConfig.optimizer`` name given its learning rate, listed in
+the order of ``configs.training.OPTIMIZERS`` (the names' one home): a name without an optimizer
+fails at import."""
+
+
 def make_optimizer(es: ESConfig) -> optax.GradientTransformation:
     """The optax optimizer named by ``es.optimizer``."""
-    if es.optimizer == "adam":
-        return optax.adam(es.learning_rate)
-    if es.optimizer == "momentum":
-        return optax.sgd(es.learning_rate, momentum=0.9)
-    return optax.sgd(es.learning_rate)
+    return _OPTIMIZERS[es.optimizer](es.learning_rate)
 
 
 def make_strategy(es: ESConfig, num_dims: int, iterations: int) -> Strategy:
