@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from iap_mjx.chunks import repeat_row
 from iap_mjx.es.normalizer import ObsStats, normalize
 from iap_mjx.loops import batched_like
 from iap_mjx.policies.base import Policy
@@ -168,7 +169,7 @@ def make_evaluator(
         n = flat_params.shape[0]
         padded = num_devices * padded_share(n, num_devices, chunk_size)
         if padded != n:
-            pad = partial(_pad_rows, count=padded - n)
+            pad = partial(repeat_row, row=0, count=padded - n)
             flat_params, keys = pad(flat_params), pad(keys)
         spec = NamedSharding(mesh, PartitionSpec(POP_AXIS))
         flat_params = jax.lax.with_sharding_constraint(flat_params, spec)
@@ -184,7 +185,3 @@ def padded_share(n: int, num_devices: int, chunk_size: int) -> int:
     share = -(-n // num_devices)
     chunks = -(-share // chunk_size)
     return chunks * -(-share // chunks)
-
-
-def _pad_rows(x: jax.Array, count: int) -> jax.Array:
-    return jnp.concatenate([x, jnp.repeat(x[:1], count, axis=0)], axis=0)
