@@ -30,7 +30,8 @@ from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import OPEN_ES, ESConfig, TrainConfig
 from iap_mjx.es.metrics_log import MetricsWriter, metric_columns, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
-from iap_mjx.es.rollout import EpisodeResult, episode_metric_names, make_evaluator, make_mesh, padded_share
+from iap_mjx.es.episode import EpisodeResult, episode_metric_names, observe
+from iap_mjx.es.rollout import make_evaluator, make_mesh, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
 
@@ -328,14 +329,11 @@ def _scalar(x) -> float:
 
 def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
     """Jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one step."""
-    from iap_mjx.es.normalizer import normalize
-
     policy = parts.policy
 
     @jax.jit
     def policy_fn(params, obs, policy_state=()):
-        seen = obs if obs_stats is None else normalize(obs_stats, obs)
-        return policy.apply(params, seen, policy_state)
+        return policy.apply(params, observe(obs_stats, obs), policy_state)
 
     return policy_fn
 
