@@ -65,6 +65,8 @@ class TrainResult:
       config: the config trained.
       run_dir: where metrics and checkpoints went (``None`` if nowhere).
       state: the final ``TrainState``.
+      env, policy: the env and policy the run was built with, for whatever runs the policy
+        next (a video, an evaluation) without building them again.
     """
 
     params: Any
@@ -75,6 +77,8 @@ class TrainResult:
     config: TrainConfig
     run_dir: Path | None
     state: TrainState
+    env: Any
+    policy: Any
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -82,6 +86,8 @@ class Components:
     """The built pieces of a run (shared by ``train``, ``evaluate_run`` and benchmarks)."""
 
     config: TrainConfig
+    env: Any
+    policy: Any
     strategy: Strategy
     template_params: Any
     unravel: Callable[[jax.Array], Any]
@@ -344,6 +350,8 @@ def result_from_state(parts: Components, state: TrainState, history, run_dir) ->
         config=parts.config,
         run_dir=Path(run_dir) if run_dir is not None else None,
         state=state,
+        env=parts.env,
+        policy=parts.policy,
     )
 
 
