@@ -35,8 +35,20 @@ def map_chunks(fn: Callable[[Any], Any], args: Any, chunk: int, axis_size: int) 
 
     def split(x):
         if padded != axis_size:
-            x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - axis_size, axis=0)], axis=0)
+            x = repeat_row(x, row=-1, count=padded - axis_size)
         return x.reshape((n_chunks, chunk) + x.shape[1:])
 
     out = jax.lax.map(fn, jax.tree.map(split, args))
     return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:axis_size], out)
+
+
+def repeat_row(x: jax.Array, *, row: int, count: int) -> jax.Array:
+    """``x`` ``(n, ...)`` with ``count`` copies of its row ``row`` appended: ``(n + count, ...)``.
+
+    Pads a batch to whole chunks (:func:`map_chunks`, the last row) or to equal shares per
+    device (the population evaluator, ``iap_mjx.es.rollout``, the first row); the padding's
+    outputs are dropped, so which row is copied never reaches a result, and each caller keeps
+    the row its compiled programs are built with.
+    """
+    start = row % x.shape[0]
+    return jnp.concatenate([x, jnp.repeat(x[start:start + 1], count, axis=0)], axis=0)

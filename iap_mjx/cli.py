@@ -112,8 +112,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:
         primary = jax.process_index() == 0  # several processes share one run directory: one writes
-        video_program = artifacts.compile_video_in_background(config) if primary else None
-        result = es.train(config, run_dir=run_dir, progress=not args.no_progress)
+        env, policy = artifacts.env_and_policy(config)  # built once: the run trains and films these
+        video_program = artifacts.compile_video_in_background(env, policy) if primary else None
+        result = es.train(config, run_dir=run_dir, progress=not args.no_progress, env=env, policy=policy)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -164,25 +165,26 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def in_condition(result: Any, overrides: list[str]) -> Any:
     """A loaded run whose config's env is moved to the condition ``overrides`` set (checked
-    and built before anything compiles)."""
+    and built before anything compiles); the run's own env without overrides."""
     from iap_mjx import envs
     from iap_mjx.configs.overrides import apply_condition
 
+    if not overrides:
+        return result
     config = apply_condition(result.config, overrides)
-    envs.check(config.env.name, **dict(config.env.overrides))
-    return dataclasses.replace(result, config=config)
+    env = envs.make(config.env.name, **dict(config.env.overrides))
+    return dataclasses.replace(result, config=config, env=env)
 
 
 def cmd_attended(args: argparse.Namespace) -> int:
     """Prints what an attention policy's selected patches show, share per geom, over episodes
     of a run's latest checkpoint (in the run's env or the condition its overrides set)."""
     from iap_mjx import es
-    from iap_mjx.viz import artifacts, attended
+    from iap_mjx.viz import attended
 
     try:
         result = in_condition(es.load_run(args.run_dir), args.overrides)
-        env, policy = artifacts.env_and_policy(result.config)
-        counts = attended.episode_counts(env, policy, result.params, episodes=args.episodes, seed=args.seed,
+        counts = attended.episode_counts(result.env, result.policy, result.params, episodes=args.episodes, seed=args.seed,
                                          obs_stats=result.obs_stats)
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,10 +12,18 @@ from jax.sharding import Mesh
 
 from iap_mjx import envs
 from iap_mjx.envs import batch
+from iap_mjx.es.episode import run_episode
 
 
-def _linear_policy(params, obs):
-    return jnp.tanh(params @ obs)
+@dataclasses.dataclass(frozen=True)
+class _LinearPolicy:
+    """``tanh(params @ obs)``, params ``(action_size, obs_size)``; no per-episode state."""
+
+    def initial_state(self, key):
+        return ()
+
+    def apply(self, params, obs, policy_state):
+        return jnp.tanh(params @ obs), policy_state
 
 
 def test_chunked_vmap_equals_vmap():
@@ -42,14 +52,16 @@ def test_population_of_1024_envs_in_chunks_over_two_devices():
     keys = jax.random.split(jax.random.key(1), n)
     params = 0.3 * jax.random.normal(jax.random.key(2), (n, env.action_size, env.observation_size))
     mesh = Mesh(np.array(jax.devices()[:2]), (batch.BATCH_AXIS,))
-    run = jax.jit(lambda p, k: batch.rollout(env, _linear_policy, p, k, chunk_size=128, mesh=mesh, num_steps=8))
+
+    def episode(p, k):
+        return run_episode(env, _LinearPolicy(), p, k, steps=8)
+
+    run = jax.jit(batch.shard(batch.chunked_vmap(episode, 128), mesh))
     out = jax.block_until_ready(run(params, keys))
-    assert out["return"].shape == (n,)
-    assert np.all(np.isfinite(np.asarray(out["return"])))
-    np.testing.assert_array_equal(out["nan_terminations"], np.zeros(n))
+    assert out.ret.shape == (n,)
+    assert np.all(np.isfinite(np.asarray(out.ret)))
+    np.testing.assert_array_equal(out.bad, np.zeros(n))  # no bad state, flagged by the env or not
     # Spot-check 16 members against a plain 16-wide vmap.
     picks = np.arange(0, n, n // 16)
-    small = jax.jit(lambda p, k: batch.rollout(env, _linear_policy, p, k, chunk_size=16, num_steps=8))(
-        params[picks], keys[picks]
-    )
-    np.testing.assert_allclose(out["return"][picks], small["return"], rtol=1e-4, atol=1e-4)
+    small = jax.jit(batch.chunked_vmap(episode, 16))(params[picks], keys[picks])
+    np.testing.assert_allclose(out.ret[picks], small.ret, rtol=1e-4, atol=1e-4)

@@ -70,7 +70,7 @@ def test_the_es_rollout_counts_saturated_episodes():
     """A too small limit is reported, and ``run_episode`` carries the env's flag into
     ``EpisodeResult.saturated``, which the training loop sums into
     ``contact_saturated_episodes``."""
-    from iap_mjx.es.rollout import run_episode
+    from iap_mjx.es.episode import run_episode
     from iap_mjx.policies import LinearPolicy
 
     policy = LinearPolicy(17, 6)

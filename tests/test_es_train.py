@@ -49,7 +49,7 @@ def test_training_beats_the_zero_action_policy():
     eval_return = result.history[-1]["eval_return"]
     # Reference: the initial (zero) linear policy on 64 episodes, with its sampling spread.
     keys = jax.random.split(jax.random.PRNGKey(99), 64)
-    from iap_mjx.es.rollout import run_episode
+    from iap_mjx.es.episode import run_episode
     from iap_mjx.policies import LinearPolicy
 
     policy = LinearPolicy(6, 2)

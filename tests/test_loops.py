@@ -35,8 +35,8 @@ def test_values_shapes_and_dtypes_are_unchanged():
         np.testing.assert_array_equal(_values(out[name]), expected)
 
 
-# references the loops use: raw uint32 keys, typed keys (finger, ball_in_cup under
-# envs.batch.rollout with jax.random.key), float state leaves, NaN or not
+# references the loops use: raw uint32 keys, typed keys (jax.random.key, as the episodes of
+# tests/test_envs_batch.py use), float state leaves, NaN or not
 REFERENCES = {
     "raw_key": jax.random.split(jax.random.PRNGKey(0), 3),
     "typed_key": jax.random.split(jax.random.key(0), 3),

@@ -17,7 +17,7 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
     params = policy.init(jax.random.PRNGKey(0))
     # compiled ahead, before any params exist, as a run's video is (the only compile here)
     program = video.compile_episode_program(env, policy, steps=4)
-    record = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=4, program=program)
+    record = video.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=4, program=program)
     assert record["frames"].shape == (4, 24, 24, 3)
     assert record["indices"].shape == (4, 3)
     assert np.all(np.isfinite(record["rewards"]))
@@ -64,7 +64,7 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
     policy = policies.make("linear", env.observation_shape, env.action_size)
     params = policy.init(jax.random.PRNGKey(0))
     program = video.episode_program(env, policy, steps=3)  # the default path, compiled once here
-    record = video.run_episode(env, policy, params, jax.random.PRNGKey(1), steps=3, program=program)
+    record = video.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=3, program=program)
     assert record["frames"].shape == (3, *video.STATE_VIDEO_SIZE, 3) and "indices" not in record
     camera = video.state_camera(env)
     first = jax.jit(lambda key: camera.render(env.reset(key).data)[0])
@@ -109,7 +109,7 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
 
     result = es.load_run(run_dir)
     _, policy = artifacts.env_and_policy(result.config)
-    record = video.run_episode(env, policy, result.params, jax.random.PRNGKey(3), steps=10,
+    record = video.record_episode(env, policy, result.params, jax.random.PRNGKey(3), steps=10,
                                obs_stats=result.obs_stats)
     # the same picture (fused inside the episode's scan, a few pixels round differently)
     np.testing.assert_allclose(record["frames"][0], first.obs, atol=2e-3)

@@ -4,10 +4,8 @@ One ``vmap`` over 1024 MJX envs has been seen to hang XLA's CPU runtime; a ``lax
 chunks of at most ``chunk_size`` envs compiles the per-chunk program once and runs the
 chunks one after another, which bounds both memory and the size of what XLA schedules.
 ``shard`` splits the batch axis over devices with ``shard_map`` first (each device then
-chunks its share).
-
-``rollout`` puts these together for the common case: every env runs a whole episode of
-``env.episode_length`` steps under a ``lax.scan`` and reports its return.
+chunks its share). Benchmarks batch env programs with these; an episode of a policy is
+``iap_mjx.es.episode.run_episode``, which ``iap_mjx.es.rollout`` batches over a population.
 """
 
 from __future__ import annotations
@@ -15,12 +13,8 @@ from __future__ import annotations
 from typing import Any, Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
-
-from iap_mjx.envs.base import State
-from iap_mjx.loops import batched_like
 
 BATCH_AXIS = "batch"
 
@@ -62,45 +56,3 @@ def shard(fn: Callable[..., Any], mesh: Mesh | None = None) -> Callable[..., Any
     mesh = mesh if mesh is not None else Mesh(np.array(jax.devices()), (BATCH_AXIS,))
     spec = PartitionSpec(BATCH_AXIS)
     return jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)
-
-
-def rollout(
-    env: Any,
-    policy: Callable[[Any, jax.Array], jax.Array],
-    params: Any,
-    keys: jax.Array,
-    chunk_size: int = 64,
-    mesh: Mesh | None = None,
-    num_steps: int | None = None,
-) -> dict[str, jax.Array]:
-    """Whole episodes for a batch: ``keys`` ``(n,)`` and ``params`` (leaves ``(n, ...)``).
-
-    Each env ``i`` is reset from ``keys[i]`` and stepped ``num_steps`` times (default
-    ``env.episode_length``) with ``action = policy(params_i, obs)``; rewards after ``done``
-    are 0 (the env freezes), so the sum is the episode return.
-
-    Returns:
-      ``"return"`` ``(n,)``, ``"done"`` ``(n,)`` (1 if the episode ended),
-      ``"nan_terminations"`` ``(n,)`` (1 if it was ended by a bad state).
-    """
-    length = env.episode_length if num_steps is None else num_steps
-
-    def episode(params: Any, key: jax.Array) -> dict[str, jax.Array]:
-        def body(carry: tuple[State, jax.Array], _: Any) -> tuple[tuple[State, jax.Array], None]:
-            state, total = carry
-            state = env.step(state, policy(params, state.obs))
-            return (state, total + state.reward), None
-
-        first = env.reset(key)
-        carry = batched_like((first, jnp.zeros((), jnp.float32)), key)
-        (last, total), _ = jax.lax.scan(body, carry, length=length)
-        return {
-            "return": total,
-            "done": last.done,
-            "nan_terminations": last.metrics["nan_terminations"],
-        }
-
-    run = chunked_vmap(episode, chunk_size)
-    if mesh is not None and mesh.devices.size > 1:
-        run = shard(run, mesh)
-    return run(params, keys)

@@ -30,7 +30,8 @@ from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig
 from iap_mjx.es.metrics_log import MetricsWriter, metric_columns, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
-from iap_mjx.es.rollout import EpisodeResult, episode_metric_names, make_evaluator, make_mesh, padded_share
+from iap_mjx.es.episode import EpisodeResult, episode_metric_names, observe
+from iap_mjx.es.rollout import make_evaluator, make_mesh, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
 
@@ -64,6 +65,8 @@ class TrainResult:
       config: the config trained.
       run_dir: where metrics and checkpoints went (``None`` if nowhere).
       state: the final ``TrainState``.
+      env, policy: the env and policy the run was built with, for whatever runs the policy
+        next (a video, an evaluation) without building them again.
     """
 
     params: Any
@@ -74,6 +77,8 @@ class TrainResult:
     config: TrainConfig
     run_dir: Path | None
     state: TrainState
+    env: Any
+    policy: Any
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -319,27 +324,17 @@ def make_centre_evaluation(parts: Components, episodes: int, *, with_metrics: bo
     return evaluate
 
 
-def _compile(fn, state, mesh):
-    replicated = NamedSharding(mesh, PartitionSpec())
-    start = time.perf_counter()
-    compiled = jax.jit(fn, out_shardings=replicated).lower(state).compile()
-    return compiled, time.perf_counter() - start
-
-
 def _scalar(x) -> float:
     return float(np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else x)
 
 
 def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
     """Jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one step."""
-    from iap_mjx.es.normalizer import normalize
-
     policy = parts.policy
 
     @jax.jit
     def policy_fn(params, obs, policy_state=()):
-        seen = obs if obs_stats is None else normalize(obs_stats, obs)
-        return policy.apply(params, seen, policy_state)
+        return policy.apply(params, observe(obs_stats, obs), policy_state)
 
     return policy_fn
 
@@ -359,6 +354,8 @@ def result_from_state(parts: Components, state: TrainState, history, run_dir) ->
         config=parts.config,
         run_dir=Path(run_dir) if run_dir is not None else None,
         state=state,
+        env=parts.env,
+        policy=parts.policy,
     )
 
 
@@ -393,6 +390,140 @@ def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
                          + "; ".join(differ) + "); use another run directory")
 
 
+class CompiledCalls:
+    """The training call (:func:`make_train_call`) compiled once per number of fused
+    iterations (a run's last call may fuse fewer), and the seconds spent compiling."""
+
+    def __init__(self, parts: Components):
+        self.parts = parts
+        self.programs: dict[int, Any] = {}
+        self.seconds = 0.0
+
+    def get(self, count: int, state: TrainState) -> Any:
+        """The call fusing ``count`` iterations, compiled for ``state``'s shapes on first use."""
+        if count not in self.programs:
+            config = self.parts.config
+            logger.info("compiling the ES iteration (%s members x %s env steps; a program "
+                        "compiled once is loaded from the compilation cache afterwards)",
+                        config.es.population_size * config.es.n_episodes, self.parts.env.episode_length)
+            replicated = NamedSharding(self.parts.mesh, PartitionSpec())
+            start = time.perf_counter()
+            call = jax.jit(make_train_call(self.parts, count), out_shardings=replicated)
+            self.programs[count] = call.lower(state).compile()
+            seconds = time.perf_counter() - start
+            logger.info("compiled in %.0f s", seconds)
+            self.seconds += seconds
+        return self.programs[count]
+
+
+def metric_rows(parts: Components, done: int, metrics: dict[str, np.ndarray], run_s: float,
+                compile_s: float) -> list[dict[str, Any]]:
+    """One row per iteration of a call that started after ``done`` iterations: its metrics
+    (``(count,)`` each, on the host), the sample budget spent and the call's timings."""
+    count = len(next(iter(metrics.values())))
+    return [{
+        "iteration": done + i + 1,
+        "env_steps": (done + i + 1) * parts.steps_per_iteration,
+        **{name: float(value[i]) for name, value in metrics.items()},
+        "env_steps_per_s": parts.simulated_steps_per_iteration * count / run_s,
+        "run_s": run_s / count,
+        "compile_s": compile_s,
+        "parameters": parts.num_dims,
+    } for i in range(count)]
+
+
+def training_call_with_timing(parts: Components, calls: CompiledCalls, state: TrainState, done: int,
+                              count: int) -> tuple[TrainState, list[dict[str, Any]]]:
+    """Runs ``count`` fused iterations from ``state`` (``done`` iterations in): the new state
+    and the iterations' metric rows (:func:`metric_rows`)."""
+    call = calls.get(count, state)
+    tick = time.perf_counter()
+    new_state, metrics = call(state)
+    metrics = checkpoint.to_host(metrics)
+    run_s = time.perf_counter() - tick
+    return new_state, metric_rows(parts, done, metrics, run_s, calls.seconds)
+
+
+def start_state(parts: Components, run_dir: str | Path | None) -> tuple[TrainState, int]:
+    """The state a run starts from and its iterations done: ``run_dir``'s latest checkpoint
+    (its config checked against ours), else the state before iteration 0."""
+    state = init_state(parts)
+    if run_dir is None or checkpoint.latest_step(run_dir) is None:
+        return state, 0
+    _check_resumable(parts.config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
+    state = _restore(parts, run_dir, state)
+    return state, int(_scalar(state.iteration))
+
+
+@dataclasses.dataclass
+class Reporter:
+    """Where each iteration's metrics row goes: the run's ``history``, its metrics files
+    (``writer``, the primary process only), ``progress_fn`` and the progress ``bar``."""
+
+    history: list[dict[str, Any]]
+    writer: MetricsWriter | None
+    bar: Any
+    progress_fn: Callable[[dict[str, Any]], None] | None
+    started: float
+
+    @classmethod
+    def open(cls, parts: Components, run_dir: str | Path | None, start: int, started: float, *,
+             progress: bool, progress_fn: Callable[[dict[str, Any]], None] | None) -> Reporter:
+        """Writes the run's config and opens its metrics files, keeping the rows up to
+        iteration ``start`` (a resumed run's checkpoint); ``started`` is the run's
+        ``time.perf_counter()`` at its start."""
+        config = parts.config
+        primary = jax.process_index() == 0
+        if run_dir is not None and primary:
+            write_config(run_dir, config.to_dict())
+        columns = metric_columns(episode_metric_names(parts.env))
+        writer = (MetricsWriter(run_dir, start if start else None, config.run.tensorboard, columns=columns)
+                  if run_dir is not None and primary else None)
+        history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])
+        bar = None
+        if progress and primary:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=config.run.iterations, initial=start, desc="ES", unit="it")
+        return cls(history, writer, bar, progress_fn, started)
+
+    def write(self, rows: list[dict[str, Any]]) -> None:
+        """Stamps each row with the run's wall time and hands it to every destination."""
+        for row in rows:
+            row["wall_s"] = time.perf_counter() - self.started
+            self.history.append(row)
+            if self.writer:
+                self.writer.write(row)
+            if self.progress_fn is not None:
+                self.progress_fn(row)
+
+    def advance(self, rows: list[dict[str, Any]]) -> None:
+        """Moves the bar past ``rows``' iterations, showing the last one's returns."""
+        if self.bar is not None:
+            self.bar.update(len(rows))
+            self.bar.set_postfix(ret=f"{rows[-1]['return_mean']:.1f}",
+                                 eval=f"{rows[-1].get('eval_return', float('nan')):.1f}")
+
+    def close(self) -> None:
+        """Closes the bar and the metrics files (a run ends, or is interrupted)."""
+        if self.bar is not None:
+            self.bar.close()
+        if self.writer:
+            self.writer.close()
+
+
+def past_time_limit(run: Any, started: float) -> bool:
+    """Whether ``run.max_minutes`` (0: none) have passed since ``started`` (compile included)."""
+    return bool(run.max_minutes) and time.perf_counter() - started > 60 * run.max_minutes
+
+
+def checkpoint_due(run: Any, done: int, out_of_time: bool) -> bool:
+    """Whether to save a checkpoint after ``done`` iterations: at the end of the run (all
+    iterations, or the time limit) and every ``run.checkpoint_every`` iterations."""
+    return done == run.iterations or out_of_time or bool(
+        run.checkpoint_every and done % run.checkpoint_every == 0)
+
+
 def train(
     config: TrainConfig,
     *,
@@ -424,85 +555,25 @@ def train(
         raise ValueError("run.max_minutes must be 0 with several processes (each process's "
                          "clock would decide on its own when to stop)")
     parts = build(config, env=env, policy=policy, devices=devices)
-    primary = jax.process_index() == 0
-    state = init_state(parts)
-    start = 0
-    if run_dir is not None and checkpoint.latest_step(run_dir) is not None:
-        _check_resumable(config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
-        state = _restore(parts, run_dir, state)
-        start = int(_scalar(state.iteration))
-    if run_dir is not None and primary:
-        write_config(run_dir, config.to_dict())
-    columns = metric_columns(episode_metric_names(parts.env))
-    writer = (MetricsWriter(run_dir, start if start else None, run.tensorboard, columns=columns)
-              if run_dir is not None and primary else None)
-    history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])
-
-    calls: dict[int, Any] = {}
-    compile_s = 0.0
+    state, start = start_state(parts, run_dir)
+    reporter = Reporter.open(parts, run_dir, start, started, progress=progress, progress_fn=progress_fn)
     logger.info("policy %r: %s", config.policy.kind, describe_parameters(parts))
-
-    def compiled_call(count: int):
-        nonlocal compile_s
-        if count not in calls:
-            logger.info("compiling the ES iteration (%s members x %s env steps; a program "
-                        "compiled once is loaded from the compilation cache afterwards)",
-                        config.es.population_size * config.es.n_episodes, parts.env.episode_length)
-            calls[count], seconds = _compile(make_train_call(parts, count), state, parts.mesh)
-            logger.info("compiled in %.0f s", seconds)
-            compile_s += seconds
-        return calls[count]
-
+    calls = CompiledCalls(parts)
     config_dict = config.to_dict()
-    bar = None
-    if progress and primary:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=run.iterations, initial=start, desc="ES", unit="it")
     done = saved = start
     try:
         while done < run.iterations:
             count = min(run.iterations_per_call, run.iterations - done)
-            call = compiled_call(count)
-            tick = time.perf_counter()
-            new_state, metrics = call(state)
-            metrics = checkpoint.to_host(metrics)
-            run_s = time.perf_counter() - tick
-            rows = []
-            for i in range(count):
-                iteration = done + i + 1
-                rows.append({
-                    "iteration": iteration,
-                    "env_steps": iteration * parts.steps_per_iteration,
-                    **{name: float(value[i]) for name, value in metrics.items()},
-                    "env_steps_per_s": parts.simulated_steps_per_iteration * count / run_s,
-                    "run_s": run_s / count,
-                    "compile_s": compile_s,
-                    "parameters": parts.num_dims,
-                })
-            for row in rows:
-                row["wall_s"] = time.perf_counter() - started
-                history.append(row)
-                if writer:
-                    writer.write(row)
-                if progress_fn is not None:
-                    progress_fn(row)
+            new_state, rows = training_call_with_timing(parts, calls, state, done, count)
+            reporter.write(rows)
             state, done = new_state, done + count  # only once its rows are written
-            if bar is not None:
-                bar.update(count)
-                bar.set_postfix(ret=f"{rows[-1]['return_mean']:.1f}",
-                                eval=f"{rows[-1].get('eval_return', float('nan')):.1f}")
-            out_of_time = bool(run.max_minutes) and (
-                time.perf_counter() - started > 60 * run.max_minutes)
-            if run_dir is not None and (
-                done == run.iterations or out_of_time
-                or (run.checkpoint_every and done % run.checkpoint_every == 0)
-            ):
+            reporter.advance(rows)
+            out_of_time = past_time_limit(run, started)
+            if run_dir is not None and checkpoint_due(run, done, out_of_time):
                 checkpoint.save(run_dir, done, state, config_dict)
                 saved = done
             if out_of_time:
-                logger.info("run.max_minutes = %s reached after %d iterations",
-                            run.max_minutes, done)
+                logger.info("run.max_minutes = %s reached after %d iterations", run.max_minutes, done)
                 break
     except KeyboardInterrupt:
         if run_dir is not None and done > saved:
@@ -510,11 +581,8 @@ def train(
             checkpoint.save(run_dir, done, state, config_dict)
         raise
     finally:
-        if bar is not None:
-            bar.close()
-        if writer:
-            writer.close()
-    return result_from_state(parts, state, history, run_dir)
+        reporter.close()
+    return result_from_state(parts, state, reporter.history, run_dir)
 
 
 def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> TrainResult:

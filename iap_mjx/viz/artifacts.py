@@ -1,6 +1,10 @@
 """What a finished run leaves for a person: the reward curve PNG and an annotated episode video
 (what a pixel agent saw; for a state agent, the env's own camera, made on request by
-``iap-mjx video``)."""
+``iap-mjx video``).
+
+Each writer takes a ``TrainResult`` and runs the env and policy it carries (the ones the run
+was built with), so a video costs no second build of the env (nor, for the Distracting Control
+Suite, a second load of its background videos)."""
 
 from __future__ import annotations
 
@@ -19,7 +23,7 @@ logger = logging.getLogger(__name__)
 
 
 def env_and_policy(config: Any) -> tuple[Any, Any]:
-    """The env and policy a ``TrainConfig`` names (built again, as values)."""
+    """The env and policy a ``TrainConfig`` names, built (for a run not trained yet)."""
     env = envs.make(config.env.name, **dict(config.env.overrides))
     policy = policies.make(config.policy.kind, env.observation_shape, env.action_size,
                            **dict(config.policy.options))
@@ -36,7 +40,7 @@ def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | No
     compiled ahead (:func:`compile_video_in_background`) for these ``steps``."""
     if steps is not None and (not isinstance(steps, int) or steps < 1):
         raise ValueError(f"steps = {steps!r} must be None (the episode) or an int >= 1")
-    env, policy = env_and_policy(result.config)
+    env, policy = result.env, result.policy
     steps = env.episode_length if steps is None else steps
     logger.info("rendering a %d-step episode of the trained policy to %s", steps, path)
     return video.episode_video(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
@@ -46,22 +50,22 @@ def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | No
 def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6) -> tuple[Path, float]:
     """A PNG strip of ``frames`` frames from one episode of ``result``'s centre params, the
     selected patches drawn (:func:`video.episode_strip`)."""
-    env, policy = env_and_policy(result.config)
+    env, policy = result.env, result.policy
     if not has_pixels(env):
         raise ValueError(f"{result.config.env.name!r} observes the state: a strip shows a pixel agent's frames")
     return video.episode_strip(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
                                steps=env.episode_length, frames=frames, obs_stats=result.obs_stats)
 
 
-def compile_video_in_background(config: Any) -> concurrent.futures.Future | None:
-    """Starts compiling the episode video :func:`write_run_artifacts` will render, in a daemon
-    thread, and returns its future (``None`` for a state env: a run writes no video of one).
+def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Future | None:
+    """Starts compiling the episode video :func:`write_run_artifacts` will render of ``policy``
+    on ``env`` (the ones the run trains), in a daemon thread, and returns its future (``None``
+    for a state env: a run writes no video of one).
 
     Called before training, the video's compile runs beside the ES iteration's (XLA compiles
     on one core; this machine class has two), so the video at the end of a run costs its
     rollout and encoding only. A daemon thread: an interrupted run does not wait for it.
     """
-    env, policy = env_and_policy(config)
     if not has_pixels(env):
         return None
     future: concurrent.futures.Future = concurrent.futures.Future()
@@ -83,8 +87,7 @@ def write_run_artifacts(result: Any, run_dir: str | Path,
     run_dir = Path(run_dir)
     paths = [curves.plot_reward_curve(result.history, run_dir / "reward_curve.png",
                                       title=f"{result.config.env.name}: {result.config.policy.kind} policy")]
-    env, _ = env_and_policy(result.config)
-    if has_pixels(env):
+    if has_pixels(result.env):
         program = video_program.result() if video_program is not None else None
         path, episode_return = write_video(result, run_dir / "episode.mp4", program=program)
         logger.info("episode video: return %.1f", episode_return)

@@ -76,7 +76,7 @@ def episode_counts(env: Any, policy: Any, params: Any, *, episodes: int = 3, see
     program = episode_program(env, policy, steps=steps) if program is None else program
     out = []
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
-        record = video.run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+        record = video.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
         counts: dict[str, int] = {}
         for geom, count in count_geoms(record["geoms"], record["indices"], policy.layer).items():
             label = geom_label(env.mj_model, geom)

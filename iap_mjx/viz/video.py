@@ -51,11 +51,13 @@ def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
 
 
 def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any], dict] | None = None) -> Any:
-    """The jitted episode ``(params, obs_stats, key) -> record`` that :func:`run_episode` runs.
+    """The jitted episode ``(params, obs_stats, key) -> record`` that :func:`record_episode` runs.
 
     Params, observation statistics (``None``: raw observations) and the key are arguments, not
     constants, so the program can be compiled before the params it will run exist
-    (:func:`compile_episode_program`) and is compiled once for every checkpoint.
+    (:func:`compile_episode_program`) and is compiled once for every checkpoint. The episode
+    is training's own (:func:`iap_mjx.es.episode.run_episode`); what a video needs is its
+    ``record`` of each step.
 
     Args:
       env: an env following the Env protocol: a pixel env (its newest frame is recorded) or a
@@ -69,7 +71,7 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
     Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
     (T, l) int or absent, "rewards": (T,)}`` and ``extra``'s entries ``(T, ...)``.
     """
-    from iap_mjx.es.normalizer import normalize
+    from iap_mjx.es.episode import Step, run_episode
 
     channels = 4 if getattr(env, "obs_mode", "pixels") == "pixels_depth" else 3
     pixels = has_pixels(env)
@@ -81,35 +83,29 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
 
     @jax.jit
     def program(params, obs_stats, key):
-        def step(carry, _):
-            state, policy_state = carry
-            seen = state.obs if obs_stats is None else normalize(obs_stats, state.obs)
-            record = {"frames": frame(state), **(extra(state) if extra is not None else {})}
+        def record(step: Step) -> dict:
+            kept = {"frames": frame(step.state), **(extra(step.state) if extra is not None else {})}
             if selects:
-                record["indices"] = policy.select(params, seen, policy_state).indices
-            action, policy_state = policy.apply(params, seen, policy_state)
-            state = env.step(state, action)
-            record["rewards"] = state.reward
-            return (state, policy_state), record
+                kept["indices"] = policy.select(params, step.seen, step.policy_state).indices
+            kept["rewards"] = step.next_state.reward
+            return kept
 
-        reset_key, policy_key = jax.random.split(key)
-        carry = (env.reset(reset_key), policy.initial_state(policy_key))
-        return jax.lax.scan(step, carry, None, length=steps)[1]
+        return run_episode(env, policy, params, key, obs_stats, steps=steps, record=record).records
 
     return program
 
 
 def compile_episode_program(env: Any, policy: Any, *, steps: int, obs_stats: Any = None) -> Any:
     """:func:`episode_program` compiled ahead of time for ``policy``'s params shapes (and
-    ``obs_stats``'s, if given): pass it to :func:`run_episode` as ``program``. Safe to call
+    ``obs_stats``'s, if given): pass it to :func:`record_episode` as ``program``. Safe to call
     from a background thread while something else compiles or trains."""
     params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
     stats = None if obs_stats is None else jax.eval_shape(lambda: obs_stats)
     return episode_program(env, policy, steps=steps).lower(params, stats, jax.random.PRNGKey(0)).compile()
 
 
-def run_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
-                obs_stats: Any = None, program: Any = None) -> dict[str, np.ndarray]:
+def record_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
+                   obs_stats: Any = None, program: Any = None) -> dict[str, np.ndarray]:
     """Rolls one episode of ``steps`` control steps and records what a video needs.
 
     Args:
@@ -188,9 +184,9 @@ def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) ->
 def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array,
                   steps: int, obs_stats: Any = None, program: Any = None,
                   fps: int | None = None) -> tuple[Path, float]:
-    """Runs one episode (:func:`run_episode`) and writes its annotated video. Returns
+    """Runs one episode (:func:`record_episode`) and writes its annotated video. Returns
     ``(path, episode return)``."""
-    record = run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+    record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = np.cumsum(record["rewards"])
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
@@ -207,14 +203,14 @@ def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: 
 def episode_strip(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array, steps: int,
                   frames: int = 6, columns: int = 3, obs_stats: Any = None, program: Any = None,
                   scale: int = 2) -> tuple[Path, float]:
-    """Runs one episode (:func:`run_episode`) and writes ``frames`` of it, evenly spaced from
+    """Runs one episode (:func:`record_episode`) and writes ``frames`` of it, evenly spaced from
     the first step to the last, annotated as the video's (:func:`annotate`, the step in the
     caption) and tiled ``columns`` to a row, as a PNG. Returns ``(path, episode return)``."""
     from PIL import Image
 
     if not isinstance(frames, int) or frames < 1 or not isinstance(columns, int) or columns < 1:
         raise ValueError(f"frames = {frames!r} and columns = {columns!r} must be ints >= 1")
-    record = run_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+    record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = np.cumsum(record["rewards"])
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
