@@ -24,8 +24,8 @@ beside the IAP runs of the same tasks found in ``out`` (``table1-cnn.json``/``.p
 
 from __future__ import annotations
 
+import functools
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +34,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.configs.dcs_presets import TASKS
 from iap_mjx.configs.overrides import apply_condition
-
-logger = logging.getLogger(__name__)
+from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpole-swingup": (196.0, 167.0),
@@ -45,8 +44,6 @@ BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpol
 SUITE_BEST_MEAN, SUITE_BEST_STEPS = 170.0, 500_000
 CONDITIONS = {"train": (), "held-out": ("env.background_videos=val",), "dynamic": ("env.dynamic=true",),
               "none": ("env.distraction=none",)}
-EVAL_SEED = 2021  # not a training seed: evaluation episodes are fresh draws
-EVAL_FILE = "eval.json"
 
 
 POLICIES = {"iap": "", "cnn": "-cnn"}
@@ -97,20 +94,13 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
     where stored, evaluated (and stored) otherwise."""
     from iap_mjx import es
 
-    path = run_dir / EVAL_FILE
-    stored = json.loads(path.read_text()) if path.exists() else {}
-    out = {}
-    for name, condition in conditions.items():
-        key = f"{name}@{step}x{episodes}s{EVAL_SEED}"
-        if len(stored.get(key, ())) != episodes:  # missing, or stored short by an older evaluate_run
-            logger.info("%s: evaluating %s (%d episodes)", run_dir.name, name, episodes)
-            returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
-            stored[key] = [float(r) for r in returns]
-            temporary = path.with_suffix(".tmp")
-            temporary.write_text(json.dumps(stored, indent=1))
-            temporary.replace(path)
-        out[name] = stored[key]
-    return out
+    def evaluate(condition: tuple[str, ...]) -> list[float]:
+        returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
+        return [float(r) for r in returns]
+
+    return {name: stored_evaluation(run_dir, evaluation_key(name, step, episodes), episodes,
+                                    functools.partial(evaluate, condition))
+            for name, condition in conditions.items()}
 
 
 def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool,

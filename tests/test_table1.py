@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from iap_mjx import cli, configs, table1
+from iap_mjx import cli, configs, run_eval, table1
 from iap_mjx.es import checkpoint
 from iap_mjx.es.metrics_log import MetricsWriter
 
@@ -67,12 +67,12 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
     assert "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 3,000 |" in row
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
-    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / table1.EVAL_FILE).read_text())
+    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE).read_text())
     assert len(stored) == 4
     table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
                             tasks=("cartpole-swingup",))
     assert len(calls) == 4  # read back, not evaluated again
-    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / table1.EVAL_FILE
+    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE
     short = json.loads(eval_path.read_text())
     key = next(k for k in short if k.startswith("none@"))
     short[key] = short[key][:2]  # as an evaluate_run that returned one device's share stored it
