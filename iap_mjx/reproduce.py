@@ -147,6 +147,8 @@ def figure(rows: list[dict[str, Any]], *, title: str):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from iap_mjx.viz.curves import plot_mean_band
+
     labels = [row["variant"] for row in rows]
     x = np.arange(len(rows))
     fig, (ax, curves) = plt.subplots(1, 2, figsize=(1.3 * len(rows) + 8, 4))
@@ -159,12 +161,7 @@ def figure(rows: list[dict[str, Any]], *, title: str):
     twin.set_ylabel("reward (mean over seeds)")
     ax.set_title(title)
     for row in rows:
-        length = min(len(curve) for curve in row["curves"])
-        stacked = np.array([curve[:length] for curve in row["curves"]])
-        steps = np.arange(1, length + 1)
-        mean, std = stacked.mean(0), stacked.std(0)
-        curves.plot(steps, mean, label=row["variant"])
-        curves.fill_between(steps, mean - std, mean + std, alpha=0.2)
+        plot_mean_band(curves, row["curves"], row["variant"])
     curves.set_xlabel("ES iteration (the centre at its start)")
     curves.set_ylabel("evaluation return")
     curves.set_title(f"mean +- std over {len(rows[0]['curves'])} seeds")
@@ -175,10 +172,12 @@ def figure(rows: list[dict[str, Any]], *, title: str):
 
 def table(rows: list[dict[str, Any]]) -> str:
     """A markdown table of the rows."""
+    from iap_mjx.viz.sections import mean_std
+
     lines = ["| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training s (all seeds) |",
              "|---|---|---:|---:|---:|---:|---:|"]
     for row in rows:
         lines.append(f"| {row['variant']} | `{row['preset']}` | {1e3 * row['inference_s']:.3f} | "
-                     f"{np.mean(row['returns']):.1f} ± {np.std(row['returns']):.1f} | {len(row['returns'])} | "
+                     f"{mean_std(row['returns'])} | {len(row['returns'])} | "
                      f"{row['iterations']} | {row['train_wall_s']:.0f} |")
     return "\n".join(lines)

@@ -35,6 +35,7 @@ from iap_mjx import configs
 from iap_mjx.configs.dcs_presets import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.viz.sections import image_link, mean_std, write_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpole-swingup": (196.0, 167.0),
@@ -171,8 +172,6 @@ def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides
                   episodes: int, policy: str = "iap") -> None:
     """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
     curves."""
-    from iap_mjx.viz.sections import image_link, write_section
-
     name = "table1" + POLICIES[policy]
     command = " ".join(["iap-mjx reproduce table1", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
                         *([f"--policy {policy}"] if policy != "iap" else []), f"--out {png.parent}",
@@ -191,10 +190,6 @@ def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides
                  "evaluation episodes per seed; mean ± std over seeds.")
     body = f"{title.format(command=command, episodes=episodes)}\n\n![{name}]({image})\n\n{markdown}\n"
     write_section(path, name, body, title="# Results")
-
-
-def _mean_std(values: list[float]) -> str:
-    return f"{np.mean(values):.1f} ± {np.std(values):.1f}" if values else "-"
 
 
 def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
@@ -218,8 +213,8 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
             met += task in BASELINES and means[task] >= max(sac, qt)
         lines.append(
             f"| {task} | {sac if sac is not None else '-'} | {qt if qt is not None else '-'} | "
-            f"{_mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
-            f"{_mean_std(per['held-out'])} | {_mean_std(per['dynamic'])} | {_mean_std(per['none'])} | "
+            f"{mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
+            f"{mean_std(per['held-out'])} | {mean_std(per['dynamic'])} | {mean_std(per['none'])} | "
             f"{len(done)} of {seeds} | {max(row['iterations'] for row in task_rows)} | "
             f"{max(row['env_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} | "
             f"{task_rows[0]['parameters']:,} |")
@@ -250,9 +245,9 @@ def comparison(cnn: list[dict[str, Any]], iap: list[dict[str, Any]], *, seeds: i
         counts = [f"{task_rows[0]['parameters']:,}" if task_rows else "-" for task_rows in (theirs, ours)]
         finished = [sum(row["finished"] for row in task_rows) for task_rows in (theirs, ours)]
         lines.append(
-            f"| {task} | {counts[0]} | {_mean_std(per['iap']['train'])} | {_mean_std(per['iap']['held-out'])} | "
-            f"{counts[1]} | {_mean_std(per['cnn']['train'])} | {_mean_std(per['cnn']['held-out'])} | "
-            f"{_mean_std(per['cnn']['dynamic'])} | {_mean_std(per['cnn']['none'])} | "
+            f"| {task} | {counts[0]} | {mean_std(per['iap']['train'])} | {mean_std(per['iap']['held-out'])} | "
+            f"{counts[1]} | {mean_std(per['cnn']['train'])} | {mean_std(per['cnn']['held-out'])} | "
+            f"{mean_std(per['cnn']['dynamic'])} | {mean_std(per['cnn']['none'])} | "
             f"{finished[0]} and {finished[1]} of {seeds} | {max(row['iterations'] for row in ours)} |")
     return "\n".join(lines)
 
