@@ -82,6 +82,41 @@ def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path, *,
     return [float(row["eval_return"]) for row in history], seconds
 
 
+def run_summary(config: configs.TrainConfig, seed: int, run_dir: Path, *,
+                train: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+    """:func:`trained_curve`'s run as a report's row, ``{"seed", "curve", "seconds",
+    "iterations", "env_steps", "finished"}`` (``env_steps``: the training steps of its last
+    iteration), and its metrics rows up to that iteration; ``None`` while it has none."""
+    from iap_mjx.es.metrics_log import read_history
+
+    trained = trained_curve(config, seed, run_dir, train=train)
+    if trained is None or not trained[0]:
+        return None
+    curve, seconds = trained
+    history = read_history(run_dir, up_to=len(curve))
+    row = {"seed": seed, "curve": curve, "seconds": seconds, "iterations": len(curve),
+           "env_steps": int(history[-1]["env_steps"]) if history else 0,
+           "finished": len(curve) == config.run.iterations}
+    return row, history
+
+
+def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
+    """The policy each config builds, constructed (so validated) and nothing compiled; each
+    distinct env is built once (the quadruped's takes seconds)."""
+    from iap_mjx import envs, policies
+
+    built_envs: dict[tuple[str, Any], Any] = {}
+    out = {}
+    for name, config in checked.items():
+        spec = (config.env.name, config.env.overrides)
+        if spec not in built_envs:
+            built_envs[spec] = envs.make(config.env.name, **dict(config.env.overrides))
+        env = built_envs[spec]
+        out[name] = policies.make(config.policy.kind, env.observation_shape, env.action_size,
+                                  **dict(config.policy.options))
+    return out
+
+
 def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
               passes: int = 100, train: bool = True) -> str:
     """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table.

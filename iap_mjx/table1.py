@@ -57,15 +57,13 @@ def preset(task: str, policy: str = "iap") -> str:
 
 def parameters(config: configs.TrainConfig) -> int:
     """The trainable parameters of a ``dcs-*`` config's policy (built for its RGB frame)."""
-    import jax
-
     from iap_mjx import envs, policies
 
     env_config = envs.check(config.env.name, **dict(config.env.overrides))
     action_size = envs.make(config.env.name).action_size  # the state env's: pixels do not change it
     policy = policies.make(config.policy.kind, (env_config.height, env_config.width, 3), action_size,
                            **dict(config.policy.options))
-    return policies.param_count(policy.init(jax.random.PRNGKey(0)))
+    return policies.init_param_count(policy)
 
 
 def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap") -> dict[str, configs.TrainConfig]:
@@ -110,19 +108,13 @@ def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *,
     with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     from iap_mjx.es import checkpoint
-    from iap_mjx.es.metrics_log import read_history
-    from iap_mjx.reproduce import trained_curve
+    from iap_mjx.reproduce import run_summary
 
     run_dir = out_dir / f"{preset(task, policy)}-seed{seed}"
-    trained = trained_curve(config, seed, run_dir, train=train)
-    if trained is None or not trained[0]:
+    summary = run_summary(config, seed, run_dir, train=train)
+    if summary is None:
         return None
-    curve, seconds = trained
-    history = read_history(run_dir, up_to=len(curve))
-    row = {"task": task, "policy": policy, "parameters": parameters(config), "seed": seed, "curve": curve,
-           "seconds": seconds,
-           "iterations": len(curve), "env_steps": int(history[-1]["env_steps"]) if history else 0,
-           "finished": len(curve) == config.run.iterations}
+    row = {"task": task, "policy": policy, "parameters": parameters(config), **summary[0]}
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
         row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes)
