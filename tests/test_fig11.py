@@ -127,11 +127,14 @@ def test_bars_need_the_parameter_ratio_and_a_clear_margin_over_blind():
                              "parameters (873 against 7,269; bar: >= 5x): not met.")  # 19.0 < 20.0
 
 
-def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations):
+def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations, capsys):
     _run(tmp_path / "out", "iap", 0)
     _run(tmp_path / "out", "blind", 0, iterations=2)
     export = tmp_path / "pretrained"
-    fig11.reproduce_fig11(tmp_path / "out", seeds=1, overrides=ITERATIONS, episodes=2, train=False, export=export)
+    assert cli.main(["reproduce", "fig11", *ITERATIONS, "--seeds", "1", "--episodes", "2", "--report-only",
+                     "--out", str(tmp_path / "out"), "--export", str(export)]) == 0
+    assert "| IAP (`quadruped-walls-iap`) | 873 | 20.0 ± 0.0 |" in capsys.readouterr().out
+    assert evaluations == [("quadruped-walls-iap-seed0", 2, run_eval.EVAL_SEED, ())]
     assert sorted(p.name for p in export.iterdir()) == ["quadruped-walls-blind-seed0", "quadruped-walls-iap-seed0"]
     assert checkpoint.latest_step(export / "quadruped-walls-iap-seed0") == 3
     assert checkpoint.latest_step(export / "quadruped-walls-blind-seed0") == 2

@@ -66,7 +66,7 @@ def test_each_setting_trains_with_its_overrides_and_the_same_budget(tmp_path, mo
                        ("quadruped-walls-iap-seed1", 4, None, 2, 1), ("table2-p4-s2-seed1", 4, 2, 2, 1)]
 
 
-def test_table_reports_maximum_returns_patches_and_commands(tmp_path):
+def test_table_reports_maximum_returns_patches_and_commands(tmp_path, capsys):
     _run(tmp_path, (1, 1), [4.0, 12.0, 8.0])
     _run(tmp_path, (2, 2), [3.0, 6.0], iterations=2)  # unfinished; (4, 2) has no run yet
     _run(tmp_path, (4, 4), [5.0, 9.0, 7.0])
@@ -83,7 +83,9 @@ def test_table_reports_maximum_returns_patches_and_commands(tmp_path):
     _run(tmp_path, (2, 2), [3.0, 6.0, 1.0])
     _run(tmp_path, (4, 2), [1.0, 20.0, 3.0])
     results = tmp_path / "RESULTS.md"
-    markdown = table2.reproduce_table2(tmp_path, overrides=ITERATIONS, train=False, results=results)
+    assert cli.main(["reproduce", "table2", *ITERATIONS, "--settings", "1x1,2x2,4x4,4x2", "--report-only",
+                     "--out", str(tmp_path), "--results", str(results)]) == 0
+    markdown = capsys.readouterr().out.rstrip("\n")
     assert markdown.splitlines()[5].startswith("| 4 | 2 | 165 | 873 | 20.0 | 3.0 | 3 | 36 |")
     assert markdown.splitlines()[-1] == (
         "Best setting: patch size 4, stride 2 (L = 165, max return 20.0); the paper's best had the most patches, here "
