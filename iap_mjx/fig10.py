@@ -84,8 +84,8 @@ def reproduce_fig10(out_dir: str | Path, *, run_dirs: tuple[str | Path, ...] | N
                             f"(L = {policy.layer.num_patches:,} patches, top {attention.top_l} selected): `{run_dir}`, "
                             f"episode return {episode_return:.2f}."))
         logger.info("fig10: %s, return %.2f", path, episode_return)
-    link = (lambda path: image_link(path, Path(results))) if results is not None else (lambda path: path)  # noqa: E731
-    markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link(path)})" for path, caption in parts)
+    links = [path if results is None else image_link(path, Path(results)) for path, _ in parts]
+    markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link})" for (path, caption), link in zip(parts, links))
     if results is not None:
         write_results(Path(results), markdown, run_dirs=tuple(checked), frames=frames, out_dir=out_dir)
     return markdown

@@ -160,10 +160,10 @@ def table(rows: list[dict[str, Any]], *, settings: int) -> str:
     else:
         best = max(rows, key=lambda row: row["max_return"])
         most = max(rows, key=lambda row: row["patches"])
-        lines.append(f"Best setting: patch size {best['patch_size']}, stride {best['stride']} (L = {best['patches']:,}, "
-                     f"max return {best['max_return']:.1f}); the paper's best had the most patches, here patch size "
-                     f"{most['patch_size']}, stride {most['stride']} (L = {most['patches']:,}, max return "
-                     f"{most['max_return']:.1f}).")
+        lines.append(f"Best setting: patch size {best['patch_size']}, stride {best['stride']} "
+                     f"(L = {best['patches']:,}, max return {best['max_return']:.1f}); the paper's best had the most "
+                     f"patches, here patch size {most['patch_size']}, stride {most['stride']} "
+                     f"(L = {most['patches']:,}, max return {most['max_return']:.1f}).")
     return "\n".join(lines)
 
 

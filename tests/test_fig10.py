@@ -43,7 +43,8 @@ def episodes(monkeypatch):
     def run_episode(env, policy, params, key, *, steps, obs_stats=None, program=None):
         assert params == "params" and steps == STEPS
         keys.append(np.asarray(key).tolist())
-        first = np.array([32 * row + col for row, col in SMALL]) if policy.layer.config.patch_size == 1 else np.full(10, 9)
+        small = policy.layer.config.patch_size == 1
+        first = np.array([32 * row + col for row, col in SMALL]) if small else np.full(10, 9)
         return {"frames": np.zeros((steps, 24, 32, 3), np.float32), "indices": np.tile(first, (steps, 1)),
                 "rewards": np.full(steps, 0.01)}
 
@@ -81,7 +82,8 @@ def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episo
     large = _run(tmp_path, "quadruped-walls-iap")
     results = tmp_path / "RESULTS.md"
     markdown = fig10.reproduce_fig10(tmp_path, run_dirs=(small, large), frames=3, results=results)
-    assert episodes == [np.asarray(jax.random.PRNGKey(run_eval.EVAL_SEED)).tolist()] * 2  # an unseen course, the same for both
+    unseen = np.asarray(jax.random.PRNGKey(run_eval.EVAL_SEED)).tolist()
+    assert episodes == [unseen] * 2  # a course not seen in training, the same for both
     tiles = {}
     for name in ("fig10-p1-s1.png", "fig10-p4-s4.png"):
         image = np.asarray(Image.open(tmp_path / name).convert("RGB"))

@@ -41,8 +41,8 @@ def evaluations(monkeypatch):
         base, walls = RUNS[policy, run_seed]
         alternate = np.arange(episodes) % 2
         return {"return": base - 2.0 + 4.0 * alternate, "walls_passed": walls + 1.0 - alternate,
-                "fell_off": (np.arange(episodes) % 4 == 3).astype(float), "wall_contacts": np.full(episodes, 3.0 + run_seed),
-                "distance": np.full(episodes, base / 2)}
+                "fell_off": (np.arange(episodes) % 4 == 3).astype(float),
+                "wall_contacts": np.full(episodes, 3.0 + run_seed), "distance": np.full(episodes, base / 2)}
 
     from iap_mjx import es
 
@@ -123,7 +123,7 @@ def test_bars_need_the_parameter_ratio_and_a_clear_margin_over_blind():
     assert lines[1].endswith(": met.") and lines[2].endswith(": not met.")  # 2.5 - 0.5 > 1.5; 2.0 - 0.5 is not
     below = fig11.bars({"IAP": summary(873, [18.0, 20.0], [2.0, 3.0]), "CNN": summary(7269, [20.0, 22.0], [2.0, 3.0]),
                         "blind": blind}, seeds=2)
-    assert below[0].endswith(f"(bar: IAP's mean >= the CNN's mean minus its seed-std, 20.0), with 8.3x fewer "
+    assert below[0].endswith("(bar: IAP's mean >= the CNN's mean minus its seed-std, 20.0), with 8.3x fewer "
                              "parameters (873 against 7,269; bar: >= 5x): not met.")  # 19.0 < 20.0
 
 

@@ -31,8 +31,8 @@ def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
         table2.reproduce_table2(tmp_path, settings=((1, 1), (3, 3)))
     assert str(error.value) == (
         "table2 setting (patch size 3, stride 3): patches of size 3 with stride 3 do not tile the image: (width 32 - "
-        "patch_size) is not a multiple of the stride; choose sizes with (size - patch_size) % stride == 0. Valid (patch "
-        f"size, stride) on the 24x32 camera with top_l = 10, stride <= patch size <= 8: {VALID}")
+        "patch_size) is not a multiple of the stride; choose sizes with (size - patch_size) % stride == 0. Valid "
+        f"(patch size, stride) on the 24x32 camera with top_l = 10, stride <= patch size <= 8: {VALID}")
     with pytest.raises(ValueError, match=r"setting \(patch size 8, stride 8\): L = 12 patches, fewer than top_l = 20"):
         table2.reproduce_table2(tmp_path, settings=((8, 8),), overrides=("policy.top_l=20",))
     with pytest.raises(ValueError, match="remove policy.stride=2"):
