@@ -215,12 +215,33 @@ def cmd_video(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Reproduces the paper's Figure 1 or 6 (inference time per pass next to return) or its
-    Table 1 with the generalisation conditions."""
+    """Reproduces the paper's Figure 1 or 6 (inference time per pass next to return), 7 (patch
+    sweep), 8 (wall-clock), its Table 1 with the generalisation conditions, or its quadruped's
+    Figures 10, 11 and Table 2."""
     from iap_mjx import patch_sweep, reproduce, table1, wallclock
 
     try:
-        if args.figure == "fig8":
+        if args.figure == "fig11":
+            from iap_mjx import fig11
+
+            markdown = fig11.reproduce_fig11(args.out, seeds=args.seeds, overrides=tuple(args.overrides),
+                                             episodes=args.episodes, train=not args.report_only,
+                                             results=args.results, export=args.export)
+        elif args.figure == "table2":
+            from iap_mjx import table2
+
+            settings = parse_settings(args.settings) if args.settings else table2.SETTINGS
+            markdown = table2.reproduce_table2(args.out, settings=settings, seed=args.seed,
+                                               overrides=tuple(args.overrides), train=not args.report_only,
+                                               results=args.results)
+        elif args.figure == "fig10":
+            from iap_mjx import fig10
+
+            if args.overrides:
+                raise ValueError(f"fig10 draws trained runs as they are; remove {' '.join(args.overrides)}")
+            run_dirs = tuple(part.strip() for part in args.run_dirs.split(",")) if args.run_dirs else None
+            markdown = fig10.reproduce_fig10(args.out, run_dirs=run_dirs, frames=args.frames, results=args.results)
+        elif args.figure == "fig8":
             markdown = wallclock.reproduce_fig8(args.out, overrides=tuple(args.overrides), train=not args.report_only,
                                                 results=args.results)
         elif args.figure == "fig7":
@@ -250,6 +271,17 @@ def cmd_figures(args: argparse.Namespace) -> int:
     for path in mse_figures.write_mse_figures(args.out, draws=args.draws):
         print(path)
     return 0
+
+
+def parse_settings(text: str) -> tuple[tuple[int, int], ...]:
+    """``"1x1,2x2,4x2"`` -> ``((1, 1), (2, 2), (4, 2))``: (patch size, stride) pairs."""
+    settings = []
+    for part in text.split(","):
+        size, _, stride = part.strip().partition("x")
+        if not (size.isdigit() and stride.isdigit()):
+            raise ValueError(f"--settings {text!r}: each setting is PATCHxSTRIDE, e.g. 1x1,2x2,4x4,4x2")
+        settings.append((int(size), int(stride)))
+    return tuple(settings)
 
 
 def _count(text: str) -> int:
@@ -340,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     repro = commands.add_parser(
         "reproduce", help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
-                          "or Table 1",
+                          "Table 1, or the quadruped's Figures 10, 11 and Table 2",
         description="fig1/fig6: times one forward pass of every attention variant and trains each "
                     "preset on --seeds seeds. fig7: on dcs-cartpole-swingup, one seed per cell of patch "
                     "size {2, 4, 8} x selected patches {5, 10, 20}, then d_qk {2, 4, 8} at the best cell. fig8: "
@@ -349,22 +381,35 @@ def build_parser() -> argparse.ArgumentParser:
                     "table1: trains dcs-<task> for every Distracting Control "
                     "task and seed, then evaluates each finished run in four conditions (training "
                     "backgrounds, held-out backgrounds, dynamic, no distraction); --policy cnn does the same "
-                    "for the convolutional baseline. key=value overrides "
+                    "for the convolutional baseline. fig11: trains quadruped-walls-iap, -cnn and -blind on "
+                    "--seeds seeds, then evaluates each finished run on --episodes courses not seen in "
+                    "training (walls passed, falls, wall contacts, distance). table2: quadruped-walls-iap at "
+                    "each --settings patch size and stride, one --seed, reporting the maximum episode return. "
+                    "fig10: a PNG strip of the camera with the selected patches along one episode of each of "
+                    "--run-dirs (default: table2's patch 1 and 4 runs in --out). key=value overrides "
                     "apply to every preset (e.g. run.iterations=100).")
-    repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "fig8", "table1"])
+    repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "fig8", "fig10", "fig11", "table1", "table2"])
     repro.add_argument("overrides", nargs="*", metavar="key=value")
     repro.add_argument("--out", default="results", help="output directory (default: results)")
     repro.add_argument("--seeds", type=_count, default=3)
     repro.add_argument("--passes", type=_count, default=100, help="timed forward passes (fig1, fig6)")
     repro.add_argument("--episodes", type=_count, default=20,
-                       help="table1, fig7: evaluation episodes per condition and run (default 20)")
+                       help="table1, fig7, fig11: evaluation episodes per condition and run (default 20)")
     repro.add_argument("--tasks", default=None,
                        help="table1: comma-separated suite tasks (default: all six)")
     repro.add_argument("--results", default=None, metavar="RESULTS.md",
-                       help="table1, fig7, fig8: rewrite this markdown file's section with the table")
+                       help="table1, table2, fig7, fig8, fig10, fig11: rewrite this markdown file's section")
     repro.add_argument("--export", default=None, metavar="DIR",
-                       help="table1: copy each run's newest checkpoint, config and metrics to "
-                            "DIR/<task>-seed<k> (e.g. pretrained/dcs, tracked by git)")
+                       help="table1, fig11: copy each run's newest checkpoint, config and metrics to "
+                            "DIR/<task>-seed<k> (table1, e.g. pretrained/dcs) or DIR/<preset>-seed<k> (fig11, "
+                            "e.g. pretrained/quadruped), tracked by git")
+    repro.add_argument("--settings", default=None, metavar="PxS,...",
+                       help="table2: comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)")
+    repro.add_argument("--seed", type=_index, default=0, help="table2: the training seed (default 0)")
+    repro.add_argument("--run-dirs", default=None, metavar="DIR,...",
+                       help="fig10: comma-separated trained quadruped-walls-iap runs (default: "
+                            "OUT/table2-p1-s1-seed0,OUT/quadruped-walls-iap-seed0)")
+    repro.add_argument("--frames", type=_count, default=6, help="fig10: frames per strip (default 6)")
     repro.add_argument("--policy", default="iap", choices=["iap", "cnn"],
                        help="table1: iap (dcs-<task>) or cnn, the same-budget convolutional baseline "
                             "(dcs-<task>-cnn), reported beside the IAP runs in --out")

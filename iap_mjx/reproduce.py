@@ -82,6 +82,41 @@ def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path, *,
     return [float(row["eval_return"]) for row in history], seconds
 
 
+def run_summary(config: configs.TrainConfig, seed: int, run_dir: Path, *,
+                train: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+    """:func:`trained_curve`'s run as a report's row, ``{"seed", "curve", "seconds",
+    "iterations", "env_steps", "finished"}`` (``env_steps``: the training steps of its last
+    iteration), and its metrics rows up to that iteration; ``None`` while it has none."""
+    from iap_mjx.es.metrics_log import read_history
+
+    trained = trained_curve(config, seed, run_dir, train=train)
+    if trained is None or not trained[0]:
+        return None
+    curve, seconds = trained
+    history = read_history(run_dir, up_to=len(curve))
+    row = {"seed": seed, "curve": curve, "seconds": seconds, "iterations": len(curve),
+           "env_steps": int(history[-1]["env_steps"]) if history else 0,
+           "finished": len(curve) == config.run.iterations}
+    return row, history
+
+
+def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
+    """The policy each config builds, constructed (so validated) and nothing compiled; each
+    distinct env is built once (the quadruped's takes seconds)."""
+    from iap_mjx import envs, policies
+
+    built_envs: dict[tuple[str, Any], Any] = {}
+    out = {}
+    for name, config in checked.items():
+        spec = (config.env.name, config.env.overrides)
+        if spec not in built_envs:
+            built_envs[spec] = envs.make(config.env.name, **dict(config.env.overrides))
+        env = built_envs[spec]
+        out[name] = policies.make(config.policy.kind, env.observation_shape, env.action_size,
+                                  **dict(config.policy.options))
+    return out
+
+
 def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
               passes: int = 100, train: bool = True) -> str:
     """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table.
@@ -147,6 +182,8 @@ def figure(rows: list[dict[str, Any]], *, title: str):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from iap_mjx.viz.curves import plot_mean_band
+
     labels = [row["variant"] for row in rows]
     x = np.arange(len(rows))
     fig, (ax, curves) = plt.subplots(1, 2, figsize=(1.3 * len(rows) + 8, 4))
@@ -159,12 +196,7 @@ def figure(rows: list[dict[str, Any]], *, title: str):
     twin.set_ylabel("reward (mean over seeds)")
     ax.set_title(title)
     for row in rows:
-        length = min(len(curve) for curve in row["curves"])
-        stacked = np.array([curve[:length] for curve in row["curves"]])
-        steps = np.arange(1, length + 1)
-        mean, std = stacked.mean(0), stacked.std(0)
-        curves.plot(steps, mean, label=row["variant"])
-        curves.fill_between(steps, mean - std, mean + std, alpha=0.2)
+        plot_mean_band(curves, row["curves"], row["variant"])
     curves.set_xlabel("ES iteration (the centre at its start)")
     curves.set_ylabel("evaluation return")
     curves.set_title(f"mean +- std over {len(rows[0]['curves'])} seeds")
@@ -175,10 +207,12 @@ def figure(rows: list[dict[str, Any]], *, title: str):
 
 def table(rows: list[dict[str, Any]]) -> str:
     """A markdown table of the rows."""
+    from iap_mjx.viz.sections import mean_std
+
     lines = ["| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training s (all seeds) |",
              "|---|---|---:|---:|---:|---:|---:|"]
     for row in rows:
         lines.append(f"| {row['variant']} | `{row['preset']}` | {1e3 * row['inference_s']:.3f} | "
-                     f"{np.mean(row['returns']):.1f} ± {np.std(row['returns']):.1f} | {len(row['returns'])} | "
+                     f"{mean_std(row['returns'])} | {len(row['returns'])} | "
                      f"{row['iterations']} | {row['train_wall_s']:.0f} |")
     return "\n".join(lines)

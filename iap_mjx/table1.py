@@ -24,8 +24,8 @@ beside the IAP runs of the same tasks found in ``out`` (``table1-cnn.json``/``.p
 
 from __future__ import annotations
 
+import functools
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +34,8 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
-
-logger = logging.getLogger(__name__)
+from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.viz.sections import image_link, mean_std, write_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpole-swingup": (196.0, 167.0),
@@ -45,8 +45,6 @@ BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpol
 SUITE_BEST_MEAN, SUITE_BEST_STEPS = 170.0, 500_000
 CONDITIONS = {"train": (), "held-out": ("env.background_videos=val",), "dynamic": ("env.dynamic=true",),
               "none": ("env.distraction=none",)}
-EVAL_SEED = 2021  # not a training seed: evaluation episodes are fresh draws
-EVAL_FILE = "eval.json"
 
 
 POLICIES = {"iap": "", "cnn": "-cnn"}
@@ -59,15 +57,13 @@ def preset(task: str, policy: str = "iap") -> str:
 
 def parameters(config: configs.TrainConfig) -> int:
     """The trainable parameters of a ``dcs-*`` config's policy (built for its RGB frame)."""
-    import jax
-
     from iap_mjx import envs, policies
 
     env_config = envs.check(config.env.name, **dict(config.env.overrides))
     action_size = envs.make(config.env.name).action_size  # the state env's: pixels do not change it
     policy = policies.make(config.policy.kind, (env_config.height, env_config.width, 3), action_size,
                            **dict(config.policy.options))
-    return policies.param_count(policy.init(jax.random.PRNGKey(0)))
+    return policies.init_param_count(policy)
 
 
 def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap") -> dict[str, configs.TrainConfig]:
@@ -97,20 +93,13 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
     where stored, evaluated (and stored) otherwise."""
     from iap_mjx import es
 
-    path = run_dir / EVAL_FILE
-    stored = json.loads(path.read_text()) if path.exists() else {}
-    out = {}
-    for name, condition in conditions.items():
-        key = f"{name}@{step}x{episodes}s{EVAL_SEED}"
-        if len(stored.get(key, ())) != episodes:  # missing, or stored short by an older evaluate_run
-            logger.info("%s: evaluating %s (%d episodes)", run_dir.name, name, episodes)
-            returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
-            stored[key] = [float(r) for r in returns]
-            temporary = path.with_suffix(".tmp")
-            temporary.write_text(json.dumps(stored, indent=1))
-            temporary.replace(path)
-        out[name] = stored[key]
-    return out
+    def evaluate(condition: tuple[str, ...]) -> list[float]:
+        returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
+        return [float(r) for r in returns]
+
+    return {name: stored_evaluation(run_dir, evaluation_key(name, step, episodes), episodes,
+                                    functools.partial(evaluate, condition))
+            for name, condition in conditions.items()}
 
 
 def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool,
@@ -119,19 +108,13 @@ def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *,
     with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     from iap_mjx.es import checkpoint
-    from iap_mjx.es.metrics_log import read_history
-    from iap_mjx.reproduce import trained_curve
+    from iap_mjx.reproduce import run_summary
 
     run_dir = out_dir / f"{preset(task, policy)}-seed{seed}"
-    trained = trained_curve(config, seed, run_dir, train=train)
-    if trained is None or not trained[0]:
+    summary = run_summary(config, seed, run_dir, train=train)
+    if summary is None:
         return None
-    curve, seconds = trained
-    history = read_history(run_dir, up_to=len(curve))
-    row = {"task": task, "policy": policy, "parameters": parameters(config), "seed": seed, "curve": curve,
-           "seconds": seconds,
-           "iterations": len(curve), "env_steps": int(history[-1]["env_steps"]) if history else 0,
-           "finished": len(curve) == config.run.iterations}
+    row = {"task": task, "policy": policy, "parameters": parameters(config), **summary[0]}
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
         row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes)
@@ -181,8 +164,6 @@ def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides
                   episodes: int, policy: str = "iap") -> None:
     """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
     curves."""
-    from iap_mjx.viz.sections import image_link, write_section
-
     name = "table1" + POLICIES[policy]
     command = " ".join(["iap-mjx reproduce table1", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
                         *([f"--policy {policy}"] if policy != "iap" else []), f"--out {png.parent}",
@@ -201,10 +182,6 @@ def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides
                  "evaluation episodes per seed; mean ± std over seeds.")
     body = f"{title.format(command=command, episodes=episodes)}\n\n![{name}]({image})\n\n{markdown}\n"
     write_section(path, name, body, title="# Results")
-
-
-def _mean_std(values: list[float]) -> str:
-    return f"{np.mean(values):.1f} ± {np.std(values):.1f}" if values else "-"
 
 
 def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
@@ -228,8 +205,8 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
             met += task in BASELINES and means[task] >= max(sac, qt)
         lines.append(
             f"| {task} | {sac if sac is not None else '-'} | {qt if qt is not None else '-'} | "
-            f"{_mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
-            f"{_mean_std(per['held-out'])} | {_mean_std(per['dynamic'])} | {_mean_std(per['none'])} | "
+            f"{mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
+            f"{mean_std(per['held-out'])} | {mean_std(per['dynamic'])} | {mean_std(per['none'])} | "
             f"{len(done)} of {seeds} | {max(row['iterations'] for row in task_rows)} | "
             f"{max(row['env_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} | "
             f"{task_rows[0]['parameters']:,} |")
@@ -260,9 +237,9 @@ def comparison(cnn: list[dict[str, Any]], iap: list[dict[str, Any]], *, seeds: i
         counts = [f"{task_rows[0]['parameters']:,}" if task_rows else "-" for task_rows in (theirs, ours)]
         finished = [sum(row["finished"] for row in task_rows) for task_rows in (theirs, ours)]
         lines.append(
-            f"| {task} | {counts[0]} | {_mean_std(per['iap']['train'])} | {_mean_std(per['iap']['held-out'])} | "
-            f"{counts[1]} | {_mean_std(per['cnn']['train'])} | {_mean_std(per['cnn']['held-out'])} | "
-            f"{_mean_std(per['cnn']['dynamic'])} | {_mean_std(per['cnn']['none'])} | "
+            f"| {task} | {counts[0]} | {mean_std(per['iap']['train'])} | {mean_std(per['iap']['held-out'])} | "
+            f"{counts[1]} | {mean_std(per['cnn']['train'])} | {mean_std(per['cnn']['held-out'])} | "
+            f"{mean_std(per['cnn']['dynamic'])} | {mean_std(per['cnn']['none'])} | "
             f"{finished[0]} and {finished[1]} of {seeds} | {max(row['iterations'] for row in ours)} |")
     return "\n".join(lines)
 

@@ -9,21 +9,16 @@ import json
 
 import numpy as np
 import pytest
+from fake_runs import fake_run
 
 from iap_mjx import cli, configs, patch_sweep
-from iap_mjx.es import checkpoint
-from iap_mjx.es.metrics_log import MetricsWriter
 
 ITERATIONS = ("run.iterations=2",)
 
 
 def _fake_run(out, cell, iterations=2):
     config = configs.apply_overrides(configs.get(patch_sweep.PRESET), (*ITERATIONS, *patch_sweep.cell_overrides(*cell)))
-    run_dir = out / patch_sweep.run_name(*cell, 0)
-    writer = MetricsWriter(run_dir, None, tensorboard=False)
-    for i in range(1, iterations + 1):
-        writer.write({"iteration": i, "eval_return": 10.0 * i, "run_s": 2.0, "compile_s": 30.0, "env_steps": 1000 * i})
-    checkpoint.save(run_dir, iterations, {"x": np.zeros(2)}, config.to_dict())
+    fake_run(out / patch_sweep.run_name(*cell, 0), config, iterations, [10.0 * i for i in range(1, iterations + 1)])
 
 
 @pytest.fixture

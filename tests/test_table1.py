@@ -10,10 +10,10 @@ import json
 
 import numpy as np
 import pytest
+from fake_runs import fake_run
 
-from iap_mjx import cli, configs, table1
+from iap_mjx import cli, configs, run_eval, table1
 from iap_mjx.es import checkpoint
-from iap_mjx.es.metrics_log import MetricsWriter
 
 
 def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):
@@ -38,18 +38,10 @@ def test_every_condition_is_a_valid_env_of_every_task():
         assert held["background_videos"] == "val" and held["distraction"] == "medium"
 
 
-def _fake_run(run_dir, config, iterations, returns):
-    writer = MetricsWriter(run_dir, None, tensorboard=False)
-    for i in range(1, iterations + 1):
-        writer.write({"iteration": i, "eval_return": returns[i - 1], "run_s": 2.0, "compile_s": 30.0,
-                      "env_steps": i * 1000})
-    checkpoint.save(run_dir, iterations, {"x": np.zeros(2)}, config.to_dict())
-
-
 def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, monkeypatch):
     config = configs.apply_overrides(configs.get("dcs-cartpole-swingup"), ("run.iterations=3",))
-    _fake_run(tmp_path / "dcs-cartpole-swingup-seed0", config, 3, [1.0, 2.0, 3.0])
-    _fake_run(tmp_path / "dcs-cartpole-swingup-seed1", config, 2, [1.0, 5.0, 0.0])  # unfinished
+    fake_run(tmp_path / "dcs-cartpole-swingup-seed0", config, 3, [1.0, 2.0, 3.0])
+    fake_run(tmp_path / "dcs-cartpole-swingup-seed1", config, 2, [1.0, 5.0, 0.0])  # unfinished
     calls = []
 
     def evaluate_run(run_dir, *, episodes, seed, overrides):
@@ -67,12 +59,12 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
     assert "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 3,000 |" in row
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
-    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / table1.EVAL_FILE).read_text())
+    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE).read_text())
     assert len(stored) == 4
     table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
                             tasks=("cartpole-swingup",))
     assert len(calls) == 4  # read back, not evaluated again
-    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / table1.EVAL_FILE
+    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE
     short = json.loads(eval_path.read_text())
     key = next(k for k in short if k.startswith("none@"))
     short[key] = short[key][:2]  # as an evaluate_run that returned one device's share stored it
@@ -107,7 +99,7 @@ def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
 def test_export_copies_the_newest_checkpoint_and_the_run_files(tmp_path, monkeypatch):
     config = configs.apply_overrides(configs.get("dcs-cartpole-swingup"), ("run.iterations=3",))
     run = tmp_path / "out" / "dcs-cartpole-swingup-seed0"
-    _fake_run(run, config, 2, [1.0, 2.0])
+    fake_run(run, config, 2, [1.0, 2.0])
     checkpoint.save(run, 1, {"x": np.ones(2)}, config.to_dict())  # an older step: not exported
     export = tmp_path / "pretrained"
     table1.reproduce_table1(tmp_path / "out", seeds=1, overrides=("run.iterations=3",), train=False,
@@ -135,7 +127,7 @@ def test_cnn_baseline_is_reported_beside_the_iap_runs_with_both_parameter_counts
     overrides = ("run.iterations=2",)
     for policy, returns in (("iap", [150.0, 160.0]), ("cnn", [100.0, 120.0])):
         config = configs.apply_overrides(configs.get(table1.preset("cartpole-swingup", policy)), overrides)
-        _fake_run(tmp_path / f"{table1.preset('cartpole-swingup', policy)}-seed0", config, 2, returns)
+        fake_run(tmp_path / f"{table1.preset('cartpole-swingup', policy)}-seed0", config, 2, returns)
 
     def evaluate_run(run_dir, *, episodes, seed, overrides):
         return np.full(episodes, 100.0 if "-cnn-" in run_dir.name else 160.0) + 10 * len(overrides)

@@ -14,7 +14,7 @@ import math
 from typing import Any, Callable
 
 from iap_mjx.policies.attention import CNNPolicy, IAPPolicy, make_cnn_policy, make_iap_policy
-from iap_mjx.policies.base import Policy, param_count
+from iap_mjx.policies.base import Policy, init_param_count, param_count
 from iap_mjx.policies.convnet import ConvNet, ConvNetPolicy, make_convnet_policy
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
 from iap_mjx.policies.linear import LinearPolicy
@@ -72,4 +72,4 @@ register("pmtg", make_pmtg_policy)
 register("hierarchical", make_hierarchical_policy)
 
 __all__ = ["CNNPolicy", "ConvNet", "ConvNetPolicy", "HierarchicalPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "PMTGPolicy",
-           "Policy", "make", "names", "param_count", "register"]
+           "Policy", "init_param_count", "make", "names", "param_count", "register"]

@@ -42,6 +42,13 @@ def param_count(params: Params) -> int:
     return int(sum(jnp.size(leaf) for leaf in jax.tree_util.tree_leaves(params)))
 
 
+def init_param_count(policy: Policy) -> int:
+    """The number of scalars ``policy.init`` returns, counted from their shapes
+    (``jax.eval_shape``: traced, nothing computed, so a report counts a CNN's without running
+    its initialisers)."""
+    return param_count(jax.eval_shape(policy.init, jax.random.PRNGKey(0)))
+
+
 ACTIVATIONS = {
     "tanh": jnp.tanh,
     "relu": jax.nn.relu,

@@ -1,11 +1,14 @@
 """Reward curves of a training run, from its history (the rows of ``metrics.jsonl``:
-``TrainResult.history`` or ``iap_mjx.es.metrics_log.read_history``)."""
+``TrainResult.history`` or ``iap_mjx.es.metrics_log.read_history``), and of several seeds'
+runs as a mean with a band."""
 
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 from typing import Any, Iterable
+
+import numpy as np
 
 logger = logging.getLogger(__name__)
 
@@ -38,3 +41,14 @@ def plot_reward_curve(history: Iterable[dict[str, Any]], path: str | Path, *, ti
     plt.close(fig)
     logger.info("wrote %s", path)
     return path
+
+
+def plot_mean_band(ax: Any, curves: list[list[float]], label: str) -> None:
+    """Draws on matplotlib ``ax`` the mean of ``curves`` (one per seed: the value at ES
+    iterations ``1..T``, cut to the shortest seed's ``T``) shaded +- their std."""
+    length = min(len(curve) for curve in curves)
+    stacked = np.array([curve[:length] for curve in curves])
+    steps = np.arange(1, length + 1)
+    mean, std = stacked.mean(0), stacked.std(0)
+    ax.plot(steps, mean, label=label)
+    ax.fill_between(steps, mean - std, mean + std, alpha=0.2)

@@ -1,9 +1,12 @@
-"""Named sections of a markdown file (RESULTS.md, BENCHMARKS.md) that scripts rewrite in place."""
+"""Named sections of a markdown file (RESULTS.md, BENCHMARKS.md) that scripts rewrite in place,
+and the cells their tables share."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
+
+import numpy as np
 
 
 def image_link(image: Path, markdown: Path) -> Path:
@@ -13,6 +16,11 @@ def image_link(image: Path, markdown: Path) -> Path:
         return image.resolve().relative_to(markdown.resolve().parent)
     except ValueError:
         return image
+
+
+def mean_std(values: list[float], digits: int = 1) -> str:
+    """A table cell ``"mean ± std"`` of ``values`` (e.g. one number per seed), ``"-"`` if none."""
+    return f"{np.mean(values):.{digits}f} ± {np.std(values):.{digits}f}" if len(values) else "-"
 
 
 def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmarks") -> None:

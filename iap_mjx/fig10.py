@@ -1,0 +1,103 @@
+"""Reproducing the paper's Figure 10: what the quadruped's IAP high level looks at along an
+episode, for a small and a large patch size.
+
+For each trained ``quadruped-walls-iap`` run (by default Table 2's runs in ``out``: patch size 1,
+stride 1, and the preset's own 4x4, :mod:`iap_mjx.table2`), one episode of its final centre on a
+course not seen in training (keys of :data:`iap_mjx.run_eval.EVAL_SEED`) is written as a PNG
+strip: ``frames`` frames of the first-person camera evenly spaced over the episode, scaled up,
+the patches the high level selects in red (``iap_mjx.viz.video.episode_strip``; the high level
+is evaluated at every step, though its command is taken only when the one held runs out, so a
+frame shows what it would pick were it asked then).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from iap_mjx import configs
+from iap_mjx.run_eval import EVAL_SEED
+from iap_mjx.viz.sections import image_link, write_section
+
+logger = logging.getLogger(__name__)
+
+SCALE = 6  # the 24x32 camera as 144x192 tiles: a 1-pixel patch a 6-pixel square (ringed), a 4-pixel one 24
+DEFAULT_RUNS = ("table2-p1-s1-seed0", "quadruped-walls-iap-seed0")  # Table 2's smallest and the preset's patches
+
+
+def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Any, Any]]:
+    """``{run_dir: (config, env, policy)}`` for runs with a checkpoint whose hierarchical policy
+    selects patches of the camera (an IAP high level, eyes open), built and nothing compiled;
+    ``ValueError`` naming the run otherwise."""
+    from iap_mjx.es import checkpoint
+    from iap_mjx.viz.artifacts import env_and_policy
+
+    if not run_dirs or len(set(run_dirs)) != len(run_dirs):
+        raise ValueError(f"fig10 needs distinct run directories, got {[str(run_dir) for run_dir in run_dirs]}")
+    checked = {}
+    for run_dir in run_dirs:
+        if checkpoint.latest_step(run_dir) is None:
+            raise ValueError(f"{run_dir}: no checkpoint (train it first: iap-mjx reproduce table2)")
+        config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
+        env, policy = env_and_policy(config)
+        if config.policy.kind != "hierarchical" or not hasattr(policy, "select"):
+            raise ValueError(f"{run_dir}: its {config.policy.kind!r} policy selects no patches of the camera "
+                             "(fig10 shows a hierarchical policy's IAP high level with its eyes open, e.g. "
+                             "quadruped-walls-iap's, not -cnn's or -blind's)")
+        checked[run_dir] = (config, env, policy)
+    return checked
+
+
+def strip_name(policy: Any) -> str:
+    """``fig10-p<patch size>-s<stride>.png`` of an attention policy."""
+    attention = policy.layer.config
+    return f"fig10-p{attention.patch_size}-s{attention.effective_stride}.png"
+
+
+def reproduce_fig10(out_dir: str | Path, *, run_dirs: tuple[str | Path, ...] | None = None, frames: int = 6,
+                    results: str | Path | None = None) -> str:
+    """Writes one strip per run (default: :data:`DEFAULT_RUNS` in ``out_dir``) into ``out_dir``
+    and returns markdown with each image and its caption; ``results``: a markdown file whose
+    ``fig10`` section is rewritten with it."""
+    import jax
+
+    from iap_mjx import es
+    from iap_mjx.viz import video
+
+    if not isinstance(frames, int) or frames < 1:
+        raise ValueError(f"frames = {frames!r} must be an int >= 1")
+    out_dir = Path(out_dir)
+    checked = check(tuple(Path(run_dir) for run_dir in (run_dirs or [out_dir / name for name in DEFAULT_RUNS])))
+    names = [strip_name(policy) for _, _, policy in checked.values()]
+    if len(set(names)) != len(names):
+        raise ValueError(f"fig10: two runs of the same patch size and stride ({', '.join(names)})")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for (run_dir, (config, env, policy)), name in zip(checked.items(), names):
+        result = es.load_run(run_dir)
+        path, episode_return = video.episode_strip(env, policy, result.params, out_dir / name,
+                                                   key=jax.random.PRNGKey(EVAL_SEED), steps=env.episode_length,
+                                                   frames=frames, obs_stats=result.obs_stats, scale=SCALE)
+        attention = policy.layer.config
+        parts.append((path, f"Patch size {attention.patch_size}, stride {attention.effective_stride} "
+                            f"(L = {policy.layer.num_patches:,} patches, top {attention.top_l} selected): `{run_dir}`, "
+                            f"episode return {episode_return:.2f}."))
+        logger.info("fig10: %s, return %.2f", path, episode_return)
+    links = [path if results is None else image_link(path, Path(results)) for path, _ in parts]
+    markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link})" for (path, caption), link in zip(parts, links))
+    if results is not None:
+        write_results(Path(results), markdown, run_dirs=tuple(checked), frames=frames, out_dir=out_dir)
+    return markdown
+
+
+def write_results(path: Path, markdown: str, *, run_dirs: tuple[Path, ...], frames: int, out_dir: Path) -> None:
+    """The ``fig10`` section of ``path``: the command and the strips."""
+    command = " ".join(["iap-mjx reproduce fig10", "--run-dirs " + ",".join(str(run_dir) for run_dir in run_dirs),
+                        f"--frames {frames}", f"--out {out_dir}", f"--results {path.name}"])
+    body = (f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
+            f"Command: `{command}`. One episode of each run's final centre on a course not seen in training "
+            f"(seed {EVAL_SEED}); {frames} frames of the first-person camera evenly spaced over it, {SCALE}x, the "
+            f"selected patches in red (the high level's choice were it asked at that step; it is asked when the "
+            f"command it holds runs out).\n\n{markdown}\n")
+    write_section(path, "fig10", body, title="# Results")

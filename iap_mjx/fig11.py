@@ -1,0 +1,222 @@
+"""Reproducing the paper's Figure 11: ES curves of the hierarchical quadruped on the walled course
+with an IAP, a CNN and a blind high level, their parameter counts, and how many walls each
+passes on courses it never saw.
+
+Each policy's preset (``quadruped-walls-iap``, ``-cnn``, ``-blind``: the same ES, budget and low
+level) trains on several seeds, each in its own run directory ``<out>/<preset>-seed<k>``
+(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.reproduce.run_summary`).
+A finished run's final centre is then evaluated on ``episodes`` episodes of the course, each
+recording the course statistics the env keeps (``QuadrupedWalls.episode_metrics``: walls
+passed, fell off the platform, control steps touching a wall, distance along the course).
+
+The evaluation's courses are unseen in training: the walls (their positions along the course,
+sides and gaps) are drawn per episode from the episode's reset key
+(``QuadrupedWalls._place_world``), and the evaluation's keys derive from
+:data:`iap_mjx.run_eval.EVAL_SEED`, which no training run uses; a course is a draw of
+continuous positions, so none of them is, but for probability zero, a course trained on.
+Evaluations are stored in the run directory (``eval.json``, :mod:`iap_mjx.run_eval`), so a
+report reads them instead of evaluating again.
+
+Writes ``<out>/fig11.json`` and ``<out>/fig11.png`` and returns the markdown table with the
+issue's bars stated as lines.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from iap_mjx import configs
+from iap_mjx.envs.quadruped import QuadrupedWalls
+from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.viz.sections import image_link, mean_std, write_section
+
+logger = logging.getLogger(__name__)
+
+POLICIES = {"IAP": "quadruped-walls-iap", "CNN": "quadruped-walls-cnn", "blind": "quadruped-walls-blind"}
+"""Figure 11's policies (labels) and their presets."""
+COURSE = "course"  # the eval.json entry of the training env's own course, unseen draws
+STATISTICS = QuadrupedWalls.episode_metrics  # walls_passed, fell_off, wall_contacts, distance
+MIN_PARAMETER_RATIO = 5.0  # the bar: the CNN has at least 5x IAP's parameters
+
+
+def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
+    """Every policy's config, validated (env settings included) before anything compiles."""
+    from iap_mjx import envs
+
+    checked = {}
+    for label, preset in POLICIES.items():
+        config = configs.apply_overrides(configs.get(preset), overrides)
+        envs.check(config.env.name, **dict(config.env.overrides))
+        if config.run.eval_episodes < 1:
+            raise ValueError("fig11 reads the evaluation return: run.eval_episodes must be >= 1")
+        checked[label] = config
+    return checked
+
+
+def evaluate_course(run_dir: Path, step: int, *, episodes: int) -> dict[str, list[float]]:
+    """``{"return": (episodes,), statistic: (episodes,) ...}`` (lists) of the run's checkpoint
+    ``step`` on fresh courses, read from ``eval.json`` where stored, evaluated otherwise."""
+    from iap_mjx import es
+
+    def evaluate() -> dict[str, list[float]]:
+        results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED)
+        return {name: [float(value) for value in values] for name, values in results.items()}
+
+    return stored_evaluation(run_dir, evaluation_key(COURSE, step, episodes), episodes, evaluate)
+
+
+def run_row(label: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool, episodes: int,
+            export: Path | None = None) -> dict[str, Any] | None:
+    """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses;
+    with ``export``, its newest checkpoint and files are copied to ``export/<preset>-seed<k>``."""
+    from iap_mjx.es import checkpoint
+    from iap_mjx.reproduce import run_summary
+
+    name = f"{POLICIES[label]}-seed{seed}"
+    summary = run_summary(config, seed, out_dir / name, train=train)
+    if summary is None:
+        return None
+    row = {"policy": label, "preset": POLICIES[label], **summary[0]}
+    if row["finished"]:
+        row["course"] = evaluate_course(out_dir / name, checkpoint.latest_step(out_dir / name), episodes=episodes)
+    if export is not None:
+        checkpoint.export_latest(out_dir / name, export / name)
+    return row
+
+
+def reproduce_fig11(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (), episodes: int = 20,
+                    train: bool = True, results: str | Path | None = None, export: str | Path | None = None) -> str:
+    """Trains (``train=False``: only reads) every policy on ``seeds`` seeds, seed by seed so that
+    the policies compare early, evaluates the finished runs on ``episodes`` fresh courses each,
+    writes ``fig11.json`` / ``fig11.png`` in ``out_dir`` and returns the markdown table;
+    ``results``: a markdown file (RESULTS.md) whose ``fig11`` section is rewritten with it;
+    ``export``: a folder (e.g. ``pretrained/quadruped``, tracked by git) that receives each run's
+    newest checkpoint, config and metrics as ``<preset>-seed<k>``, finished or not."""
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    if not isinstance(seeds, int) or seeds < 1:
+        raise ValueError(f"seeds = {seeds!r} must be an int >= 1")
+    from iap_mjx import policies
+    from iap_mjx.reproduce import built_policies
+
+    checked = check(tuple(overrides))
+    parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    export = None if export is None else Path(export)
+    rows = [row for seed in range(seeds) for label, config in checked.items()
+            if (row := run_row(label, config, seed, out_dir, train=train, episodes=episodes, export=export))
+            is not None]
+    if not rows:
+        raise ValueError(f"no fig11 runs in {out_dir} to report")
+    summaries = {label: summarise([row for row in rows if row["policy"] == label], parameters[label])
+                 for label in POLICIES}
+    (out_dir / "fig11.json").write_text(json.dumps({"parameters": parameters, "summaries": summaries,
+                                                    "rows": rows}, indent=1))
+    png = plot(rows, summaries, out_dir / "fig11.png")
+    markdown = table(summaries, seeds=seeds)
+    if results is not None:
+        write_results(Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes)
+    return markdown
+
+
+def summarise(rows: list[dict[str, Any]], parameters: int) -> dict[str, Any]:
+    """One policy's runs: its parameters, the per-seed means of the finished runs' evaluation
+    episodes (``"return"`` and each statistic: lists over finished seeds), how many finished,
+    and the furthest run's iterations and env steps."""
+    done = [row for row in rows if row["finished"]]
+    return {"parameters": parameters, "finished": len(done),
+            "iterations": max((row["iterations"] for row in rows), default=0),
+            "env_steps": max((row["env_steps"] for row in rows), default=0),
+            **{name: [float(np.mean(row["course"][name])) for row in done] for name in ("return", *STATISTICS)}}
+
+
+def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
+    """The issue's bars as lines, decided once every seed of every policy is finished."""
+    iap, cnn, blind = (summaries[label] for label in POLICIES)
+    ratio = cnn["parameters"] / iap["parameters"]
+    if any(summary["finished"] < seeds for summary in summaries.values()):
+        finished = sum(summary["finished"] for summary in summaries.values())
+        return [f"Bars: not decided yet ({finished} of {len(POLICIES) * seeds} runs finished). Parameters: CNN "
+                f"{cnn['parameters']:,}, IAP {iap['parameters']:,} ({ratio:.1f}x; bar: >= {MIN_PARAMETER_RATIO:.0f}x)."]
+    floor = np.mean(cnn["return"]) - np.std(cnn["return"])
+    near = np.mean(iap["return"]) >= floor and ratio >= MIN_PARAMETER_RATIO
+    lines = [f"IAP against CNN: final return {mean_std(iap['return'])} against {mean_std(cnn['return'])} (bar: IAP's "
+             f"mean >= the CNN's mean minus its seed-std, {floor:.1f}), with {ratio:.1f}x fewer parameters "
+             f"({iap['parameters']:,} against {cnn['parameters']:,}; bar: >= {MIN_PARAMETER_RATIO:.0f}x): "
+             f"{'met' if near else 'not met'}."]
+    ceiling = np.mean(blind["walls_passed"]) + np.std(blind["walls_passed"])
+    for label in ("IAP", "CNN"):
+        walls = summaries[label]["walls_passed"]
+        above = np.mean(walls) - np.std(walls) > ceiling
+        lines.append(f"{label} above blind in walls passed per episode: {mean_std(walls, 2)} against "
+                     f"{mean_std(blind['walls_passed'], 2)} (bar, 'clearly': the mean minus its seed-std above "
+                     f"blind's mean plus its seed-std, {ceiling:.2f}): {'met' if above else 'not met'}.")
+    return lines
+
+
+def table(summaries: dict[str, dict[str, Any]], *, seeds: int) -> str:
+    """Markdown: per policy its parameters, final return, walls passed, falls, wall contacts and
+    distance per episode (each the mean ± std over finished seeds of the per-seed means over
+    the evaluation episodes), how far the runs got; then the bars."""
+    lines = ["| policy | parameters | final return | walls passed per episode | fell off (share of episodes) | "
+             "wall contact steps per episode | distance (m) | seeds finished | iterations | env steps per run |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for label, summary in summaries.items():
+        lines.append(f"| {label} (`{POLICIES[label]}`) | {summary['parameters']:,} | {mean_std(summary['return'])} | "
+                     f"{mean_std(summary['walls_passed'], 2)} | {mean_std(summary['fell_off'], 2)} | "
+                     f"{mean_std(summary['wall_contacts'])} | {mean_std(summary['distance'], 2)} | "
+                     f"{summary['finished']} of {seeds} | {summary['iterations']} | {summary['env_steps']:,} |")
+    return "\n".join([*lines, "", *bars(summaries, seeds=seeds)])
+
+
+def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path: Path) -> Path:
+    """Left: each policy's evaluation return per ES iteration, mean and band over its seeds,
+    the parameter counts in the legend and title. Right: walls passed per episode on fresh
+    courses, mean ± std over finished seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from iap_mjx.viz.curves import plot_mean_band
+
+    fig, (curves, walls) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": (2, 1)})
+    for label, summary in summaries.items():
+        runs = [row["curve"] for row in rows if row["policy"] == label]
+        if runs:
+            plot_mean_band(curves, runs, f"{label} ({summary['parameters']:,} parameters, {len(runs)} seeds)")
+    curves.set_xlabel("ES iteration (the centre at its start)")
+    curves.set_ylabel("evaluation return (m along the course)")
+    curves.set_title(f"quadruped-walls: IAP {summaries['IAP']['parameters']:,} parameters, "
+                     f"CNN {summaries['CNN']['parameters']:,}")
+    curves.legend(fontsize="small")
+    labels = list(summaries)
+    walls.bar(labels, [np.mean(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0
+                       for label in labels],
+              yerr=[np.std(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0
+                    for label in labels], capsize=4, color=["tab:blue", "tab:orange", "tab:gray"])
+    walls.set_ylabel("walls passed per episode (fresh courses)")
+    walls.set_title("finished runs, mean ± std over seeds")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...],
+                  episodes: int) -> None:
+    """The ``fig11`` section of ``path``: the command, the figure and the table."""
+    command = " ".join(["iap-mjx reproduce fig11", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
+                        f"--out {png.parent}", f"--results {path.name}"])
+    body = (f"## Figure 11: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
+            f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
+            f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
+            f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
+            f"the mean ± std over seeds of the per-seed means.\n\n![fig11]({image_link(png, path)})\n\n{markdown}\n")
+    write_section(path, "fig11", body, title="# Results")

@@ -1,0 +1,49 @@
+"""Evaluations of a run's checkpoint kept in its run directory (``eval.json``), so that a report
+(``reproduce table1``, ``fig7``, ``fig11``) reads them instead of evaluating again.
+
+``eval.json`` maps a key (:func:`evaluation_key`: what was evaluated, the checkpoint, the number
+of episodes and the seed) to a list of per-episode returns, or to a dict of per-episode lists
+(``"return"`` and an env's course statistics).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any, Callable
+
+logger = logging.getLogger(__name__)
+
+EVAL_SEED = 2021  # not a training seed: evaluation episodes are fresh draws
+EVAL_FILE = "eval.json"
+
+
+def evaluation_key(name: str, step: int, episodes: int) -> str:
+    """The ``eval.json`` key of evaluation ``name`` of checkpoint ``step`` on ``episodes``
+    episodes drawn from :data:`EVAL_SEED`."""
+    return f"{name}@{step}x{episodes}s{EVAL_SEED}"
+
+
+def episode_count(entry: Any) -> int:
+    """The episodes an ``eval.json`` entry holds (a list of returns, or a dict with ``"return"``)."""
+    return len(entry["return"]) if isinstance(entry, dict) else len(entry)
+
+
+def stored_evaluation(run_dir: Path, key: str, episodes: int, evaluate: Callable[[], Any]) -> Any:
+    """``run_dir/eval.json``'s entry ``key`` where it holds ``episodes`` episodes; otherwise
+    ``evaluate()``'s (a JSON value of that form), stored under ``key`` first.
+
+    An entry with fewer episodes (stored by an ``evaluate_run`` that returned one device's share
+    of them) is evaluated again. The file is replaced whole, so a killed report never leaves it
+    cut short.
+    """
+    path = Path(run_dir) / EVAL_FILE
+    stored = json.loads(path.read_text()) if path.exists() else {}
+    if key not in stored or episode_count(stored[key]) != episodes:
+        logger.info("%s: evaluating %s", Path(run_dir).name, key)
+        stored[key] = evaluate()
+        temporary = path.with_suffix(".tmp")
+        temporary.write_text(json.dumps(stored, indent=1))
+        temporary.replace(path)
+    return stored[key]

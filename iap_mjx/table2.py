@@ -1,0 +1,203 @@
+"""Reproducing the paper's Table 2: the IAP high level's patch size and stride on the quadruped's
+walled course.
+
+``quadruped-walls-iap`` trains with ``policy.patch_size=p policy.stride=s`` for each setting
+``(p, s)``, one seed, the same budget (the preset's iterations, or ``overrides`` for all). The
+setting the preset has itself (4x4 patches, stride 4) is its own run,
+``<out>/quadruped-walls-iap-seed<k>``, shared with Figure 11 (:mod:`iap_mjx.fig11`); every other
+trains in ``<out>/table2-p<p>-s<s>-seed<k>``. Runs resume from their checkpoints and are
+skipped once finished (:func:`iap_mjx.reproduce.run_summary`).
+
+The table's return is the maximum episode return reached in training, as the paper's: the
+largest ``return_max`` of the run's metrics (per iteration, the best population member's
+return, its mean over ``es.n_episodes`` episodes: one episode's return at the preset's 1),
+maximised over the iterations; beside it the largest ``eval_return`` (the centre's mean over
+``run.eval_episodes`` evaluation episodes at an iteration's start). ``L`` is the number of
+patches on the course's 24x32 camera. Writes ``<out>/table2.json`` and ``<out>/table2.png``
+and returns the markdown table.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from iap_mjx import configs
+from iap_mjx.viz.sections import image_link, write_section
+
+logger = logging.getLogger(__name__)
+
+PRESET = "quadruped-walls-iap"
+SETTINGS = ((1, 1), (2, 2), (4, 4), (4, 2))
+"""(patch size, stride): the paper's one surviving row (1, 1), the most patches, and three of
+fewer (ours)."""
+LARGEST_LISTED_PATCH = 8  # a bad setting's error lists the valid ones up to this patch size
+SWEPT = ("policy.patch_size", "policy.stride")
+
+
+def setting_overrides(patch_size: int, stride: int) -> tuple[str, ...]:
+    return (f"policy.patch_size={patch_size}", f"policy.stride={stride}")
+
+
+def own_setting(config: configs.TrainConfig) -> tuple[int, int]:
+    """The ``(patch size, stride)`` ``config``'s IAP high level has (no stride: the patch size)."""
+    from iap_mjx.attention import AttentionConfig
+
+    options = dict(config.policy.options)
+    patch_size = options.get("patch_size", AttentionConfig.patch_size)
+    return patch_size, options.get("stride") or patch_size
+
+
+def fits(patch_size: int, stride: int, height: int, width: int, top_l: int) -> str | None:
+    """Why ``(patch_size, stride)`` cannot be the high level's on a ``height`` x ``width``
+    camera choosing ``top_l`` patches (``iap_mjx.attention.patches.patch_grid``'s reason, or
+    too few patches), or ``None`` when it can."""
+    from iap_mjx.attention.patches import patch_grid
+
+    try:
+        rows, cols = patch_grid(height, width, patch_size, stride)
+    except ValueError as error:
+        return str(error)
+    return None if rows * cols >= top_l else f"L = {rows * cols} patches, fewer than top_l = {top_l}"
+
+
+def check(settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...],
+          seed: int) -> dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]]:
+    """``{setting: (config, run name, the setting's overrides)}`` (the preset's own setting: its
+    own run, no overrides), every setting validated before anything compiles (``ValueError``
+    naming a bad one and the valid settings)."""
+    from iap_mjx import envs
+    from iap_mjx.attention import AttentionConfig
+
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed = {seed!r} must be an int >= 0")
+    swept = [item for item in overrides if item.split("=")[0].strip() in SWEPT]
+    if swept:
+        raise ValueError(f"table2 sets the patch size and stride per setting; remove {', '.join(swept)}")
+    settings = tuple(tuple(setting) for setting in settings)
+    if not settings or len(set(settings)) != len(settings) or not all(
+            len(setting) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in setting)
+            for setting in settings):
+        raise ValueError(f"settings = {settings!r} must be distinct (patch size, stride) pairs of ints")
+    base = configs.apply_overrides(configs.get(PRESET), overrides)
+    camera = envs.check(base.env.name, **dict(base.env.overrides))
+    if base.run.eval_episodes < 1:
+        raise ValueError("table2 reads the evaluation return: run.eval_episodes must be >= 1")
+    top_l = dict(base.policy.options).get("top_l", AttentionConfig.top_l)
+    for patch_size, stride in settings:
+        reason = fits(patch_size, stride, camera.height, camera.width, top_l)
+        if reason is not None:
+            valid = [(p, s) for p in range(1, LARGEST_LISTED_PATCH + 1) for s in range(1, p + 1)
+                     if fits(p, s, camera.height, camera.width, top_l) is None]
+            raise ValueError(f"table2 setting (patch size {patch_size}, stride {stride}): {reason}. Valid (patch "
+                             f"size, stride) on the {camera.height}x{camera.width} camera with top_l = {top_l}, "
+                             f"stride <= patch size <= {LARGEST_LISTED_PATCH}: "
+                             + ", ".join(f"({p}, {s})" for p, s in valid))
+    checked = {}
+    for setting in settings:
+        if setting == own_setting(base):
+            checked[setting] = (base, f"{PRESET}-seed{seed}", ())
+        else:
+            extra = setting_overrides(*setting)
+            checked[setting] = (configs.apply_overrides(base, extra), f"table2-p{setting[0]}-s{setting[1]}-seed{seed}",
+                                extra)
+    return checked
+
+
+def reproduce_table2(out_dir: str | Path, *, settings: tuple[tuple[int, int], ...] = SETTINGS, seed: int = 0,
+                     overrides: tuple[str, ...] = (), train: bool = True, results: str | Path | None = None) -> str:
+    """Trains (``train=False``: only reads) every setting on ``seed``, writes ``table2.json`` /
+    ``table2.png`` in ``out_dir`` and returns the markdown table; ``results``: a markdown file
+    whose ``table2`` section is rewritten with it."""
+    from iap_mjx import policies
+    from iap_mjx.reproduce import built_policies, run_summary
+
+    checked = check(tuple(settings), tuple(overrides), seed)
+    built = built_policies({setting: config for setting, (config, _, _) in checked.items()})
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for setting, (config, name, extra) in checked.items():
+        summary = run_summary(config, seed, out_dir / name, train=train)
+        if summary is None:
+            logger.info("table2 %s: no run in %s yet", setting, out_dir / name)
+            continue
+        row, history = summary
+        best = [float(entry["return_max"]) for entry in history]
+        rows.append({"patch_size": setting[0], "stride": setting[1], "patches": built[setting].layer.num_patches,
+                     "parameters": policies.init_param_count(built[setting]), "run": name,
+                     "command": " ".join(["iap-mjx train", PRESET, *overrides, *extra, f"run.seed={seed}",
+                                          f"--run-dir {out_dir / name}"]),
+                     "population_max": best, "max_return": max(best), "max_eval_return": max(row["curve"]), **row})
+    if not rows:
+        raise ValueError(f"no table2 runs in {out_dir} to report")
+    (out_dir / "table2.json").write_text(json.dumps(rows, indent=1))
+    png = plot(rows, out_dir / "table2.png")
+    markdown = table(rows, settings=len(checked))
+    if results is not None:
+        write_results(Path(results), markdown, png, settings=tuple(checked), seed=seed, overrides=tuple(overrides))
+    return markdown
+
+
+def table(rows: list[dict[str, Any]], *, settings: int) -> str:
+    """Markdown: per setting its patches, parameters, maximum returns, how far it got and its
+    command; then the best setting, once all are finished."""
+    lines = ["| patch size | stride | patches L | parameters | max episode return (population) | "
+             "max centre evaluation return | iterations | wall-clock (s) | command |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for row in rows:
+        lines.append(f"| {row['patch_size']} | {row['stride']} | {row['patches']:,} | {row['parameters']:,} | "
+                     f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {row['iterations']}"
+                     f"{'' if row['finished'] else ' (running)'} | {row['seconds']:.0f} | `{row['command']}` |")
+    lines.append("")
+    finished = [row for row in rows if row["finished"]]
+    if len(finished) < settings:
+        lines.append(f"Best setting: not decided yet ({len(finished)} of {settings} settings finished).")
+    else:
+        best = max(rows, key=lambda row: row["max_return"])
+        most = max(rows, key=lambda row: row["patches"])
+        lines.append(f"Best setting: patch size {best['patch_size']}, stride {best['stride']} "
+                     f"(L = {best['patches']:,}, max return {best['max_return']:.1f}); the paper's best had the most "
+                     f"patches, here patch size {most['patch_size']}, stride {most['stride']} "
+                     f"(L = {most['patches']:,}, max return {most['max_return']:.1f}).")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> Path:
+    """Each setting's running maximum of the population's best return per ES iteration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for row in rows:
+        best = row["population_max"]
+        ax.plot(np.arange(1, len(best) + 1), np.maximum.accumulate(best),
+                label=f"patch {row['patch_size']}, stride {row['stride']} (L = {row['patches']:,})")
+    ax.set_xlabel("ES iteration")
+    ax.set_ylabel("max episode return so far (population)")
+    ax.set_title("quadruped-walls-iap: patch size and stride")
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_results(path: Path, markdown: str, png: Path, *, settings: tuple[tuple[int, int], ...], seed: int,
+                  overrides: tuple[str, ...]) -> None:
+    """The ``table2`` section of ``path``: the command, the table and the curves."""
+    command_line = " ".join(["iap-mjx reproduce table2", *overrides,
+                             "--settings " + ",".join(f"{p}x{s}" for p, s in settings), f"--seed {seed}",
+                             f"--out {png.parent}", f"--results {path.name}"])
+    body = (f"## Table 2: patch size and stride of the quadruped's IAP high level\n\nCommand: `{command_line}`. "
+            f"One seed (seed {seed}) per setting, the same budget. Max episode return: the largest `return_max` "
+            "of the run's metrics (each iteration's best population member), over the iterations trained; "
+            "beside it the largest `eval_return` (the centre's mean over its evaluation episodes). L: patches "
+            f"on the course's camera.\n\n![table2]({image_link(png, path)})\n\n{markdown}\n")
+    write_section(path, "table2", body, title="# Results")

@@ -1,0 +1,109 @@
+"""``iap-mjx reproduce fig10``: runs that cannot show selected patches fail before anything
+compiles; each run's strip is the camera scaled up with the high level's patches in red, named by
+its patch size and stride, and the section shows both. The episode itself is
+``viz.video.run_episode``'s (tested in test_video.py; the quadruped's compiles for minutes), so
+here it is a hand-made record drawn by the real strip code."""
+
+from __future__ import annotations
+
+import shutil
+import types
+
+import jax
+import numpy as np
+import pytest
+from fake_runs import fake_run
+from PIL import Image
+
+from iap_mjx import cli, configs, fig10, run_eval, table2
+from iap_mjx.es import checkpoint
+from iap_mjx.viz import video
+
+STEPS = 1000  # quadruped-walls' episode
+SMALL = [(row, col) for row in (6, 16) for col in (2, 8, 14, 20, 26)]  # far enough apart that no rings overlap
+
+
+def _run(out, preset, overrides=()):
+    config = configs.apply_overrides(configs.get(preset), ("run.iterations=2", *overrides))
+    fake_run(out / f"{preset}-{'-'.join(overrides) or 'own'}", config, 2, [1.0, 2.0])
+    return out / f"{preset}-{'-'.join(overrides) or 'own'}"
+
+
+@pytest.fixture
+def episodes(monkeypatch):
+    """Recorded episode keys; a black episode whose high level selects the same patches at
+    every step (a patch-1 run: :data:`SMALL`; the patch-4 run: 9, its (row 1, col 1)), 0.01
+    reward a step."""
+    keys = []
+
+    def load_run(run_dir):
+        config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
+        return types.SimpleNamespace(config=config, params="params", obs_stats=None)
+
+    def run_episode(env, policy, params, key, *, steps, obs_stats=None, program=None):
+        assert params == "params" and steps == STEPS
+        keys.append(np.asarray(key).tolist())
+        small = policy.layer.config.patch_size == 1
+        first = np.array([32 * row + col for row, col in SMALL]) if small else np.full(10, 9)
+        return {"frames": np.zeros((steps, 24, 32, 3), np.float32), "indices": np.tile(first, (steps, 1)),
+                "rewards": np.full(steps, 0.01)}
+
+    from iap_mjx import es
+
+    monkeypatch.setattr(es, "load_run", load_run)
+    monkeypatch.setattr(video, "run_episode", run_episode)
+    return keys
+
+
+def test_runs_that_show_no_patches_fail_before_anything_compiles(tmp_path, capsys):
+    blind = _run(tmp_path, "quadruped-walls-blind")
+    with pytest.raises(ValueError, match="selects no patches"):
+        fig10.reproduce_fig10(tmp_path / "out", run_dirs=(blind,))
+    with pytest.raises(ValueError, match="no checkpoint"):
+        fig10.reproduce_fig10(tmp_path / "out")  # the default runs: none in out
+    small = _run(tmp_path, "quadruped-walls-iap", table2.setting_overrides(1, 1))
+    with pytest.raises(ValueError, match="distinct run directories"):
+        fig10.reproduce_fig10(tmp_path / "out", run_dirs=(small, small))
+    again = tmp_path / "again"
+    shutil.copytree(small, again)
+    with pytest.raises(ValueError, match="same patch size and stride"):
+        fig10.reproduce_fig10(tmp_path / "out", run_dirs=(small, again))
+    with pytest.raises(ValueError, match="frames"):
+        fig10.reproduce_fig10(tmp_path / "out", run_dirs=(small,), frames=0)
+    assert not (tmp_path / "out").exists()
+    assert cli.main(["reproduce", "fig10", "--run-dirs", str(blind), "--out", str(tmp_path / "out")]) == 2
+    assert "selects no patches" in capsys.readouterr().err
+    assert cli.main(["reproduce", "fig10", "env.n_walls=2", "--out", str(tmp_path / "out")]) == 2
+    assert "remove env.n_walls=2" in capsys.readouterr().err
+
+
+def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episodes):
+    small = _run(tmp_path, "quadruped-walls-iap", table2.setting_overrides(1, 1))
+    large = _run(tmp_path, "quadruped-walls-iap")
+    results = tmp_path / "RESULTS.md"
+    markdown = fig10.reproduce_fig10(tmp_path, run_dirs=(small, large), frames=3, results=results)
+    unseen = np.asarray(jax.random.PRNGKey(run_eval.EVAL_SEED)).tolist()
+    assert episodes == [unseen] * 2  # a course not seen in training, the same for both
+    tiles = {}
+    for name in ("fig10-p1-s1.png", "fig10-p4-s4.png"):
+        image = np.asarray(Image.open(tmp_path / name).convert("RGB"))
+        assert image.shape == (16 + 24 * fig10.SCALE, 3 * 32 * fig10.SCALE + 2 * 4, 3)  # 3 tiles, 2 white gaps
+        tiles[name] = image[16:, :32 * fig10.SCALE]
+    red = np.array(video.RED)
+    patch = 4 * fig10.SCALE
+    large_tile = tiles["fig10-p4-s4.png"]
+    assert (large_tile[patch, patch] == red).all() and (large_tile[2 * patch - 1, 2 * patch - 1] == red).all()
+    assert (large_tile[patch + 2, patch + 2] == 0).all()  # inside the outline: the camera's black
+    small_tile, scale = tiles["fig10-p1-s1.png"], fig10.SCALE
+    for row, col in SMALL:  # each 1-pixel patch a scale-pixel square outlined, ringed red inside white
+        top, left, centre = row * scale, col * scale, (row * scale + scale // 2, col * scale + scale // 2)
+        assert (small_tile[top, left] == red).all() and (small_tile[centre] == 0).all()
+        assert (small_tile[centre[0], centre[1] + video.MARK_RADIUS - 1] == red).all()
+        assert (small_tile[centre[0], centre[1] + video.MARK_RADIUS + 1] == 255).all()
+    assert (small_tile[11 * scale:14 * scale] == 0).all()  # between the two rows: nothing selected
+    assert markdown.splitlines()[0] == (f"Patch size 1, stride 1 (L = 768 patches, top 10 selected): `{small}`, "
+                                        "episode return 10.00.")
+    assert "![fig10-p4-s4](fig10-p4-s4.png)" in markdown and "(L = 48 patches" in markdown
+    text = results.read_text()
+    assert "<!-- BEGIN fig10 -->" in text and markdown in text
+    assert f"`iap-mjx reproduce fig10 --run-dirs {small},{large} --frames 3" in text
