@@ -26,9 +26,9 @@ from iap_mjx import runtime  # noqa: E402
 runtime.set_host_device_count()  # no persistent compilation cache: compile times are cold
 
 import jax  # noqa: E402
+import report  # noqa: E402
 from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
 
-import report  # noqa: E402
 from iap_mjx.attention import AttentionConfig, IAPAttention  # noqa: E402
 
 # (label, image shape, patch size): L = 625, 2500, 10000 and 19200.

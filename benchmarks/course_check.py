@@ -99,7 +99,7 @@ def summary(results: dict[str, np.ndarray], env) -> dict[str, float]:
 
 
 def markdown(label: str, stats: dict[str, float], command: str, n_walls: int) -> str:
-    when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = os.getloadavg()[0]
     rows = "\n".join(f"| {name} | {value:.2f} |" if isinstance(value, float) else f"| {name} | {value} |"
                      for name, value in stats.items())

@@ -206,6 +206,7 @@ def write_outputs(args, config, summary, ours, brax) -> None:
     command = ("python benchmarks/es.py --minutes "
                f"{args.minutes:g} --preset {args.preset} {' '.join(args.overrides)}").rstrip()
     o = summary["ours"]
+    reached = f"after {o['minutes_to_400']:.1f} min" if o["minutes_to_400"] else "no"
     lines = [
         "## ES: state-based cheetah-run, iap_mjx.es vs brax ES", "",
         f"Command: `{command}` ({summary['devices']} XLA CPU devices, cold compilation cache, "
@@ -233,7 +234,7 @@ def write_outputs(args, config, summary, ours, brax) -> None:
               "brax's steps/s is its own `training/sps` of the last epoch. Our eval return is "
               f"the centre params on {config.run.eval_episodes} episodes of separate seeds, "
               "every iteration.", "",
-              f"Reached 400: {'after %.1f min' % o['minutes_to_400'] if o['minutes_to_400'] else 'no'}."
+              f"Reached 400: {reached}."
               f" Curve: `benchmarks/{png.name}`.", ""]
     report.write_section(ROOT / "BENCHMARKS.md", "es", "\n".join(lines))
     report.write_section(ROOT / "RESULTS.md", "es", results_section(ours, brax, summary, command, png))

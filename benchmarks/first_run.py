@@ -77,7 +77,7 @@ def main() -> int:
     options = parser.parse_args()
     args = report.readme_main_command()
     load_before = os.getloadavg()[0]
-    started = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    started = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     results = [run_once(args, seed) for seed in range(options.seeds)]
     load_after = os.getloadavg()[0]
     png = ROOT / "benchmarks" / "first-run.png"

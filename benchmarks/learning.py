@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="do not train; summarise the run directories already in --out")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. env.action_repeat=4")
     args = parser.parse_args(argv)
-    started = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    started = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     load_before = os.getloadavg()[0]
     if args.summarise_only:
         run_dirs = [Path(args.out) / f"seed-{seed}" for seed in range(args.seeds)]

@@ -17,7 +17,6 @@ import numpy as np
 
 from iap_mjx import envs
 
-
 # ---- the sections: shared tables --------------------------------------------------------------
 
 

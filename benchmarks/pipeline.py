@@ -128,9 +128,9 @@ def work_stage(job: dict) -> dict:
 
 def work_attention(job: dict) -> dict:
     """The attention layer alone on ``batch`` images, ``group`` at a time per device: ms per image."""
+    import attention as attention_bench
     import jax
 
-    import attention as attention_bench
     from iap_mjx.attention import AttentionConfig, IAPAttention
 
     shape = (job["height"], job["width"], 3)

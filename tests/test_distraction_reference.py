@@ -62,7 +62,7 @@ def _videos(lengths=(5, 3, 1), size=8):
                                         names=tuple("abc"[: len(lengths)]), source="test")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _base(task, action_repeat=1):
     return _task_classes()[task](envs.EnvConfig(action_repeat=action_repeat))
 

@@ -9,9 +9,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+import spread
 from dm_control import suite
 from scipy import stats
-import spread
 from test_envs_parity import Case, _flat, _our_rollouts
 
 from iap_mjx import envs

@@ -18,8 +18,8 @@ import pytest
 import spread
 
 from iap_mjx import envs
-from iap_mjx.robots import a1
 from iap_mjx.envs.quadruped import QuadrupedConfig, QuadrupedWallsConfig
+from iap_mjx.robots import a1
 
 STEPS = 100
 

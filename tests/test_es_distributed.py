@@ -12,10 +12,10 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
-
-from iap_mjx.es import train
 from test_es_envs import PointMass
 from test_es_train import flat, small_config
+
+from iap_mjx.es import train
 
 TESTS = Path(__file__).resolve().parent
 

@@ -8,13 +8,13 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from iap_mjx.envs.base import State
-from iap_mjx.es.normalizer import init_stats
 from iap_mjx.es.episode import run_episode
+from iap_mjx.es.normalizer import init_stats
 from iap_mjx.es.rollout import make_evaluator, make_mesh
 from iap_mjx.policies import LinearPolicy, MLPPolicy
-from jax.flatten_util import ravel_pytree
 
 
 @dataclasses.dataclass(frozen=True)

@@ -18,11 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_es_envs import PointMass
 
 from iap_mjx.configs import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 from iap_mjx.es import train
 from iap_mjx.es.train import evaluate_run
-from test_es_envs import PointMass
 
 TESTS = Path(__file__).resolve().parent
 

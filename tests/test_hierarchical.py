@@ -14,8 +14,12 @@ import pytest
 from iap_mjx import policies
 from iap_mjx.es.normalizer import ObsStats, normalize
 from iap_mjx.policies.convnet import ConvNet
-from iap_mjx.policies.hierarchical import (AttentiveHierarchicalPolicy, HierarchicalPolicy, duration_steps,
-                                           fold_normalisation)
+from iap_mjx.policies.hierarchical import (
+    AttentiveHierarchicalPolicy,
+    HierarchicalPolicy,
+    duration_steps,
+    fold_normalisation,
+)
 from iap_mjx.policies.pmtg import PMTGPolicy
 
 OBS = {"pixels": (24, 32, 3), "state": (17,)}

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from iap_mjx import policies
-from iap_mjx.robots import a1
 from iap_mjx.policies import pmtg
+from iap_mjx.robots import a1
 
 
 def _reference_advance(phase: float, frequency: float, ratio: float, dt: float) -> float:

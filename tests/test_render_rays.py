@@ -8,7 +8,6 @@ the pixels (the issue's bar).
 
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 import mujoco

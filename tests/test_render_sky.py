@@ -20,8 +20,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from iap_mjx.render import Camera
-from iap_mjx.render import sky
+from iap_mjx.render import Camera, sky
 from iap_mjx.viz import render_compare
 
 SIZE = 16

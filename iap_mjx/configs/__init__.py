@@ -16,12 +16,14 @@ The settings of the parts themselves (``iap_mjx.attention.AttentionConfig``,
 ``iap-mjx show PRESET [key=value ...]`` prints a resolved config.
 """
 
+from iap_mjx.configs import (
+    dcs_presets,  # noqa: F401,E402  (adds the Distracting Control Suite rows)
+    quadruped_presets,  # noqa: F401,E402  (registers the quadruped presets)
+)
 from iap_mjx.configs.env import EnvConfig
 from iap_mjx.configs.overrides import apply_overrides, parse_value
 from iap_mjx.configs.presets import Preset, describe, get, lookup, names, register
 from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
-from iap_mjx.configs import quadruped_presets  # noqa: F401,E402  (registers the quadruped presets)
-from iap_mjx.configs import dcs_presets  # noqa: F401,E402  (adds the Distracting Control Suite rows)
 
 __all__ = [
     "ESConfig", "EnvConfig", "EnvSpec", "PolicySpec", "Preset", "RunConfig", "TrainConfig",

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import ast
 import dataclasses
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 from iap_mjx.configs.env import DISTRACTION_SETTINGS
 from iap_mjx.configs.training import TrainConfig

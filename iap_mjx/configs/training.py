@@ -220,7 +220,7 @@ class TrainConfig:
         return data
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
         """The inverse of :meth:`to_dict` (also reads pairs stored as lists of lists)."""
         sections = {"env": EnvSpec, "policy": PolicySpec, "es": ESConfig, "run": RunConfig}
         unknown = set(data) - set(sections)

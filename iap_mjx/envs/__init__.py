@@ -7,10 +7,9 @@ quadruped's, ``QuadrupedWallsConfig`` the course's); ``batch`` runs large popula
 """
 
 from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)
-from iap_mjx.envs.base import Env, State
-from iap_mjx.configs.env import EnvConfig
+from iap_mjx.configs.env import EnvConfig, QuadrupedConfig, QuadrupedWallsConfig
 from iap_mjx.envs import batch
-from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
+from iap_mjx.envs.base import Env, State
 from iap_mjx.envs.registry import check, make, names
 
 __all__ = ["Env", "EnvConfig", "QuadrupedConfig", "QuadrupedWallsConfig", "State", "batch", "check", "make", "names"]

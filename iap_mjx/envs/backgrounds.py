@@ -55,8 +55,14 @@ from pathlib import Path
 import numpy as np
 
 from iap_mjx.configs.distraction import (
-    DEFAULT_NUM_FRAMES, DEFAULT_SIZE, PACKAGE_DATA, Photograph, check_backgrounds, davis_frame_paths,
-    level_photographs)
+    DEFAULT_NUM_FRAMES,
+    DEFAULT_SIZE,
+    PACKAGE_DATA,
+    Photograph,
+    check_backgrounds,
+    davis_frame_paths,
+    level_photographs,
+)
 
 logger = logging.getLogger(__name__)
 

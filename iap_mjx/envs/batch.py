@@ -10,7 +10,8 @@ chunks its share). Benchmarks batch env programs with these; an episode of a pol
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import numpy as np

@@ -68,7 +68,7 @@ class WalkSettings:
     upper_quadrant: bool
 
     @classmethod
-    def make(cls, scale: float, dynamic: bool, upper_quadrant: bool) -> "WalkSettings":
+    def make(cls, scale: float, dynamic: bool, upper_quadrant: bool) -> WalkSettings:
         on = 1.0 if dynamic else 0.0
         return cls(delta=math.pi / 2 * scale, zoom_in=0.5 * scale, zoom_out=1.5 * scale,
                    vel_std=0.1 * scale * on, max_vel=0.4 * scale * on,

@@ -6,9 +6,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from iap_mjx.envs.dm_control_suite import cartpole
 from mujoco import mjx
 
+from iap_mjx.envs.dm_control_suite import cartpole
 from iap_mjx.envs.dmc import DmControlEnv
 from iap_mjx.envs.rewards import tolerance
 

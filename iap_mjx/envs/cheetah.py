@@ -5,9 +5,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import mujoco
-from iap_mjx.envs.dm_control_suite import cheetah
 from mujoco import mjx
 
+from iap_mjx.envs.dm_control_suite import cheetah
 from iap_mjx.envs.dmc import DmControlEnv
 from iap_mjx.envs.rewards import tolerance
 

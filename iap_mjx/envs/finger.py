@@ -5,9 +5,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import mujoco
-from iap_mjx.envs.dm_control_suite import finger
 from mujoco import mjx
 
+from iap_mjx.envs.dm_control_suite import finger
 from iap_mjx.envs.dmc import DmControlEnv, randomize_limited_and_rotational_joints
 from iap_mjx.loops import batched_like
 

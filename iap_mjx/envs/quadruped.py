@@ -38,10 +38,10 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver
 
-from iap_mjx.robots import a1
-from iap_mjx.robots.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
 from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
 from iap_mjx.envs.dmc import DmControlEnv
+from iap_mjx.robots import a1
+from iap_mjx.robots.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
 
 
 def roll_pitch(quat: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -14,7 +14,8 @@ Every episode runs its whole horizon (static shapes, no data-dependent control f
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp

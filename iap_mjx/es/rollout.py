@@ -10,8 +10,9 @@ size (beyond float rounding).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import numpy as np

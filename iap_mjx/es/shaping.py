@@ -5,7 +5,7 @@ We maximise; a NaN fitness (a diverged episode) is ranked below every finite one
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

@@ -12,7 +12,8 @@ A strategy is an object with pure functions (all shapes for ``D`` parameters, po
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import jax
 import jax.numpy as jnp

@@ -14,8 +14,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -25,12 +26,12 @@ from flax import struct
 from jax.flatten_util import ravel_pytree
 from jax.sharding import NamedSharding, PartitionSpec
 
-from iap_mjx.es import checkpoint
 from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig
+from iap_mjx.es import checkpoint
+from iap_mjx.es.episode import EpisodeResult, episode_metric_names, observe
 from iap_mjx.es.metrics_log import MetricsWriter, metric_columns, read_history, write_config
 from iap_mjx.es.normalizer import ObsStats, init_stats, update_stats
-from iap_mjx.es.episode import EpisodeResult, episode_metric_names, observe
 from iap_mjx.es.rollout import make_evaluator, make_mesh, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy

@@ -11,7 +11,8 @@ A factory takes ``(observation_shape, action_size, **options)``.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from iap_mjx.policies.attention import CNNPolicy, IAPPolicy, make_cnn_policy, make_iap_policy
 from iap_mjx.policies.base import Policy, init_param_count, param_count

@@ -25,6 +25,7 @@ from iap_mjx.policies.base import check_positive, check_sizes
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 
+
 def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
     """``(pixels (H, W, C), state (n,) or None)`` from an array or a ``{"pixels", "state"}`` dict."""
     if isinstance(obs, dict):

@@ -37,8 +37,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from iap_mjx.robots import a1
 from iap_mjx.policies.base import check_choice, check_positive
+from iap_mjx.robots import a1
 
 TWO_PI = 2.0 * math.pi
 

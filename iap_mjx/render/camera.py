@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Optional
 
 import jax
 import jax.numpy as jnp
@@ -28,9 +27,8 @@ from mujoco import mjx
 
 from iap_mjx import chunks
 from iap_mjx.render import scene as scene_lib
-from iap_mjx.render import shading
+from iap_mjx.render import shading, tracing
 from iap_mjx.render import sky as sky_lib
-from iap_mjx.render import tracing
 
 SHADINGS = ("lambert", "flat")
 SKIES = ("skybox", "color")
@@ -71,7 +69,7 @@ class CameraConfig:
     sky: str = "skybox"
     background_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
     checker_floor: bool = True
-    batch_chunk: Optional[int] = None
+    batch_chunk: int | None = None
     tile: int = 10
     cull_pairs_per_tile: float = 1.0
 
@@ -169,9 +167,9 @@ class Camera:
         y = np.broadcast_to(self.tracer.y, (h, w))
         return np.stack([x, y, -np.ones((h, w), np.float32)], axis=-1)
 
-    def render(self, data: mjx.Data, background: Optional[jax.Array] = None,
-               geom_rgb: Optional[jax.Array] = None,
-               sky_texture: Optional[jax.Array | tuple[jax.Array, jax.Array]] = None,
+    def render(self, data: mjx.Data, background: jax.Array | None = None,
+               geom_rgb: jax.Array | None = None,
+               sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None = None,
                ) -> tuple[jax.Array, jax.Array]:
         """Renders one state (``vmap`` it for a batch); :meth:`render_ids` also returns the
         geom seen at each pixel.
@@ -198,9 +196,9 @@ class Camera:
         rgb, depth, _ = self.render_ids(data, background, geom_rgb, sky_texture)
         return rgb, depth
 
-    def render_ids(self, data: mjx.Data, background: Optional[jax.Array] = None,
-                   geom_rgb: Optional[jax.Array] = None,
-                   sky_texture: Optional[jax.Array | tuple[jax.Array, jax.Array]] = None,
+    def render_ids(self, data: mjx.Data, background: jax.Array | None = None,
+                   geom_rgb: jax.Array | None = None,
+                   sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None = None,
                    ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """:meth:`render`'s rgb and depth, and the hit geom's MuJoCo id ``(H, W)`` int32
         (``-1`` where nothing is hit) from the same trace (one program, not two)."""
@@ -220,7 +218,7 @@ class Camera:
 
     # -- the inputs of render, as the program takes them -------------------------------------
 
-    def _checked_background(self, background: Optional[jax.Array]) -> jax.Array:
+    def _checked_background(self, background: jax.Array | None) -> jax.Array:
         """``background`` checked, or an empty array for none (the sky is drawn)."""
         cfg = self.config
         if background is None:
@@ -231,7 +229,7 @@ class Camera:
                              f"got {background.dtype} {background.shape}")
         return background
 
-    def _checked_geom_rgb(self, geom_rgb: Optional[jax.Array]) -> jax.Array:
+    def _checked_geom_rgb(self, geom_rgb: jax.Array | None) -> jax.Array:
         """``geom_rgb`` checked, or an empty array for none (the model's colours)."""
         if geom_rgb is None:
             return jnp.zeros((0,), jnp.float32)

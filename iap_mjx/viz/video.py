@@ -12,8 +12,9 @@ observations, so its frames are rendered by the ray-cast camera from its ``video
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import numpy as np
