@@ -95,8 +95,7 @@ def batched_forward(layer: IAPAttention, batch: int, chunk: int):
         return forward
     mesh = Mesh(jax.devices(), ("batch",))
     spec = PartitionSpec("batch")
-    return jax.shard_map(forward, mesh=mesh, in_specs=(PartitionSpec(), PartitionSpec(), spec),
-                         out_specs=spec)
+    return jax.shard_map(forward, mesh=mesh, in_specs=(PartitionSpec(), PartitionSpec(), spec), out_specs=spec)
 
 
 def measure(size_label, shape, patch, kernel_label, options, batch, done: list[Row]) -> Row:
@@ -107,14 +106,24 @@ def measure(size_label, shape, patch, kernel_label, options, batch, done: list[R
     if options["kernel"] == "brute":
         fits = MEMORY_BUDGET // brute_bytes_per_image(layer.num_patches)
         if fits < 1:
-            row.note = (f"does not fit: {brute_bytes_per_image(layer.num_patches) / 2**30:.1f} GiB "
-                        f"per image > {MEMORY_BUDGET / 2**30:.0f} GiB budget")
+            row.note = (
+                f"does not fit: {brute_bytes_per_image(layer.num_patches) / 2**30:.1f} GiB "
+                f"per image > {MEMORY_BUDGET / 2**30:.0f} GiB budget"
+            )
             return row
-        single = next((r.per_image_ms for r in done if r.size == size_label and r.kernel == "brute"
-                       and r.batch == 1 and r.per_image_ms), None)
+        single = next(
+            (
+                r.per_image_ms
+                for r in done
+                if r.size == size_label and r.kernel == "brute" and r.batch == 1 and r.per_image_ms
+            ),
+            None,
+        )
         if batch > 1 and single is not None and single * batch / 1e3 > BATCH_SECONDS_CAP:
-            row.note = (f"not run: batch 1 predicts {single * batch / 1e3:.0f} s per batch "
-                        f"(> {BATCH_SECONDS_CAP:.0f} s); see batch 1")
+            row.note = (
+                f"not run: batch 1 predicts {single * batch / 1e3:.0f} s per batch "
+                f"(> {BATCH_SECONDS_CAP:.0f} s); see batch 1"
+            )
             return row
         if fits < chunk:
             chunk = int(fits)
@@ -124,11 +133,13 @@ def measure(size_label, shape, patch, kernel_label, options, batch, done: list[R
     images = place_images(jax.random.uniform(jax.random.PRNGKey(2), (batch, *shape)))
     fn = batched_forward(layer, batch, chunk)
     compile_s, seconds, compiled = report.compile_and_time(
-        fn, params, projections, images, repeats=3 if batch == 1 else 2, min_seconds=0.3)
+        fn, params, projections, images, repeats=3 if batch == 1 else 2, min_seconds=0.3
+    )
     memory = compiled.memory_analysis()
     if memory is not None:
-        row.memory_mb = (memory.temp_size_in_bytes + memory.argument_size_in_bytes
-                         + memory.output_size_in_bytes) / 2**20
+        row.memory_mb = (
+            memory.temp_size_in_bytes + memory.argument_size_in_bytes + memory.output_size_in_bytes
+        ) / 2**20
     row.compile_s, row.per_image_ms = compile_s, 1e3 * seconds / batch
     return row
 
@@ -139,33 +150,50 @@ def fmt(value, spec):
 
 def table(rows: list[Row]) -> str:
     brute = {(r.size, r.batch): r.per_image_ms for r in rows if r.kernel == "brute"}
-    lines = ["| image, patch | L | kernel | batch | compile s | ms / image | x faster than brute | memory MB | note |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---|"]
+    lines = [
+        "| image, patch | L | kernel | batch | compile s | ms / image | x faster than brute | memory MB | note |",
+        "|---|---:|---|---:|---:|---:|---:|---:|---|",
+    ]
     for r in rows:
         base = brute.get((r.size, r.batch))
         speedup = base / r.per_image_ms if base and r.per_image_ms and r.kernel != "brute" else None
-        lines.append(f"| {r.size} | {r.patches} | {r.kernel} | {r.batch} | {fmt(r.compile_s, '.2f')} | "
-                     f"{fmt(r.per_image_ms, '.4f')} | {fmt(speedup, '.1f')} | {fmt(r.memory_mb, '.0f')} | {r.note} |")
+        lines.append(
+            f"| {r.size} | {r.patches} | {r.kernel} | {r.batch} | {fmt(r.compile_s, '.2f')} | "
+            f"{fmt(r.per_image_ms, '.4f')} | {fmt(speedup, '.1f')} | {fmt(r.memory_mb, '.0f')} | {r.note} |"
+        )
     return "\n".join(lines)
 
 
 def bar_lines(rows: list[Row]) -> str:
     """The foundation issue's two bars, read off this run's rows."""
-    def time_of(patches, kernel, batch=256):
-        return next((r.per_image_ms for r in rows if r.patches == patches and r.kernel == kernel
-                     and r.batch == batch and r.per_image_ms), None)
 
-    lines = [f"Bars, from this run (1-min load average before/after: {LOAD_BEFORE:.1f}/"
-             f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores):"]
+    def time_of(patches, kernel, batch=256):
+        return next(
+            (
+                r.per_image_ms
+                for r in rows
+                if r.patches == patches and r.kernel == kernel and r.batch == batch and r.per_image_ms
+            ),
+            None,
+        )
+
+    lines = [
+        f"Bars, from this run (1-min load average before/after: {LOAD_BEFORE:.1f}/"
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores):"
+    ]
     brute, hybrid = time_of(2500, "brute"), time_of(2500, "hybrid (10,5)")
     if brute and hybrid:
         ratio = brute / hybrid
-        lines.append(f"- hybrid (10,5) vs brute force at L = 2500, batch 256: **{ratio:.1f}x** faster "
-                     f"(bar: 50x: {'met' if ratio >= 50 else 'NOT met'}).")
+        lines.append(
+            f"- hybrid (10,5) vs brute force at L = 2500, batch 256: **{ratio:.1f}x** faster "
+            f"(bar: 50x: {'met' if ratio >= 50 else 'NOT met'})."
+        )
     large = time_of(19200, "hybrid (10,5)")
     if large:
-        lines.append(f"- hybrid (10,5) at L = 19200, batch 256: **{large:.2f} ms per image** "
-                     f"(bar: under 5 ms: {'met' if large < 5 else 'NOT met'}).")
+        lines.append(
+            f"- hybrid (10,5) at L = 19200, batch 256: **{large:.2f} ms per image** "
+            f"(bar: under 5 ms: {'met' if large < 5 else 'NOT met'})."
+        )
     return "\n".join(lines)
 
 
@@ -181,9 +209,11 @@ def main() -> int:
             for kernel_label, options in kernels:
                 row = measure(size_label, shape, patch, kernel_label, options, batch, rows)
                 rows.append(row)
-                print(f"{row.size:>14} L={row.patches:<6} {row.kernel:<14} B={row.batch:<4} "
-                      f"{fmt(row.per_image_ms, '.4f')} ms/image  compile {fmt(row.compile_s, '.1f')} s  {row.note}",
-                      flush=True)
+                print(
+                    f"{row.size:>14} L={row.patches:<6} {row.kernel:<14} B={row.batch:<4} "
+                    f"{fmt(row.per_image_ms, '.4f')} ms/image  compile {fmt(row.compile_s, '.1f')} s  {row.note}",
+                    flush=True,
+                )
     body = table(rows)
     print("\n" + body)
     bars = bar_lines(rows)
@@ -200,11 +230,12 @@ def main() -> int:
             f"batch 1 on one device; each device runs its share {CHUNK} images at a time "
             f"(`lax.map` with `batch_size={CHUNK}`: at L = 19200 this was 1.6x faster than vectorising "
             "the whole share, whose working set leaves the cache). Steady-state time per image (median of timed "
-            "repeats after a warm-up; compile time apart); \"x faster than brute\" divides the "
+            'repeats after a warm-up; compile time apart); "x faster than brute" divides the '
             "brute-force time measured in the same run by the row's time. Memory is XLA's own "
             "analysis of the compiled program (arguments + outputs + temporaries). Brute force "
             f"runs in chunks that fit a {MEMORY_BUDGET / 2**30:.0f} GiB budget, and not at all where "
-            "a single image's L x L matrix does not fit.\n\n" + bars + "\n\n" + body)
+            "a single image's L x L matrix does not fit.\n\n" + bars + "\n\n" + body
+        )
         report.write_section(args.output, "attention", section)
     return 0
 

@@ -50,8 +50,14 @@ from iap_mjx.viz import render_compare  # noqa: E402
 
 SECTION = "camera"
 DISTRACTION_SECTION = "camera-distraction"
-DISTRACTION_TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch",
-                     "reacher-easy", "finger-spin")
+DISTRACTION_TASKS = (
+    "cheetah-run",
+    "walker-walk",
+    "cartpole-swingup",
+    "ball_in_cup-catch",
+    "reacher-easy",
+    "finger-spin",
+)
 RESOLUTIONS = ((64, 64), (100, 100), (240, 320))
 BATCHES = (1, 64, 256)
 TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy")
@@ -87,21 +93,26 @@ def _mjx_ray(model, cam: Camera):
 
     def one(data):
         vecs = dirs @ data.cam_xmat[cam_id].T
-        dist, geom = jax.vmap(lambda v: mjx.ray(mx, data, data.cam_xpos[cam_id], v,
-                                                 geomgroup=(1, 1, 1, 0, 0, 0)))(vecs)
+        dist, geom = jax.vmap(lambda v: mjx.ray(mx, data, data.cam_xpos[cam_id], v, geomgroup=(1, 1, 1, 0, 0, 0)))(vecs)
         return dist.reshape(shape), geom.reshape(shape)
+
     return jax.vmap(one)
 
 
 def _mujoco_renderer(domain: str, states, seconds: float, resolutions=RESOLUTIONS) -> dict:
     """MuJoCo's renderer frames/s (RGB, depth) per resolution, in an OSMesa child process."""
-    request = {"domain": domain, "qpos": [np.asarray(d.qpos).tolist() for _, d in states[:16]],
-               "geom_pos": np.asarray(states[0][0].geom_pos).tolist(),
-               "geom_size": np.asarray(states[0][0].geom_size).tolist(),
-               "resolutions": resolutions, "seconds": seconds}
+    request = {
+        "domain": domain,
+        "qpos": [np.asarray(d.qpos).tolist() for _, d in states[:16]],
+        "geom_pos": np.asarray(states[0][0].geom_pos).tolist(),
+        "geom_size": np.asarray(states[0][0].geom_size).tolist(),
+        "resolutions": resolutions,
+        "seconds": seconds,
+    }
     env = dict(os.environ, MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
-    proc = subprocess.run([sys.executable, __file__, "--mujoco-child"], input=json.dumps(request),
-                          env=env, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, __file__, "--mujoco-child"], input=json.dumps(request), env=env, capture_output=True, text=True
+    )
     if proc.returncode != 0:
         return {"error": proc.stderr[-500:]}
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -140,11 +151,15 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="cheetah-run")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--mjx-ray-batches", type=int, nargs="*", default=[1, 64],
-                        help="batches at which vmapped mjx.ray is timed (slow at 240x320)")
+    parser.add_argument(
+        "--mjx-ray-batches",
+        type=int,
+        nargs="*",
+        default=[1, 64],
+        help="batches at which vmapped mjx.ray is timed (slow at 240x320)",
+    )
     parser.add_argument("--out", type=Path, default=report.ROOT / "BENCHMARKS.md")
-    parser.add_argument("--distraction", action="store_true",
-                        help="write the camera-distraction section instead")
+    parser.add_argument("--distraction", action="store_true", help="write the camera-distraction section instead")
     parser.add_argument("--batch", type=int, default=64, help="states per call (--distraction)")
     parser.add_argument("--rounds", type=int, default=9, help="timing rounds per program (--distraction)")
     parser.add_argument("--mujoco-child", action="store_true", help=argparse.SUPPRESS)
@@ -159,8 +174,7 @@ def main(argv=None) -> None:
     if args.from_log:  # rewrite the section from a previous run's printed rows
         import ast
 
-        lines = [ast.literal_eval(line) for line in args.from_log.read_text().splitlines()
-                 if line.startswith("{")]
+        lines = [ast.literal_eval(line) for line in args.from_log.read_text().splitlines() if line.startswith("{")]
         sweep = [r for r in lines if "res" in r and "task" not in r]
         natives = [r for r in lines if "res" not in r and "task" not in r]
         per_task = [r for r in lines if "task" in r]
@@ -207,17 +221,24 @@ def _per_task(args, mesh, sharding) -> list[dict]:
             _, _, compiled_2 = report.compile_and_time(_sharded(_rgbd(cam), mesh), placed, repeats=1)
             two_device.append(compiled_2)
             ref = native.get(f"{height}x{width}", {}) if "error" not in native else {}
-            task_rows.append({"task": task, "res": f"{height}x{width}", "pixels": height * width,
-                              "one": TASK_BATCH / step_1, "compile": compile_1,
-                              "mujoco_rgb": ref.get("rgb"), "mujoco_depth": ref.get("depth")})
+            task_rows.append(
+                {
+                    "task": task,
+                    "res": f"{height}x{width}",
+                    "pixels": height * width,
+                    "one": TASK_BATCH / step_1,
+                    "compile": compile_1,
+                    "mujoco_rgb": ref.get("rgb"),
+                    "mujoco_depth": ref.get("depth"),
+                }
+            )
         # the resolutions' two-device programs in turns, so that load changes hit both alike
         times = report.interleaved_times(two_device, [(placed,)] * len(two_device), rounds=TASK_ROUNDS)
         for i, row in enumerate(task_rows):
             row["two"] = TASK_BATCH / statistics.median(t[i] for t in times)
         small, large = task_rows[0]["pixels"], task_rows[-1]["pixels"]
         ratios = sorted(t[0] * large / (t[-1] * small) for t in times)  # pixels/s, large / small
-        task_rows[-1].update(px_ratio=statistics.median(ratios), px_ratio_min=ratios[0],
-                             px_ratio_max=ratios[-1])
+        task_rows[-1].update(px_ratio=statistics.median(ratios), px_ratio_min=ratios[0], px_ratio_max=ratios[-1])
         for row in task_rows:
             print(row, flush=True)
         rows += task_rows
@@ -239,21 +260,25 @@ def _distraction(args) -> None:
         domain, name = task.split("-")
         _, batch, _ = _states(domain, name, args.batch, args.seed)
         env = envs.make(task, obs_mode="pixels", height=240, width=320)
-        distracted = with_pixels(env.env, height=240, width=320, distraction=config,
-                                             videos=videos)
+        distracted = with_pixels(env.env, height=240, width=320, distraction=config, videos=videos)
         keys = jax.random.split(jax.random.PRNGKey(args.seed), args.batch)
         perturbations = jax.jit(jax.vmap(distracted.distraction.reset))(keys, batch)
         plain = jax.vmap(lambda data: env.camera.render(data)[0])
         perturbed = jax.vmap(lambda data, p: distracted.render(data, p))
         compile_plain, _, plain_fn = report.compile_and_time(plain, batch, repeats=1)
         compile_dcs, _, dcs_fn = report.compile_and_time(perturbed, batch, perturbations, repeats=1)
-        times = report.interleaved_times([plain_fn, dcs_fn], [(batch,), (batch, perturbations)],
-                                         rounds=args.rounds)
+        times = report.interleaved_times([plain_fn, dcs_fn], [(batch,), (batch, perturbations)], rounds=args.rounds)
         ratios = sorted(plain_t / dcs_t for plain_t, dcs_t in times)
-        row = {"task": task, "plain": args.batch / statistics.median(t[0] for t in times),
-               "dcs": args.batch / statistics.median(t[1] for t in times),
-               "ratio": statistics.median(ratios), "ratio_min": ratios[0], "ratio_max": ratios[-1],
-               "compile_plain": compile_plain, "compile_dcs": compile_dcs}
+        row = {
+            "task": task,
+            "plain": args.batch / statistics.median(t[0] for t in times),
+            "dcs": args.batch / statistics.median(t[1] for t in times),
+            "ratio": statistics.median(ratios),
+            "ratio_min": ratios[0],
+            "ratio_max": ratios[-1],
+            "compile_plain": compile_plain,
+            "compile_dcs": compile_dcs,
+        }
         rows.append(row)
         print(row, flush=True)
     lines = [
@@ -271,9 +296,11 @@ def _distraction(args) -> None:
         "|---|---|---|---|---|---|---|",
     ]
     for row in rows:
-        lines.append(f"| {row['task']} | {_fmt(row['plain'])} | {_fmt(row['dcs'])} | "
-                     f"{row['ratio']:.1%} | {row['ratio_min']:.1%}, {row['ratio_max']:.1%} | "
-                     f"{row['compile_plain']:.1f} | {row['compile_dcs']:.1f} |")
+        lines.append(
+            f"| {row['task']} | {_fmt(row['plain'])} | {_fmt(row['dcs'])} | "
+            f"{row['ratio']:.1%} | {row['ratio_min']:.1%}, {row['ratio_max']:.1%} | "
+            f"{row['compile_plain']:.1f} | {row['compile_dcs']:.1f} |"
+        )
     lines += ["", "Reproduce: `python benchmarks/camera.py --distraction`."]
     report.write_section(args.out, DISTRACTION_SECTION, "\n".join(lines))
 
@@ -301,7 +328,8 @@ def _write(args, rows, native, per_task) -> None:
         lines.append(
             f"| {row['res']} | {row['B']} | {_fmt(row['one'])} | {_fmt(row.get('two'))} | "
             f"{row['compile']:.1f} | {_fmt(row.get('mjx_ray'))} | {_fmt(ratio_ray, 1)} | "
-            f"{_fmt(ref.get('rgb'))} | {_fmt(ref.get('depth'))} | {_fmt(ratio_native, 1)} |")
+            f"{_fmt(ref.get('rgb'))} | {_fmt(ref.get('depth'))} | {_fmt(ratio_native, 1)} |"
+        )
     if "error" in native:
         lines += ["", f"MuJoCo renderer unavailable: `{native['error'].strip().splitlines()[-1]}`"]
     lines += [
@@ -319,13 +347,17 @@ def _write(args, rows, native, per_task) -> None:
     ]
     for row in per_task:
         mpx = row["two"] * row["pixels"] / 1e6
-        per_px = (f"{row['px_ratio']:.2f} ({row['px_ratio_min']:.2f}, {row['px_ratio_max']:.2f})"
-                  if "px_ratio" in row else "—")
+        per_px = (
+            f"{row['px_ratio']:.2f} ({row['px_ratio_min']:.2f}, {row['px_ratio_max']:.2f})"
+            if "px_ratio" in row
+            else "—"
+        )
         ratio = row["two"] / row["mujoco_rgb"] if row.get("mujoco_rgb") else None
         lines.append(
             f"| {row['task']} | {row['res']} | {_fmt(row['one'])} | {_fmt(row['two'])} | {mpx:.1f} | "
             f"{per_px} | {row['compile']:.1f} | {_fmt(row.get('mujoco_rgb'))} | "
-            f"{_fmt(row.get('mujoco_depth'))} | {_fmt(ratio, 1)} |")
+            f"{_fmt(row.get('mujoco_depth'))} | {_fmt(ratio, 1)} |"
+        )
     lines += [
         "",
         "MuJoCo's renderer: `mujoco.Renderer` with `MUJOCO_GL=osmesa` (software GL), one process,",

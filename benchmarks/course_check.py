@@ -52,14 +52,18 @@ def walker(low_level: str | None, env_overrides: tuple) -> tuple[configs.TrainCo
             env=configs.EnvSpec("quadruped-walls", env_overrides),
             policy=configs.PolicySpec("pmtg"),
             es=configs.ESConfig(population_size=2, normalize_observations=False),
-            run=configs.RunConfig(eval_episodes=0))
+            run=configs.RunConfig(eval_episodes=0),
+        )
         parts = es.build(config)
         return config, parts.template_params, None
     trained = es.load_run(low_level)
     if trained.config.policy.kind != "pmtg":
         raise SystemExit(f"{low_level} trained a {trained.config.policy.kind!r} policy; a pmtg one is needed")
-    config = dataclasses.replace(trained.config, env=configs.EnvSpec("quadruped-walls", env_overrides),
-                                 run=dataclasses.replace(trained.config.run, eval_episodes=0))
+    config = dataclasses.replace(
+        trained.config,
+        env=configs.EnvSpec("quadruped-walls", env_overrides),
+        run=dataclasses.replace(trained.config.run, eval_episodes=0),
+    )
     return config, trained.params, trained.obs_stats
 
 
@@ -101,10 +105,14 @@ def summary(results: dict[str, np.ndarray], env) -> dict[str, float]:
 def markdown(label: str, stats: dict[str, float], command: str, n_walls: int) -> str:
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = os.getloadavg()[0]
-    rows = "\n".join(f"| {name} | {value:.2f} |" if isinstance(value, float) else f"| {name} | {value} |"
-                     for name, value in stats.items())
-    return (f"### {label}\n\nCommand: `{command}` ({when}; 1-min load average {load:.1f}; "
-            f"{n_walls} walls)\n\n| statistic | value |\n|---|---:|\n{rows}\n")
+    rows = "\n".join(
+        f"| {name} | {value:.2f} |" if isinstance(value, float) else f"| {name} | {value} |"
+        for name, value in stats.items()
+    )
+    return (
+        f"### {label}\n\nCommand: `{command}` ({when}; 1-min load average {load:.1f}; "
+        f"{n_walls} walls)\n\n| statistic | value |\n|---|---:|\n{rows}\n"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -112,10 +120,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="quadruped-walls env settings")
     parser.add_argument("--episodes", type=int, default=64)
     parser.add_argument("--seed", type=int, default=2024, help="course draws (not a training seed)")
-    parser.add_argument("--low-level", metavar="RUN_DIR", help="a trained quadruped-flat-pmtg run (default: "
-                        "the PMTG policy's initial params, the TG's trot)")
-    parser.add_argument("--export-low-level", metavar="OUT.npz",
-                        help="with --low-level: write its w and b with the normalisation folded in, and stop")
+    parser.add_argument(
+        "--low-level",
+        metavar="RUN_DIR",
+        help="a trained quadruped-flat-pmtg run (default: the PMTG policy's initial params, the TG's trot)",
+    )
+    parser.add_argument(
+        "--export-low-level",
+        metavar="OUT.npz",
+        help="with --low-level: write its w and b with the normalisation folded in, and stop",
+    )
     parser.add_argument("--section", help="also write this section of RESULTS.md")
     args = parser.parse_args(argv)
     env_overrides = tuple(sorted((k, parse_value(v)) for k, v in (o.split("=", 1) for o in args.overrides)))
@@ -131,8 +145,11 @@ def main(argv: list[str] | None = None) -> int:
     results, env = run(config, params, obs_stats, args.episodes, args.seed)
     n_walls = env.config.n_walls
     stats = summary(results, env)
-    label = (f"Trained flat low level `{args.low_level}`, constant latent" if args.low_level
-             else "The TG's trot (`PMTGPolicy.initial_tg`, zero weights and residuals)")
+    label = (
+        f"Trained flat low level `{args.low_level}`, constant latent"
+        if args.low_level
+        else "The TG's trot (`PMTGPolicy.initial_tg`, zero weights and residuals)"
+    )
     command = "python benchmarks/course_check.py " + " ".join(argv if argv is not None else sys.argv[1:])
     text = markdown(label, stats, command.strip(), n_walls)
     print(text)

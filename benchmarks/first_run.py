@@ -44,10 +44,17 @@ def run_once(args: list[str], seed: int) -> dict:
         run_dir = Path(work) / args[args.index("--run-dir") + 1]
         rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
         trained = rows[-1]["wall_s"]
-        return {"seed": seed, "wall_s": wall, "rows": rows, "compile_s": rows[-1]["compile_s"],
-                "train_s": trained - rows[-1]["compile_s"], "after_training_s": wall - trained,
-                "stderr_warnings": [line for line in done.stderr.splitlines()
-                                    if "warn" in line.lower() or "error" in line.lower()]}
+        return {
+            "seed": seed,
+            "wall_s": wall,
+            "rows": rows,
+            "compile_s": rows[-1]["compile_s"],
+            "train_s": trained - rows[-1]["compile_s"],
+            "after_training_s": wall - trained,
+            "stderr_warnings": [
+                line for line in done.stderr.splitlines() if "warn" in line.lower() or "error" in line.lower()
+            ],
+        }
 
 
 def plot(results: list[dict], path: Path) -> None:
@@ -59,8 +66,13 @@ def plot(results: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4))
     for result in results:
         rows = result["rows"]
-        ax.plot([r["iteration"] for r in rows], [r["eval_return"] for r in rows], "o-", markersize=3,
-                label=f"seed {result['seed']}")
+        ax.plot(
+            [r["iteration"] for r in rows],
+            [r["eval_return"] for r in rows],
+            "o-",
+            markersize=3,
+            label=f"seed {result['seed']}",
+        )
     ax.set_xlabel("ES iteration")
     ax.set_ylabel("evaluation return (centre params)")
     ax.set_title("the README's main command")
@@ -82,14 +94,18 @@ def main() -> int:
     load_after = os.getloadavg()[0]
     png = ROOT / "benchmarks" / "first-run.png"
     plot(results, png)
-    lines = ["| seed | wall s (cold cache) | compile s | training s | curve + video s | iterations | "
-             "first eval return | final eval return | warning lines on stderr |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| seed | wall s (cold cache) | compile s | training s | curve + video s | iterations | "
+        "first eval return | final eval return | warning lines on stderr |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in results:
         rows = r["rows"]
-        lines.append(f"| {r['seed']} | {r['wall_s']:.0f} | {r['compile_s']:.0f} | {r['train_s']:.0f} | "
-                     f"{r['after_training_s']:.0f} | {len(rows)} | {rows[0]['eval_return']:.1f} | "
-                     f"{rows[-1]['eval_return']:.1f} | {len(r['stderr_warnings'])} |")
+        lines.append(
+            f"| {r['seed']} | {r['wall_s']:.0f} | {r['compile_s']:.0f} | {r['train_s']:.0f} | "
+            f"{r['after_training_s']:.0f} | {len(rows)} | {rows[0]['eval_return']:.1f} | "
+            f"{rows[-1]['eval_return']:.1f} | {len(r['stderr_warnings'])} |"
+        )
     finals = [r["rows"][-1]["eval_return"] for r in results]
     body = (
         "## The first run: the README's main command\n\n"
@@ -104,7 +120,8 @@ def main() -> int:
         "(the reward curve, the video's rollout and its encoding).\n\n"
         + "\n".join(lines)
         + f"\n\nFinal evaluation return: mean {sum(finals) / len(finals):.1f} "
-        f"(min {min(finals):.1f}) over {len(finals)} seeds.\n\n![curves](benchmarks/first-run.png)\n")
+        f"(min {min(finals):.1f}) over {len(finals)} seeds.\n\n![curves](benchmarks/first-run.png)\n"
+    )
     print(body)
     report.write_section(options.output, "first-run", body)
     return 0

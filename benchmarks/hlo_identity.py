@@ -66,27 +66,57 @@ ATTENTION_KERNELS = ("brute", "relu", "hybrid")
 BATCH = 8
 
 # (case name, image shape, AttentionConfig options, batch) for the output bytes.
-OUTPUT_CASES = [
-    (f"{kernel}/100x100-p4", (100, 100, 3), {"kernel": kernel, "patch_size": 4}, 4)
-    for kernel in ("brute", "relu", "exp", "trig", "hybrid", "angular")
-] + [
-    ("brute-row-normalize/100x100-p4", (100, 100, 3), {"kernel": "brute", "row_normalize": True}, 4),
-    ("relu/240x320-p2", (240, 320, 3), {"kernel": "relu", "patch_size": 2}, 2),
-    ("hybrid/240x320-p2", (240, 320, 3), {"kernel": "hybrid", "patch_size": 2}, 2),
-    ("brute/48x64-p2", (48, 64, 3), {"kernel": "brute", "patch_size": 2}, 3),
-] + [
-    (f"{kernel}/20x20-p4-stride2-{scaling}{'-bias' if bias else ''}", (20, 20, 3),
-     {"kernel": kernel, "patch_size": 4, "stride": 2, "scaling": scaling, "use_bias": bias,
-      "eq5_scale": 1.3, "top_l": 5, "m": 6, "r": 3}, 3)
-    for kernel in ("brute", "relu", "exp", "hybrid")
-    for scaling, bias in (("eq4", False), ("eq5", True), ("none", True))
-] + [
-    (f"{kernel}/20x20-p4-{scaling}-bias", (20, 20, 3),
-     {"kernel": kernel, "patch_size": 4, "scaling": scaling, "use_bias": True, "eq5_scale": 1.3,
-      "top_l": 5, "m": 6, "r": 3}, 3)
-    for kernel in ("brute", "relu", "trig", "hybrid", "angular")
-    for scaling in ("eq4", "eq5")
-]
+OUTPUT_CASES = (
+    [
+        (f"{kernel}/100x100-p4", (100, 100, 3), {"kernel": kernel, "patch_size": 4}, 4)
+        for kernel in ("brute", "relu", "exp", "trig", "hybrid", "angular")
+    ]
+    + [
+        ("brute-row-normalize/100x100-p4", (100, 100, 3), {"kernel": "brute", "row_normalize": True}, 4),
+        ("relu/240x320-p2", (240, 320, 3), {"kernel": "relu", "patch_size": 2}, 2),
+        ("hybrid/240x320-p2", (240, 320, 3), {"kernel": "hybrid", "patch_size": 2}, 2),
+        ("brute/48x64-p2", (48, 64, 3), {"kernel": "brute", "patch_size": 2}, 3),
+    ]
+    + [
+        (
+            f"{kernel}/20x20-p4-stride2-{scaling}{'-bias' if bias else ''}",
+            (20, 20, 3),
+            {
+                "kernel": kernel,
+                "patch_size": 4,
+                "stride": 2,
+                "scaling": scaling,
+                "use_bias": bias,
+                "eq5_scale": 1.3,
+                "top_l": 5,
+                "m": 6,
+                "r": 3,
+            },
+            3,
+        )
+        for kernel in ("brute", "relu", "exp", "hybrid")
+        for scaling, bias in (("eq4", False), ("eq5", True), ("none", True))
+    ]
+    + [
+        (
+            f"{kernel}/20x20-p4-{scaling}-bias",
+            (20, 20, 3),
+            {
+                "kernel": kernel,
+                "patch_size": 4,
+                "scaling": scaling,
+                "use_bias": True,
+                "eq5_scale": 1.3,
+                "top_l": 5,
+                "m": 6,
+                "r": 3,
+            },
+            3,
+        )
+        for kernel in ("brute", "relu", "trig", "hybrid", "angular")
+        for scaling in ("eq4", "eq5")
+    ]
+)
 
 
 def sha256(data: bytes | str) -> str:
@@ -125,8 +155,7 @@ def attention_programs():
 
     for size, shape, patch in ATTENTION_SIZES:
         for kernel in ATTENTION_KERNELS:
-            layer = IAPAttention(AttentionConfig(kernel=kernel, patch_size=patch, top_l=10, m=10, r=5),
-                                 shape)
+            layer = IAPAttention(AttentionConfig(kernel=kernel, patch_size=patch, top_l=10, m=10, r=5), shape)
             keys = jax.random.split(jax.random.PRNGKey(0), BATCH)
             params = jax.eval_shape(jax.vmap(layer.init), keys)
             projections = jax.eval_shape(jax.vmap(layer.draw_projections), keys)
@@ -191,16 +220,22 @@ def camera_cases():
     stack = sky.pack_rgb(jnp.asarray(rng.integers(0, 256, (5, 16, 16, 3)), jnp.uint8))
     rows = jnp.arange(CAMERA_STATES, dtype=jnp.int32) % 5
     yield "cartpole-swingup/64x80-render", jax.vmap(camera.render), cartpole_states
-    yield ("cartpole-swingup/64x80-background-geom_rgb",
-           jax.vmap(lambda d: camera.render(d, background=background, geom_rgb=geom_rgb)), cartpole_states)
-    yield ("cartpole-swingup/64x80-sky-face",
-           jax.vmap(lambda d: camera.render(d, sky_texture=face)), cartpole_states)
-    yield ("cartpole-swingup/64x80-sky-stack-row-geom_rgb",
-           jax.vmap(lambda d, row: camera.render(d, geom_rgb=geom_rgb, sky_texture=(stack, row))),
-           (cartpole_states, rows))
-    yield ("cartpole-swingup/64x80-sky-face-per-image",
-           jax.vmap(lambda d, f: camera.render(d, sky_texture=f)),
-           (cartpole_states, jnp.broadcast_to(sky.pack_rgb(face), (CAMERA_STATES, 16 * 16))))
+    yield (
+        "cartpole-swingup/64x80-background-geom_rgb",
+        jax.vmap(lambda d: camera.render(d, background=background, geom_rgb=geom_rgb)),
+        cartpole_states,
+    )
+    yield ("cartpole-swingup/64x80-sky-face", jax.vmap(lambda d: camera.render(d, sky_texture=face)), cartpole_states)
+    yield (
+        "cartpole-swingup/64x80-sky-stack-row-geom_rgb",
+        jax.vmap(lambda d, row: camera.render(d, geom_rgb=geom_rgb, sky_texture=(stack, row))),
+        (cartpole_states, rows),
+    )
+    yield (
+        "cartpole-swingup/64x80-sky-face-per-image",
+        jax.vmap(lambda d, f: camera.render(d, sky_texture=f)),
+        (cartpole_states, jnp.broadcast_to(sky.pack_rgb(face), (CAMERA_STATES, 16 * 16))),
+    )
     flat = Camera(cartpole, height=64, width=80, shading="flat", sky="color", background_color=(0.2, 0.3, 0.4))
     yield "cartpole-swingup/64x80-flat-color", jax.vmap(flat.render_ids), cartpole_states
 
@@ -261,8 +296,10 @@ def output_hashes() -> dict[str, str]:
         keys = jax.random.split(jax.random.PRNGKey(1), batch)
         params = jax.vmap(layer.init)(keys)
         if options.get("use_bias"):
-            params = params.replace(b_q=0.1 * jax.random.normal(jax.random.PRNGKey(2), params.b_q.shape),
-                                    b_k=0.1 * jax.random.normal(jax.random.PRNGKey(3), params.b_k.shape))
+            params = params.replace(
+                b_q=0.1 * jax.random.normal(jax.random.PRNGKey(2), params.b_q.shape),
+                b_k=0.1 * jax.random.normal(jax.random.PRNGKey(3), params.b_k.shape),
+            )
         projections = jax.vmap(layer.draw_projections)(jax.random.split(jax.random.PRNGKey(4), batch))
         images = jax.random.uniform(jax.random.PRNGKey(5), (batch,) + shape)
         selection = jax.jit(jax.vmap(layer))(params, projections, images)
@@ -280,8 +317,11 @@ def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = P
     if expected_root and not Path(iap_mjx.__file__).resolve().is_relative_to(Path(expected_root).resolve()):
         raise RuntimeError(f"iap_mjx imported from {iap_mjx.__file__}, not from {expected_root}")
     hashes = {}
-    for part, programs in (("attention", attention_programs), ("camera", camera_programs),
-                           ("training", lambda: training_programs(presets))):
+    for part, programs in (
+        ("attention", attention_programs),
+        ("camera", camera_programs),
+        ("training", lambda: training_programs(presets)),
+    ):
         if part not in parts:
             continue
         for name, lowered in programs():
@@ -299,8 +339,9 @@ def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = P
 def run_base(commit: str, args: argparse.Namespace) -> dict[str, str]:
     """The hashes of ``commit``'s ``iap_mjx`` (this script run in a child process on it)."""
     with tempfile.TemporaryDirectory(prefix="hlo-identity-") as tmp:
-        archive = subprocess.run(["git", "-C", str(REPO), "archive", commit, "iap_mjx"],
-                                 check=True, capture_output=True).stdout
+        archive = subprocess.run(
+            ["git", "-C", str(REPO), "archive", commit, "iap_mjx"], check=True, capture_output=True
+        ).stdout
         archive_path = Path(tmp) / "base.tar"
         archive_path.write_bytes(archive)
         with tarfile.open(archive_path) as tar:
@@ -309,8 +350,7 @@ def run_base(commit: str, args: argparse.Namespace) -> dict[str, str]:
         command = [sys.executable, __file__, "--out", str(out), "--only", *args.only, "--presets", *args.presets]
         if args.compiled:
             command.append("--compiled")
-        env = {**os.environ, "PYTHONPATH": tmp + os.pathsep + os.environ.get("PYTHONPATH", ""),
-               EXPECTED_ROOT_VAR: tmp}
+        env = {**os.environ, "PYTHONPATH": tmp + os.pathsep + os.environ.get("PYTHONPATH", ""), EXPECTED_ROOT_VAR: tmp}
         print(f"hashing {commit}'s iap_mjx ...", file=sys.stderr, flush=True)
         subprocess.run(command, check=True, env=env, cwd=tmp, stdout=subprocess.DEVNULL)
         return json.loads(out.read_text())["hashes"]
@@ -352,8 +392,12 @@ def main(argv=None) -> int:
 
     after = collect(args.only, args.compiled, tuple(args.presets))
     if args.out:
-        args.out.write_text(json.dumps({"jax": jax.__version__, "devices": jax.device_count(),
-                                        "hashes": after}, indent=1, sort_keys=True) + "\n")
+        args.out.write_text(
+            json.dumps(
+                {"jax": jax.__version__, "devices": jax.device_count(), "hashes": after}, indent=1, sort_keys=True
+            )
+            + "\n"
+        )
     if before is None:
         for name, digest in sorted(after.items()):
             print(f"{digest[:16]}  {name}")

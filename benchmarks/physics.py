@@ -94,26 +94,54 @@ class Suite:
 
 
 DM_CONTROL = Suite(
-    section="physics", rows_dir=ROOT / "benchmarks" / "physics-dm_control", parts=("sweep", "throughput", "long"),
-    tasks=TASKS, sweep_tasks=("cheetah-run", "walker-walk"),
-    sweep=("8/8/all", "8/8/task", "4/4/task", "8/2/task", "16/2/task"), long_tasks=("cheetah-run",),
-    chunk_size=256, markdown=physics_sections.dm_control_markdown)
+    section="physics",
+    rows_dir=ROOT / "benchmarks" / "physics-dm_control",
+    parts=("sweep", "throughput", "long"),
+    tasks=TASKS,
+    sweep_tasks=("cheetah-run", "walker-walk"),
+    sweep=("8/8/all", "8/8/task", "4/4/task", "8/2/task", "16/2/task"),
+    long_tasks=("cheetah-run",),
+    chunk_size=256,
+    markdown=physics_sections.dm_control_markdown,
+)
 QUADRUPED = Suite(
-    section="physics-quadruped", rows_dir=ROOT / "benchmarks" / "physics-quadruped", parts=PARTS,
-    tasks=QUADRUPED_TASKS, sweep_tasks=("quadruped-walls",),
-    sweep=("newton/1/4", "newton/2/4", "newton/4/4", "newton/8/2", "newton/8/4", "newton/8/8", "newton/100/50",
-           "cg/8/4", "cg/16/4", "cg/100/50"),
-    long_tasks=("quadruped-walls",), chunk_size=32, markdown=physics_sections.quadruped_markdown)
+    section="physics-quadruped",
+    rows_dir=ROOT / "benchmarks" / "physics-quadruped",
+    parts=PARTS,
+    tasks=QUADRUPED_TASKS,
+    sweep_tasks=("quadruped-walls",),
+    sweep=(
+        "newton/1/4",
+        "newton/2/4",
+        "newton/4/4",
+        "newton/8/2",
+        "newton/8/4",
+        "newton/8/8",
+        "newton/100/50",
+        "cg/8/4",
+        "cg/16/4",
+        "cg/100/50",
+    ),
+    long_tasks=("quadruped-walls",),
+    chunk_size=32,
+    markdown=physics_sections.quadruped_markdown,
+)
 
 
 def measure(part: str, args) -> list[dict]:
     """The rows of one part, with the settings in ``args``."""
     if part == "sweep":
-        return [row for name in args.sweep_tasks
-                for row in physics_parts.solver_sweep(name, args.sweep, args.sweep_steps, args.repeats, args.chunk_size)]
+        return [
+            row
+            for name in args.sweep_tasks
+            for row in physics_parts.solver_sweep(name, args.sweep, args.sweep_steps, args.repeats, args.chunk_size)
+        ]
     if part == "throughput":
-        return [row for name in args.tasks
-                for row in physics_parts.throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)]
+        return [
+            row
+            for name in args.tasks
+            for row in physics_parts.throughput(name, args.batch, args.steps, args.chunk_size, args.repeats)
+        ]
     if part == "camera":
         return physics_parts.camera_rate("quadruped-walls", args.camera_batch, args.repeats, args.chunk_size)
     if part == "long":
@@ -129,45 +157,80 @@ def run(suite: Suite, args) -> str:
     for part in args.parts:
         load_before = os.getloadavg()[0]
         rows = measure(part, args)
-        record = dict(argv=args.argv, xla_flags=os.environ.get("XLA_FLAGS", ""), chunk_size=args.chunk_size,
-                      load_before=load_before,
-                      load_after=os.getloadavg()[0],
-                      when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), rows=rows)
+        record = dict(
+            argv=args.argv,
+            xla_flags=os.environ.get("XLA_FLAGS", ""),
+            chunk_size=args.chunk_size,
+            load_before=load_before,
+            load_after=os.getloadavg()[0],
+            when=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            rows=rows,
+        )
         (rows_dir / f"{part}.json").write_text(json.dumps(record, indent=1, default=float))
-    saved = {part: json.loads((rows_dir / f"{part}.json").read_text())
-             for part in suite.parts if (rows_dir / f"{part}.json").exists()}
+    saved = {
+        part: json.loads((rows_dir / f"{part}.json").read_text())
+        for part in suite.parts
+        if (rows_dir / f"{part}.json").exists()
+    }
     args.runs = {part: {k: v for k, v in record.items() if k != "rows"} for part, record in saved.items()}
     return suite.markdown({part: saved[part]["rows"] if part in saved else [] for part in suite.parts}, args)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quadruped", action="store_true",
-                        help="the quadruped tasks, their sweep and camera: section physics-quadruped")
+    parser.add_argument(
+        "--quadruped",
+        action="store_true",
+        help="the quadruped tasks, their sweep and camera: section physics-quadruped",
+    )
     parser.add_argument("--tasks", nargs="+", default=None, choices=TASKS + QUADRUPED_TASKS)
     parser.add_argument("--batch", nargs="+", type=int, default=[64, 256, 1024])
     parser.add_argument("--steps", type=int, default=20, help="control steps per timed call")
-    parser.add_argument("--chunk-size", type=int, default=None,
-                        help="envs vmapped together per device (default 256; --quadruped: 32), at most each "
-                             "env's max_chunk_size")
+    parser.add_argument(
+        "--chunk-size",
+        type=int,
+        default=None,
+        help="envs vmapped together per device (default 256; --quadruped: 32), at most each env's max_chunk_size",
+    )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sweep-tasks", nargs="*", default=None, choices=TASKS + QUADRUPED_TASKS)
-    parser.add_argument("--sweep", nargs="*", default=None,
-                        help="solver settings ITERATIONS/LS_ITERATIONS/CONTACTS to compare "
-                             "(quadruped: [SOLVER/]ITERATIONS/LS_ITERATIONS[/CONTACTS/GEOM_PAIRS])")
-    parser.add_argument("--long-tasks", nargs="*", default=None, choices=TASKS + QUADRUPED_TASKS,
-                        help="tasks for the B=--long-batch full-episode run")
-    parser.add_argument("--camera-batch", nargs="*", type=int, default=[1, 256],
-                        help="quadruped: batches for the first-person camera's frames/s")
+    parser.add_argument(
+        "--sweep",
+        nargs="*",
+        default=None,
+        help="solver settings ITERATIONS/LS_ITERATIONS/CONTACTS to compare "
+        "(quadruped: [SOLVER/]ITERATIONS/LS_ITERATIONS[/CONTACTS/GEOM_PAIRS])",
+    )
+    parser.add_argument(
+        "--long-tasks",
+        nargs="*",
+        default=None,
+        choices=TASKS + QUADRUPED_TASKS,
+        help="tasks for the B=--long-batch full-episode run",
+    )
+    parser.add_argument(
+        "--camera-batch",
+        nargs="*",
+        type=int,
+        default=[1, 256],
+        help="quadruped: batches for the first-person camera's frames/s",
+    )
     parser.add_argument("--long-batch", type=int, default=1024)
     parser.add_argument("--sweep-steps", type=int, default=100)
     parser.add_argument("--no-write", action="store_true", help="print only")
-    parser.add_argument("--parts", nargs="*", default=None, choices=PARTS,
-                        help="the parts to measure now (default: all of the suite's; the section shows every "
-                             "part saved)")
-    parser.add_argument("--rows-dir", default=None,
-                        help="where each part's rows are saved as <part>.json (default: "
-                             "benchmarks/physics-dm_control or, --quadruped, benchmarks/physics-quadruped)")
+    parser.add_argument(
+        "--parts",
+        nargs="*",
+        default=None,
+        choices=PARTS,
+        help="the parts to measure now (default: all of the suite's; the section shows every part saved)",
+    )
+    parser.add_argument(
+        "--rows-dir",
+        default=None,
+        help="where each part's rows are saved as <part>.json (default: "
+        "benchmarks/physics-dm_control or, --quadruped, benchmarks/physics-quadruped)",
+    )
     args = parser.parse_args(argv)
     args.argv = " ".join(argv) if argv else ""
     suite = QUADRUPED if args.quadruped else DM_CONTROL
@@ -181,13 +244,19 @@ def main(argv: list[str] | None = None) -> None:
     args.sweep = args.sweep or list(suite.sweep)
     args.long_tasks = list(suite.long_tasks) if args.long_tasks is None else args.long_tasks
     if args.parts:
-        measured = {"sweep": args.sweep_tasks, "throughput": args.tasks, "camera": ["quadruped-walls"],
-                    "long": args.long_tasks}
+        measured = {
+            "sweep": args.sweep_tasks,
+            "throughput": args.tasks,
+            "camera": ["quadruped-walls"],
+            "long": args.long_tasks,
+        }
         for name in dict.fromkeys(name for part in args.parts for name in measured[part]):
             limit = envs.make(name).max_chunk_size
             if limit is not None and args.chunk_size > limit:
-                parser.error(f"--chunk-size {args.chunk_size}: {name} vmaps at most {limit} envs per device "
-                             "(a larger batch deadlocks XLA:CPU; see iap_mjx.envs.dmc.serial_lapack_batch)")
+                parser.error(
+                    f"--chunk-size {args.chunk_size}: {name} vmaps at most {limit} envs per device "
+                    "(a larger batch deadlocks XLA:CPU; see iap_mjx.envs.dmc.serial_lapack_batch)"
+                )
     text = run(suite, args)
     print(text)
     if not args.no_write:

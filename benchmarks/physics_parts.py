@@ -131,8 +131,7 @@ def parse_setting(text: str) -> dict:
         fields += ["task"] * (4 - len(fields))
     iterations, ls_iterations, contacts, *pairs = fields
     count = lambda v: v if v in ("all", "task") else int(v)  # noqa: E731
-    setting.update(solver_iterations=int(iterations), ls_iterations=int(ls_iterations),
-                   max_contacts=count(contacts))
+    setting.update(solver_iterations=int(iterations), ls_iterations=int(ls_iterations), max_contacts=count(contacts))
     if pairs:
         setting["max_geom_pairs"] = count(pairs[0])
     return setting
@@ -149,13 +148,20 @@ def solver_sweep(name: str, settings, steps: int, repeats: int, chunk_size: int)
         errors = reference.compare(env)
         size = 256
         states = jax.jit(batch.chunked_vmap(env.reset, min(size, chunk_size)))(
-            jax.random.split(jax.random.key(0), size))
+            jax.random.split(jax.random.key(0), size)
+        )
         actions = jax.random.uniform(jax.random.key(1), (size, 10, env.action_size), minval=-1.0, maxval=1.0)
         _, rate = measure_mjx(env, states, actions, min(size // len(jax.devices()), chunk_size), mesh, repeats)
-        rows.append(dict(task=name, iterations=env.config.solver_iterations,
-                         ls_iterations=env.config.ls_iterations,
-                         contacts="all" if env.max_contacts is None else env.max_contacts,
-                         **errors, rate=rate))
+        rows.append(
+            dict(
+                task=name,
+                iterations=env.config.solver_iterations,
+                ls_iterations=env.config.ls_iterations,
+                contacts="all" if env.max_contacts is None else env.max_contacts,
+                **errors,
+                rate=rate,
+            )
+        )
         print(rows[-1], flush=True)
     return rows
 
@@ -169,20 +175,24 @@ def throughput(name: str, batches, steps: int, chunk_size: int, repeats: int) ->
     for size in batches:
         keys = jax.random.split(jax.random.key(size), size)
         states = jax.jit(batch.chunked_vmap(env.reset, min(size, chunk_size)))(keys)
-        actions = jax.random.uniform(
-            jax.random.key(1), (size, steps, env.action_size), minval=-1.0, maxval=1.0
-        )
+        actions = jax.random.uniform(jax.random.key(1), (size, steps, env.action_size), minval=-1.0, maxval=1.0)
         chunk = min(size, chunk_size)
         one = measure_mjx(env, states, actions, chunk, None, repeats)
         share = min(size // len(devices), chunk_size)
         many = measure_mjx(env, states, actions, share, mesh, repeats) if mesh else (np.nan, np.nan)
-        native = [
-            measure_native(name, env, states, np.asarray(actions), env.n_sub_steps, t, repeats)
-            for t in (1, 2)
-        ]
+        native = [measure_native(name, env, states, np.asarray(actions), env.n_sub_steps, t, repeats) for t in (1, 2)]
         rows.append(
-            dict(task=name, batch=size, steps=steps, compile_1=one[0], mjx_1=one[1], compile_n=many[0],
-                 mjx_n=many[1], native_1=native[0], native_2=native[1])
+            dict(
+                task=name,
+                batch=size,
+                steps=steps,
+                compile_1=one[0],
+                mjx_1=one[1],
+                compile_n=many[0],
+                mjx_n=many[1],
+                native_1=native[0],
+                native_2=native[1],
+            )
         )
         print(rows[-1], flush=True)
     return rows
@@ -196,7 +206,8 @@ def camera_rate(name: str, batches, repeats: int, chunk_size: int) -> list[dict]
     rows = []
     for size in batches:
         states = jax.jit(batch.chunked_vmap(env.env.reset, min(size, chunk_size)))(
-            jax.random.split(jax.random.key(3), size))
+            jax.random.split(jax.random.key(3), size)
+        )
         actions = jax.random.uniform(jax.random.key(4), (size, 20, env.action_size), minval=-0.2, maxval=0.2)
         states = _steps_program(env.env, 20, min(size, chunk_size), None)(states, actions)
         render = jax.vmap(lambda d: env.render(d))
@@ -212,8 +223,11 @@ def camera_rate(name: str, batches, repeats: int, chunk_size: int) -> list[dict]
             jax.block_until_ready(many(states.data))
             rate_n = size / _timed(many, states.data, repeats=repeats)
         cfg = env.camera.config
-        rows.append(dict(task=name, batch=size, height=cfg.height, width=cfg.width, fps_1=rate_1, fps_n=rate_n,
-                         compile=compile_s))
+        rows.append(
+            dict(
+                task=name, batch=size, height=cfg.height, width=cfg.width, fps_1=rate_1, fps_n=rate_n, compile=compile_s
+            )
+        )
         print(rows[-1], flush=True)
     return rows
 
@@ -223,9 +237,7 @@ def long_run(name: str, size: int, chunk_size: int) -> dict:
     env = envs.make(name)
     steps = env.episode_length
     mesh = _all_devices()
-    states = jax.jit(batch.chunked_vmap(env.reset, min(size, chunk_size)))(
-        jax.random.split(jax.random.key(0), size)
-    )
+    states = jax.jit(batch.chunked_vmap(env.reset, min(size, chunk_size)))(jax.random.split(jax.random.key(0), size))
     actions = jax.random.uniform(jax.random.key(2), (size, steps, env.action_size), minval=-1.0, maxval=1.0)
     program = _steps_program(env, steps, min(size // len(jax.devices()), chunk_size), mesh)
     start = time.perf_counter()
@@ -234,11 +246,18 @@ def long_run(name: str, size: int, chunk_size: int) -> dict:
     start = time.perf_counter()
     final = jax.block_until_ready(compiled(states, actions))
     seconds = time.perf_counter() - start
-    row = dict(task=name, batch=size, steps=steps, compile=compile_s, seconds=seconds,
-               rate=size * steps / seconds, done=int(np.sum(np.asarray(final.done) > 0)),
-               nan=int(np.sum(np.asarray(final.metrics["nan_terminations"]))),
-               saturated=int(np.sum(np.asarray(final.metrics["contact_saturated"]))),
-               finite=bool(np.all(np.isfinite(np.asarray(final.data.qpos)))))
+    row = dict(
+        task=name,
+        batch=size,
+        steps=steps,
+        compile=compile_s,
+        seconds=seconds,
+        rate=size * steps / seconds,
+        done=int(np.sum(np.asarray(final.done) > 0)),
+        nan=int(np.sum(np.asarray(final.metrics["nan_terminations"]))),
+        saturated=int(np.sum(np.asarray(final.metrics["contact_saturated"]))),
+        finite=bool(np.all(np.isfinite(np.asarray(final.data.qpos)))),
+    )
     print(row, flush=True)
     return row
 
@@ -289,9 +308,7 @@ class DmControlReference:
     def compare(self, env) -> dict:
         """``error``: the median over the runs of max |qpos - dm_control's| at the end;
         ``native_error``: native's own."""
-        final_qpos = jax.jit(
-            lambda s, a: jax.lax.scan(lambda s, a: (env.step(s, a), None), s, a)[0].data.qpos
-        )
+        final_qpos = jax.jit(lambda s, a: jax.lax.scan(lambda s, a: (env.step(s, a), None), s, a)[0].data.qpos)
         errors = []
         for qpos0, qvel0, info, actions, final, _ in self.runs:
             ours = final_qpos(env.reset_to(qpos0, qvel0, **info), jnp.asarray(actions, jnp.float32))
@@ -336,10 +353,14 @@ class NativeReference:
             own.append(np.abs(moved - theirs)[live].max())
             reference = _native_run(env, _accurate(env.mj_model), first.data, controls)
             converged.append(np.abs(ours - reference)[live].max())
-        return dict(solver=env.config.solver,
-                    pairs="all" if env.max_geom_pairs is None else env.max_geom_pairs,
-                    same=statistics.median(same), converged=statistics.median(converged),
-                    native_error=statistics.median(own), ended=done)
+        return dict(
+            solver=env.config.solver,
+            pairs="all" if env.max_geom_pairs is None else env.max_geom_pairs,
+            same=statistics.median(same),
+            converged=statistics.median(converged),
+            native_error=statistics.median(own),
+            ended=done,
+        )
 
 
 def _native_run(env, model: mujoco.MjModel, data0, controls: np.ndarray, ulp: bool = False) -> np.ndarray:

@@ -21,34 +21,48 @@ from iap_mjx import envs
 
 
 def _machine() -> str:
-    return (f"{platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
-            f"jax {jax.__version__}, mujoco {mujoco.__version__}")
+    return (
+        f"{platform.processor() or platform.machine()}, {jax.device_count()} XLA CPU devices, "
+        f"jax {jax.__version__}, mujoco {mujoco.__version__}"
+    )
 
 
 def _part_commands(args) -> list[str]:
     """One line per saved part: its command, when, ``XLA_FLAGS`` and the load around it."""
-    return [f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; "
-            f"`XLA_FLAGS={run.get('xla_flags', 'not recorded')}`; 1-min load average "
-            f"{run['load_before']:.1f} before, {run['load_after']:.1f} after)" for part, run in args.runs.items()]
+    return [
+        f"- {part}: `python benchmarks/physics.py {run['argv']}` ({run['when']}; "
+        f"`XLA_FLAGS={run.get('xla_flags', 'not recorded')}`; 1-min load average "
+        f"{run['load_before']:.1f} before, {run['load_after']:.1f} after)"
+        for part, run in args.runs.items()
+    ]
 
 
-THROUGHPUT_COLUMNS = ["| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
-                      "|---|---|---|---|---|---|---|---|"]
+THROUGHPUT_COLUMNS = [
+    "| task | B | MJX 1 dev | MJX all dev | native 1 thr | native 2 thr | ratio | compile 1 dev / all |",
+    "|---|---|---|---|---|---|---|---|",
+]
 
 
 def _throughput_rows(rows) -> list[str]:
-    return [f"| {r['task']} | {r['batch']} | {r['mjx_1']:,.0f} | {r['mjx_n']:,.0f} | {r['native_1']:,.0f} | "
-            f"{r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | {r['compile_1']:.0f} / {r['compile_n']:.0f} |"
-            for r in rows]
+    return [
+        f"| {r['task']} | {r['batch']} | {r['mjx_1']:,.0f} | {r['mjx_n']:,.0f} | {r['native_1']:,.0f} | "
+        f"{r['native_2']:,.0f} | {r['mjx_n'] / r['native_2']:.2f} | {r['compile_1']:.0f} / {r['compile_n']:.0f} |"
+        for r in rows
+    ]
 
 
-LONG_COLUMNS = ["| task | B | control steps | compile s | wall s | env-steps/s | done | nan | saturated | qpos finite |",
-                "|---|---|---|---|---|---|---|---|---|---|"]
+LONG_COLUMNS = [
+    "| task | B | control steps | compile s | wall s | env-steps/s | done | nan | saturated | qpos finite |",
+    "|---|---|---|---|---|---|---|---|---|---|",
+]
 
 
 def _long_rows(rows) -> list[str]:
-    return [f"| {r['task']} | {r['batch']} | {r['steps']} | {r['compile']:.0f} | {r['seconds']:.1f} | "
-            f"{r['rate']:,.0f} | {r['done']} | {r['nan']} | {r['saturated']} | {r['finite']} |" for r in rows]
+    return [
+        f"| {r['task']} | {r['batch']} | {r['steps']} | {r['compile']:.0f} | {r['seconds']:.1f} | "
+        f"{r['rate']:,.0f} | {r['done']} | {r['nan']} | {r['saturated']} | {r['finite']} |"
+        for r in rows
+    ]
 
 
 # ---- the dm_control section -------------------------------------------------------------------
@@ -76,7 +90,8 @@ def dm_control_markdown(parts: dict[str, list[dict]], args) -> str:
             "",
             "Contact slots: MJX's `max_contact_points` (`EnvConfig.max_contacts`); `all` keeps a "
             "row block for every candidate geom pair. Defaults: "
-            + ", ".join(f"{n} {_default_setting(n)}" for n in dict.fromkeys(r["task"] for r in sweep_rows)) + ".",
+            + ", ".join(f"{n} {_default_setting(n)}" for n in dict.fromkeys(r["task"] for r in sweep_rows))
+            + ".",
             "",
             "| task | iterations / ls / contacts | qpos error | native's own | env-steps/s |",
             "|---|---|---|---|---|",
@@ -150,21 +165,34 @@ def quadruped_markdown(parts: dict[str, list[dict]], args) -> str:
         "",
         "Bars (issue 15), from these runs:",
     ]
-    missing = [name for part, name in (("sweep", "the solver sweep"), ("throughput", "the throughput table"),
-                                       ("long", "the full-length random-action episodes"),
-                                       ("camera", "the camera rows")) if part not in args.runs]
+    missing = [
+        name
+        for part, name in (
+            ("sweep", "the solver sweep"),
+            ("throughput", "the throughput table"),
+            ("long", "the full-length random-action episodes"),
+            ("camera", "the camera rows"),
+        )
+        if part not in args.runs
+    ]
     if missing:
         lines[-1:-1] = [f"Not measured yet: {', '.join(missing)}.", ""]
     if walls:
-        lines.append(f"- `quadruped-walls` at B=256 on both cores: **{walls[0]['mjx_n']:,.0f}** control steps/s "
-                     f"(bar 4,000: {'met' if walls[0]['mjx_n'] >= 4000 else 'not met'}); walls, foot and wall contacts on.")
+        lines.append(
+            f"- `quadruped-walls` at B=256 on both cores: **{walls[0]['mjx_n']:,.0f}** control steps/s "
+            f"(bar 4,000: {'met' if walls[0]['mjx_n'] >= 4000 else 'not met'}); walls, foot and wall contacts on."
+        )
     if cam:
-        lines.append(f"- first-person camera at its default {cam[0]['width']}x{cam[0]['height']} RGB, B=256: "
-                     f"**{np.nanmax([cam[0]['fps_1'], cam[0]['fps_n']]):,.0f}** frames/s "
-                     f"(bar 10,000: {'met' if np.nanmax([cam[0]['fps_1'], cam[0]['fps_n']]) >= 10000 else 'not met'}).")
+        lines.append(
+            f"- first-person camera at its default {cam[0]['width']}x{cam[0]['height']} RGB, B=256: "
+            f"**{np.nanmax([cam[0]['fps_1'], cam[0]['fps_n']]):,.0f}** frames/s "
+            f"(bar 10,000: {'met' if np.nanmax([cam[0]['fps_1'], cam[0]['fps_n']]) >= 10000 else 'not met'})."
+        )
     for r in long_rows:
-        lines.append(f"- {r['batch']} random-action episodes of `{r['task']}`, full length ({r['steps']} control steps): "
-                     f"**{r['nan']}** ended by NaN or a bad state; qpos finite: {r['finite']}.")
+        lines.append(
+            f"- {r['batch']} random-action episodes of `{r['task']}`, full length ({r['steps']} control steps): "
+            f"**{r['nan']}** ended by NaN or a bad state; qpos finite: {r['finite']}."
+        )
     if sweep_rows:
         lines += [
             "",
@@ -182,9 +210,11 @@ def quadruped_markdown(parts: dict[str, list[dict]], args) -> str:
             "|---|---|---|---|---|---|---|",
         ]
         for r in sweep_rows:
-            lines.append(f"| {r['task']} | {r.get('solver', 'newton')} / {r['iterations']} / {r['ls_iterations']} / "
-                         f"{r['contacts']} / {r['pairs']} | "
-                         f"{r['same']:.1e} | {r['converged']:.1e} | {r['native_error']:.1e} | {r['ended']} | {r['rate']:,.0f} |")
+            lines.append(
+                f"| {r['task']} | {r.get('solver', 'newton')} / {r['iterations']} / {r['ls_iterations']} / "
+                f"{r['contacts']} / {r['pairs']} | "
+                f"{r['same']:.1e} | {r['converged']:.1e} | {r['native_error']:.1e} | {r['ended']} | {r['rate']:,.0f} |"
+            )
         lines += ["", _solver_choice(sweep_rows)]
     if rows:
         lines += [
@@ -216,9 +246,14 @@ def quadruped_markdown(parts: dict[str, list[dict]], args) -> str:
             "|---|---|---|---|---|",
         ]
         for r in camera_rows:
-            lines.append(f"| {r['width']}x{r['height']} | {r['batch']} | {r['fps_1']:,.0f} | {r['fps_n']:,.0f} | {r['compile']:.1f} |")
-        lines += ["", "The camera rows have no baseline measured in the same run (`benchmarks/camera.py`'s "
-                  "MuJoCo-renderer column covers the dm_control tasks only)."]
+            lines.append(
+                f"| {r['width']}x{r['height']} | {r['batch']} | {r['fps_1']:,.0f} | {r['fps_n']:,.0f} | {r['compile']:.1f} |"
+            )
+        lines += [
+            "",
+            "The camera rows have no baseline measured in the same run (`benchmarks/camera.py`'s "
+            "MuJoCo-renderer column covers the dm_control tasks only).",
+        ]
     if long_rows:
         lines += [
             "",
@@ -247,15 +282,21 @@ def _solver_choice(sweep_rows) -> str:
     tied = [r for r in accepted if r["rate"] >= 0.9 * fastest]
     pick = min(tied, key=lambda r: (r["iterations"], r["ls_iterations"]))
     env = f"{a1.SOLVER} {a1.ITERATIONS} / {a1.LS_ITERATIONS}"
-    text = (f"The choice, as for the dm_control tasks: the fastest setting whose error stays at the float32 level of "
-            f"a converged solve. Settings within 2x of the smallest error against native at MuJoCo's defaults "
-            f"({floor:.1e}): {', '.join(name(r) for r in accepted)}. Rates within 10% of the fastest of them "
-            f"({fastest:,.0f} env-steps/s) count as equal (this machine's run-to-run spread); among those, the "
-            f"smallest iteration budget: **{name(pick)}**.")
+    text = (
+        f"The choice, as for the dm_control tasks: the fastest setting whose error stays at the float32 level of "
+        f"a converged solve. Settings within 2x of the smallest error against native at MuJoCo's defaults "
+        f"({floor:.1e}): {', '.join(name(r) for r in accepted)}. Rates within 10% of the fastest of them "
+        f"({fastest:,.0f} env-steps/s) count as equal (this machine's run-to-run spread); among those, the "
+        f"smallest iteration budget: **{name(pick)}**."
+    )
     if rejected:
         ratios = [r["converged"] / floor for r in rejected]
-        text += (f" The other settings leave the solve unconverged: their error is {min(ratios):,.0f}x to "
-                 f"{max(ratios):,.0f}x larger ({', '.join(name(r) for r in rejected)}).")
-    text += (f" The env runs **{env}** (`iap_mjx.robots.a1`: `SOLVER`, `ITERATIONS`, `LS_ITERATIONS`, in its "
-             f"MJCF's `<option>`)" + ("." if env == name(pick) else ", NOT the pick above."))
+        text += (
+            f" The other settings leave the solve unconverged: their error is {min(ratios):,.0f}x to "
+            f"{max(ratios):,.0f}x larger ({', '.join(name(r) for r in rejected)})."
+        )
+    text += (
+        f" The env runs **{env}** (`iap_mjx.robots.a1`: `SOLVER`, `ITERATIONS`, `LS_ITERATIONS`, in its "
+        f"MJCF's `<option>`)" + ("." if env == name(pick) else ", NOT the pick above.")
+    )
     return text

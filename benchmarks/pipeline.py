@@ -42,8 +42,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import report  # noqa: E402
 
 DEFAULT = "cheetah-run-pixels"
-PRESETS = [("hybrid (10,5)", "cheetah-run-pixels"), ("ReLU", "cheetah-run-pixels-relu"),
-           ("brute force", "cheetah-run-pixels-brute")]
+PRESETS = [
+    ("hybrid (10,5)", "cheetah-run-pixels"),
+    ("ReLU", "cheetah-run-pixels-relu"),
+    ("brute force", "cheetah-run-pixels-brute"),
+]
 BRUTE_ROLLOUT_MAX_PATCHES = 2500  # beyond, brute force's L x L matrices make a rollout take hours
 STAGES = ["physics", "camera", "attention"]
 
@@ -54,6 +57,7 @@ def peak_rss_mb() -> float:
 
 
 # ---------------------------------------------------------------- workers (one process each)
+
 
 def work_train(job: dict) -> dict:
     """The whole program: ``train`` for ``iterations``; steady-state frames/s (median)."""
@@ -109,8 +113,11 @@ def work_stage(job: dict) -> dict:
     if job["stage"] == "physics":
         options = {k: v for k, v in options.items() if k not in ("obs_mode", "height", "width")}
     env = envs.make(config.env.name, **options)
-    iap = None if job["stage"] != "attention" else policies.make(
-        config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
+    iap = (
+        None
+        if job["stage"] != "attention"
+        else policies.make(config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
+    )
     policy = _Idle(env.action_size, iap)
     flat, unravel = ravel_pytree(policy.init(jax.random.PRNGKey(0)))
     if flat.shape[0] == 0:
@@ -119,10 +126,10 @@ def work_stage(job: dict) -> dict:
     n = config.es.population_size
     population = flat + 0.05 * jax.random.normal(jax.random.PRNGKey(1), (n, flat.shape[0]))
     keys = jax.random.split(jax.random.PRNGKey(2), n)
-    evaluate = make_evaluator(env, policy, unravel, make_mesh(config.run.num_devices),
-                              config.run.chunk_size, False)
-    compile_s, seconds, _ = report.compile_and_time(lambda f, k: evaluate(f, k, None), population, keys,
-                                                    repeats=3, min_seconds=1.0)
+    evaluate = make_evaluator(env, policy, unravel, make_mesh(config.run.num_devices), config.run.chunk_size, False)
+    compile_s, seconds, _ = report.compile_and_time(
+        lambda f, k: evaluate(f, k, None), population, keys, repeats=3, min_seconds=1.0
+    )
     return {"compile_s": compile_s, "frames_per_s": n * env.episode_length / seconds}
 
 
@@ -142,8 +149,9 @@ def work_attention(job: dict) -> dict:
     projections = layer.draw_projections(jax.random.PRNGKey(1))
     fn = attention_bench.batched_forward(layer, batch, group)
     repeats, min_seconds = (1, 0.0) if job["options"]["kernel"] == "brute" else (3, 0.3)
-    compile_s, seconds, _ = report.compile_and_time(fn, params, projections, images,
-                                                    repeats=repeats, min_seconds=min_seconds)
+    compile_s, seconds, _ = report.compile_and_time(
+        fn, params, projections, images, repeats=repeats, min_seconds=min_seconds
+    )
     return {"compile_s": compile_s, "ms_per_image": 1e3 * seconds / batch, "group": group}
 
 
@@ -163,17 +171,17 @@ def worker_main(job: dict) -> None:
 def run_job(job: dict) -> dict:
     """Runs ``job`` in a fresh Python process and returns its result."""
     start = time.perf_counter()
-    proc = subprocess.run([sys.executable, __file__, "--worker", json.dumps(job)],
-                          capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, __file__, "--worker", json.dumps(job)], capture_output=True, text=True)
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     if proc.returncode or not lines:
         raise RuntimeError(f"job {job} failed:\n{proc.stderr[-3000:]}")
-    result = {**job, **json.loads(lines[-1][len("RESULT "):]), "wall_s": time.perf_counter() - start}
+    result = {**job, **json.loads(lines[-1][len("RESULT ") :]), "wall_s": time.perf_counter() - start}
     print(json.dumps(result), flush=True)
     return result
 
 
 # ---------------------------------------------------------------- the table
+
 
 def fmt(value: float | None, spec: str = ",.0f") -> str:
     return "-" if value is None else format(value, spec)
@@ -188,11 +196,19 @@ def main() -> int:
     parser.add_argument("--population", type=int, default=64)
     parser.add_argument("--episode-length", type=int, default=50, help="frames per episode")
     parser.add_argument("--iterations", type=int, default=3)
-    parser.add_argument("--action-repeat", type=int, default=0,
-                        help="control steps per frame (0: the preset's; 1: a frame every control step)")
+    parser.add_argument(
+        "--action-repeat",
+        type=int,
+        default=0,
+        help="control steps per frame (0: the preset's; 1: a frame every control step)",
+    )
     parser.add_argument("--stages", action="store_true", help="also the per-stage breakdown")
-    parser.add_argument("--memory-population", type=int, default=0,
-                        help="also one whole-program run of hybrid (10,5) at this population (peak RSS)")
+    parser.add_argument(
+        "--memory-population",
+        type=int,
+        default=0,
+        help="also one whole-program run of hybrid (10,5) at this population (peak RSS)",
+    )
     parser.add_argument("--output", type=Path, default=report.ROOT / "BENCHMARKS.md")
     parser.add_argument("--no-write", action="store_true")
     args = parser.parse_args()
@@ -209,9 +225,13 @@ def main() -> int:
     cache_was_cold = not any(runtime.enable_compilation_cache().iterdir())
     default_size = (args.height, args.width, args.patch) == (100, 100, 4)
     size = (f"env.height={args.height}", f"env.width={args.width}", f"policy.patch_size={args.patch}")
-    common = (f"es.population_size={args.population}", f"env.episode_length={args.episode_length}",
-              f"run.iterations={args.iterations}", "run.checkpoint_every=0", "run.tensorboard=false") + (
-        (f"env.action_repeat={args.action_repeat}",) if args.action_repeat else ())
+    common = (
+        f"es.population_size={args.population}",
+        f"env.episode_length={args.episode_length}",
+        f"run.iterations={args.iterations}",
+        "run.checkpoint_every=0",
+        "run.tensorboard=false",
+    ) + ((f"env.action_repeat={args.action_repeat}",) if args.action_repeat else ())
     config = configs.apply_overrides(configs.get(DEFAULT), list(size + common))
     repeat = dict(config.env.overrides)["action_repeat"]
     num_patches = IAPAttention(_attention_config(config), (args.height, args.width, 3)).num_patches
@@ -223,14 +243,23 @@ def main() -> int:
         if preset.endswith("brute") and not brute_fits:
             continue
         rows.append((label, run_job({"kind": "train", "preset": preset, "overrides": list(size + common)})))
-    default_row = None if default_size else run_job(
-        {"kind": "train", "preset": DEFAULT, "overrides": list(common)})
-    memory_row = None if not args.memory_population else run_job(
-        {"kind": "train", "preset": DEFAULT,
-         "overrides": list(size + common[1:]) + [f"es.population_size={args.memory_population}",
-                                                 "run.iterations=2"]})
-    stage_rows = [run_job({"kind": "stage", "stage": stage, "preset": DEFAULT, "overrides": list(size + common)})
-                  for stage in (STAGES if args.stages else [])]
+    default_row = None if default_size else run_job({"kind": "train", "preset": DEFAULT, "overrides": list(common)})
+    memory_row = (
+        None
+        if not args.memory_population
+        else run_job(
+            {
+                "kind": "train",
+                "preset": DEFAULT,
+                "overrides": list(size + common[1:])
+                + [f"es.population_size={args.memory_population}", "run.iterations=2"],
+            }
+        )
+    )
+    stage_rows = [
+        run_job({"kind": "stage", "stage": stage, "preset": DEFAULT, "overrides": list(size + common)})
+        for stage in (STAGES if args.stages else [])
+    ]
     attention_rows = []
     kernels = [("hybrid (10,5)", {"kernel": "hybrid", "m": 10, "r": 5}), ("ReLU", {"kernel": "relu"})]
     if not brute_fits:
@@ -238,10 +267,21 @@ def main() -> int:
     for label, options in kernels:
         brute = options["kernel"] == "brute"
         for group in [0] if brute else [0, 4]:  # 0: the device's whole share, as in the rollout
-            attention_rows.append((label, run_job({
-                "kind": "attention", "height": args.height, "width": args.width,
-                "batch": 1 if brute else args.population, "group": group,
-                "options": {"patch_size": args.patch, "top_l": 10, "d_qk": 4, **options}})))
+            attention_rows.append(
+                (
+                    label,
+                    run_job(
+                        {
+                            "kind": "attention",
+                            "height": args.height,
+                            "width": args.width,
+                            "batch": 1 if brute else args.population,
+                            "group": group,
+                            "options": {"patch_size": args.patch, "top_l": 10, "d_qk": 4, **options},
+                        }
+                    ),
+                )
+            )
     total_s = time.perf_counter() - started
 
     body = tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows, attention_rows)
@@ -249,26 +289,36 @@ def main() -> int:
     print(f"total {total_s:.0f} s")
     if args.no_write:
         return 0
-    command = (f"python benchmarks/pipeline.py --height {args.height} --width {args.width} --patch {args.patch} "
-               f"--population {args.population} --episode-length {args.episode_length} "
-               f"--iterations {args.iterations}" + (f" --action-repeat {args.action_repeat}" if args.action_repeat else "")
-               + (" --stages" if args.stages else "")
-               + (f" --memory-population {args.memory_population}" if args.memory_population else ""))
+    command = (
+        f"python benchmarks/pipeline.py --height {args.height} --width {args.width} --patch {args.patch} "
+        f"--population {args.population} --episode-length {args.episode_length} "
+        f"--iterations {args.iterations}"
+        + (f" --action-repeat {args.action_repeat}" if args.action_repeat else "")
+        + (" --stages" if args.stages else "")
+        + (f" --memory-population {args.memory_population}" if args.memory_population else "")
+    )
     name = "pipeline" if default_size else f"pipeline-{args.height}x{args.width}-p{args.patch}"
-    cache = ("The persistent compilation cache was empty at the start (cold compiles; run with "
-             "`IAP_MJX_CACHE_DIR=$(mktemp -d)` to reproduce that)." if cache_was_cold else
-             "The persistent compilation cache already held programs, so compile times are mostly "
-             "cache loading; run with `IAP_MJX_CACHE_DIR=$(mktemp -d)` for cold compiles.")
-    report.write_section(args.output, name, (
-        f"## Full pixel pipeline at {args.height}x{args.width}, patch {args.patch} (L = {num_patches:,})\n\n"
-        f"Measured on {report.machine_line()}; {total_s / 60:.0f} min in all. Command: `{command}`.\n\n"
-        f"`{DEFAULT}` (cheetah-run, action repeat {repeat}, LSTM(16) controller, top 10 patches) with "
-        f"`env.height={args.height} env.width={args.width} policy.patch_size={args.patch}`, population "
-        f"{args.population}, {args.episode_length} frames per episode, every measurement in its own "
-        "process (peak RSS is that process's). Whole program: steady-state frames/s of `train` "
-        "(median over the iterations after the first, every simulated frame: population and centre "
-        f"evaluation; env steps = frames x {repeat}); compile: the first iteration's. " + cache
-        + "\n\n" + body))
+    cache = (
+        "The persistent compilation cache was empty at the start (cold compiles; run with "
+        "`IAP_MJX_CACHE_DIR=$(mktemp -d)` to reproduce that)."
+        if cache_was_cold
+        else "The persistent compilation cache already held programs, so compile times are mostly "
+        "cache loading; run with `IAP_MJX_CACHE_DIR=$(mktemp -d)` for cold compiles."
+    )
+    report.write_section(
+        args.output,
+        name,
+        (
+            f"## Full pixel pipeline at {args.height}x{args.width}, patch {args.patch} (L = {num_patches:,})\n\n"
+            f"Measured on {report.machine_line()}; {total_s / 60:.0f} min in all. Command: `{command}`.\n\n"
+            f"`{DEFAULT}` (cheetah-run, action repeat {repeat}, LSTM(16) controller, top 10 patches) with "
+            f"`env.height={args.height} env.width={args.width} policy.patch_size={args.patch}`, population "
+            f"{args.population}, {args.episode_length} frames per episode, every measurement in its own "
+            "process (peak RSS is that process's). Whole program: steady-state frames/s of `train` "
+            "(median over the iterations after the first, every simulated frame: population and centre "
+            f"evaluation; env steps = frames x {repeat}); compile: the first iteration's. " + cache + "\n\n" + body
+        ),
+    )
     return 0
 
 
@@ -285,57 +335,80 @@ def tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows,
 
     def line(label, row, px):
         fps = row["frames_per_s"]
-        out.append(f"| {label} | {fmt(fps)} | {fmt(fps * repeat)} | {fmt(fps * px / 1e6, '.1f')} | "
-                   f"{fmt(row['compile_s'], '.1f')} | {fmt(row['peak_rss_mb'])} |")
+        out.append(
+            f"| {label} | {fmt(fps)} | {fmt(fps * repeat)} | {fmt(fps * px / 1e6, '.1f')} | "
+            f"{fmt(row['compile_s'], '.1f')} | {fmt(row['peak_rss_mb'])} |"
+        )
 
     for label, row in rows:
         line(f"{args.height}x{args.width} p{args.patch}, {label}, population {args.population}", row, pixels)
     if memory_row:
-        line(f"{args.height}x{args.width} p{args.patch}, hybrid (10,5), population {args.memory_population}",
-             memory_row, pixels)
+        line(
+            f"{args.height}x{args.width} p{args.patch}, hybrid (10,5), population {args.memory_population}",
+            memory_row,
+            pixels,
+        )
     if default_row:
         line(f"`{DEFAULT}` default (100x100 p4), population {args.population}", default_row, 100 * 100)
     parts = ["\n".join(out)]
 
     if stage_rows:
-        lines = ["Per-stage breakdown (same run, both cores): the population's episodes as programs that "
-                 "include successively more stages, then the whole ES iteration (hybrid (10,5) above); "
-                 "a stage's cost is the difference of consecutive rows' ms per frame (negative: within noise).",
-                 "", "| program | frames/s | ms / frame | stage | stage ms / frame | share | compile s |",
-                 "|---|---:|---:|---|---:|---:|---:|"]
-        names = ["physics only (state env, zero actions)", "+ camera", "+ attention (top-10 features)",
-                 "+ LSTM controller, ES update and centre evaluation (`train`)"]
+        lines = [
+            "Per-stage breakdown (same run, both cores): the population's episodes as programs that "
+            "include successively more stages, then the whole ES iteration (hybrid (10,5) above); "
+            "a stage's cost is the difference of consecutive rows' ms per frame (negative: within noise).",
+            "",
+            "| program | frames/s | ms / frame | stage | stage ms / frame | share | compile s |",
+            "|---|---:|---:|---|---:|---:|---:|",
+        ]
+        names = [
+            "physics only (state env, zero actions)",
+            "+ camera",
+            "+ attention (top-10 features)",
+            "+ LSTM controller, ES update and centre evaluation (`train`)",
+        ]
         ladder = [*stage_rows, rows[0][1]]
         total_ms = 1e3 / ladder[-1]["frames_per_s"]
         previous = 0.0
         for name, stage, row in zip(names, [*STAGES, "controller + ES bookkeeping"], ladder):
             ms = 1e3 / row["frames_per_s"]
-            lines.append(f"| {name} | {fmt(row['frames_per_s'])} | {ms:.3f} | {stage} | {ms - previous:.3f} | "
-                         f"{100 * (ms - previous) / total_ms:.0f}% | {fmt(row['compile_s'], '.1f')} |")
+            lines.append(
+                f"| {name} | {fmt(row['frames_per_s'])} | {ms:.3f} | {stage} | {ms - previous:.3f} | "
+                f"{100 * (ms - previous) / total_ms:.0f}% | {fmt(row['compile_s'], '.1f')} |"
+            )
             previous = ms
         parts.append("\n".join(lines))
 
-    lines = [f"The attention layer alone (patch projections, scores, top-10), L = {num_patches:,}, sharded "
-             "over the devices (the images placed on their devices before timing, as the rollout renders "
-             "them there); each device vectorises its whole share (as the rollout does: `vmap` over "
-             "a chunk of episodes, which the layer scores `batch_chunk` images at a time) or runs it 4 "
-             "images at a time (`lax.map`, as `benchmarks/attention.py`):", "",
-             "| kernel | batch | images per group | ms / image | compile s |", "|---|---:|---:|---:|---:|"]
+    lines = [
+        f"The attention layer alone (patch projections, scores, top-10), L = {num_patches:,}, sharded "
+        "over the devices (the images placed on their devices before timing, as the rollout renders "
+        "them there); each device vectorises its whole share (as the rollout does: `vmap` over "
+        "a chunk of episodes, which the layer scores `batch_chunk` images at a time) or runs it 4 "
+        "images at a time (`lax.map`, as `benchmarks/attention.py`):",
+        "",
+        "| kernel | batch | images per group | ms / image | compile s |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for label, row in attention_rows:
-        lines.append(f"| {label} | {row['batch']} | {row['group']} | {row['ms_per_image']:.3f} | "
-                     f"{row['compile_s']:.1f} |")
+        lines.append(
+            f"| {label} | {row['batch']} | {row['group']} | {row['ms_per_image']:.3f} | {row['compile_s']:.1f} |"
+        )
     brute = next((row for name, row in attention_rows if name == "brute force"), None)
     if brute and stage_rows:
-        other_ms = 1e3 / rows[0][1]["frames_per_s"] - (1e3 / stage_rows[2]["frames_per_s"]
-                                                        - 1e3 / stage_rows[1]["frames_per_s"])
+        other_ms = 1e3 / rows[0][1]["frames_per_s"] - (
+            1e3 / stage_rows[2]["frames_per_s"] - 1e3 / stage_rows[1]["frames_per_s"]
+        )
         devices = 2
         projected = 1e3 / (other_ms + brute["ms_per_image"] / devices)
-        lines += ["", f"Brute force is not run in the rollout here (L > {BRUTE_ROLLOUT_MAX_PATCHES:,}): its "
-                  f"L x L logits and their exponentials take {2 * 4 * num_patches**2 / 2**30:.1f} GiB per "
-                  f"image. One frame measured alone takes "
-                  f"{brute['ms_per_image']:,.0f} ms; with the other stages as measured above (hybrid's "
-                  f"attention replaced, {devices} devices in parallel) the whole program would run at about "
-                  f"**{projected:.1f} frames/s** (projected, not measured)."]
+        lines += [
+            "",
+            f"Brute force is not run in the rollout here (L > {BRUTE_ROLLOUT_MAX_PATCHES:,}): its "
+            f"L x L logits and their exponentials take {2 * 4 * num_patches**2 / 2**30:.1f} GiB per "
+            f"image. One frame measured alone takes "
+            f"{brute['ms_per_image']:,.0f} ms; with the other stages as measured above (hybrid's "
+            f"attention replaced, {devices} devices in parallel) the whole program would run at about "
+            f"**{projected:.1f} frames/s** (projected, not measured).",
+        ]
     parts.append("\n".join(lines))
     if (args.height, args.width, args.patch) == (240, 320, 2):  # the setting issue 13's bars are for
         parts.append(bars(args, rows, default_row, attention_rows))
@@ -344,8 +417,10 @@ def tables(args, repeat, num_patches, rows, default_row, memory_row, stage_rows,
 
 def bars(args, rows, default_row, attention_rows) -> str:
     """Issue 13's bars, read off this run's rows."""
-    out = [f"Bars (issue 13), from this run (1-min load average at the end: {os.getloadavg()[0]:.1f} on "
-           f"{os.cpu_count()} cores):"]
+    out = [
+        f"Bars (issue 13), from this run (1-min load average at the end: {os.getloadavg()[0]:.1f} on "
+        f"{os.cpu_count()} cores):"
+    ]
 
     def verdict(ok):
         return "met" if ok else "NOT met"
@@ -355,23 +430,29 @@ def bars(args, rows, default_row, attention_rows) -> str:
     for label, bar in (("hybrid (10,5)", 400), ("ReLU", 600)):
         if label in by_label:
             fps = by_label[label]["frames_per_s"]
-            out.append(f"- whole program, {label}, population {args.population}: {fps:,.0f} frames/s "
-                       f"(bar {bar}: {verdict(fps >= bar)}).")
+            out.append(
+                f"- whole program, {label}, population {args.population}: {fps:,.0f} frames/s "
+                f"(bar {bar}: {verdict(fps >= bar)})."
+            )
     if default_row and "hybrid (10,5)" in by_label:
         here = by_label["hybrid (10,5)"]["frames_per_s"] * pixels
         base = default_row["frames_per_s"] * 100 * 100
-        out.append(f"- per pixel vs the 100x100 default: {here / 1e6:.1f} vs {base / 1e6:.1f} Mpx/s "
-                   f"({verdict(here >= base)}).")
+        out.append(
+            f"- per pixel vs the 100x100 default: {here / 1e6:.1f} vs {base / 1e6:.1f} Mpx/s ({verdict(here >= base)})."
+        )
     for label, bar in (("hybrid (10,5)", 1.0), ("ReLU", 0.5)):
-        row = min((r for name, r in attention_rows if name == label), key=lambda r: r["ms_per_image"],
-                  default=None)
+        row = min((r for name, r in attention_rows if name == label), key=lambda r: r["ms_per_image"], default=None)
         if row:
-            out.append(f"- attention alone, {label}, batch {row['batch']} (best grouping): {row['ms_per_image']:.3f} ms/image "
-                       f"(bar {bar}: {verdict(row['ms_per_image'] <= bar)}).")
+            out.append(
+                f"- attention alone, {label}, batch {row['batch']} (best grouping): {row['ms_per_image']:.3f} ms/image "
+                f"(bar {bar}: {verdict(row['ms_per_image'] <= bar)})."
+            )
     if "hybrid (10,5)" in by_label:
         compile_s = by_label["hybrid (10,5)"]["compile_s"]
-        out.append(f"- compile of the whole program (hybrid): {compile_s:.1f} s (bar < 60 s cold: "
-                   f"{verdict(compile_s < 60)}{'' if rows else ''}).")
+        out.append(
+            f"- compile of the whole program (hybrid): {compile_s:.1f} s (bar < 60 s cold: "
+            f"{verdict(compile_s < 60)}{'' if rows else ''})."
+        )
     return "\n".join(out)
 
 

@@ -51,7 +51,7 @@ def episode_speed(env, tg: pmtg.TGConfig, u_tg: jax.Array, key: jax.Array):
     state = env.reset(key)
     _, (rewards, done) = jax.lax.scan(body, (state, jnp.zeros(())), None, length=env.episode_length)
     seconds = env.episode_length * env.control_timestep
-    fell = (done[-2] > 0)  # ended before the time limit
+    fell = done[-2] > 0  # ended before the time limit
     return jnp.sum(rewards) / seconds, fell
 
 
@@ -70,9 +70,18 @@ def main(argv=None) -> None:
     grid = list(itertools.product(args.frequency, args.intensity, args.height, args.ratio))
     centre = tg.parameters(jnp.zeros(4))
     grid.insert(0, tuple(float(centre[k]) for k in pmtg.TG_PARAMETERS))
-    units = np.array([[to_unit(f, tg.frequency_range), to_unit(i, tg.intensity_range),
-                       to_unit(h, tg.height_range), to_unit(k, tg.ratio_range, log=True)]
-                      for f, i, h, k in grid], np.float32)
+    units = np.array(
+        [
+            [
+                to_unit(f, tg.frequency_range),
+                to_unit(i, tg.intensity_range),
+                to_unit(h, tg.height_range),
+                to_unit(k, tg.ratio_range, log=True),
+            ]
+            for f, i, h, k in grid
+        ],
+        np.float32,
+    )
     n = len(grid) * args.episodes
     chunk = 64  # <= env.max_chunk_size: larger vmapped batches can deadlock XLA:CPU (jaxlib 0.10)
     pad = (-n) % chunk
@@ -80,18 +89,24 @@ def main(argv=None) -> None:
     u = np.concatenate([u, np.zeros((pad, 4), np.float32)])
     keys = jax.random.split(jax.random.key(0), n + pad)
     run = jax.jit(jax.vmap(lambda uu, kk: episode_speed(env, tg, uu, kk)))
-    out = [jax.device_get(run(jnp.asarray(u[i: i + chunk]), keys[i: i + chunk])) for i in range(0, n + pad, chunk)]
+    out = [jax.device_get(run(jnp.asarray(u[i : i + chunk]), keys[i : i + chunk])) for i in range(0, n + pad, chunk)]
     speed, fell = (np.concatenate([o[j] for o in out]) for j in (0, 1))
     speed, fell = speed[:n].reshape(len(grid), -1), fell[:n].reshape(len(grid), -1)
     rows = sorted(range(len(grid)), key=lambda g: -speed[g].mean())
-    print(f"TG alone on quadruped-flat ({args.gait}, residuals 0, {args.episodes} episodes each, "
-          f"{env.episode_length} control steps): mean speed m/s, falls")
-    print(f"centre (zero policy): f={grid[0][0]:.2f} I={grid[0][1]:.2f} h={grid[0][2]:.3f} k={grid[0][3]:.2f}: "
-          f"{speed[0].mean():.3f} m/s, falls {int(fell[0].sum())}/{args.episodes}")
+    print(
+        f"TG alone on quadruped-flat ({args.gait}, residuals 0, {args.episodes} episodes each, "
+        f"{env.episode_length} control steps): mean speed m/s, falls"
+    )
+    print(
+        f"centre (zero policy): f={grid[0][0]:.2f} I={grid[0][1]:.2f} h={grid[0][2]:.3f} k={grid[0][3]:.2f}: "
+        f"{speed[0].mean():.3f} m/s, falls {int(fell[0].sum())}/{args.episodes}"
+    )
     for g in rows[: args.top]:
         f, i, h, k = grid[g]
-        print(f"f={f:.2f} I={i:.2f} h={h:.3f} k={k:.2f} u={np.round(units[g], 2).tolist()}: "
-              f"{speed[g].mean():.3f} +- {speed[g].std():.3f} m/s, falls {int(fell[g].sum())}/{args.episodes}")
+        print(
+            f"f={f:.2f} I={i:.2f} h={h:.3f} k={k:.2f} u={np.round(units[g], 2).tolist()}: "
+            f"{speed[g].mean():.3f} +- {speed[g].std():.3f} m/s, falls {int(fell[g].sum())}/{args.episodes}"
+        )
 
 
 if __name__ == "__main__":

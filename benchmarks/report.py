@@ -26,8 +26,7 @@ def readme_main_command() -> list[str]:
     raise ValueError("README.md has no install-and-train line (`pip install ... && iap-mjx train ...`)")
 
 
-def compile_and_time(fn: Callable, *args: Any, repeats: int = 5,
-                     min_seconds: float = 0.5) -> tuple[float, float, Any]:
+def compile_and_time(fn: Callable, *args: Any, repeats: int = 5, min_seconds: float = 0.5) -> tuple[float, float, Any]:
     """Compiles ``jax.jit(fn)`` for ``args`` and times it.
 
     Returns ``(compile_seconds, steady_seconds_per_call, compiled)``: compile time is lowering
@@ -43,8 +42,9 @@ def compile_and_time(fn: Callable, *args: Any, repeats: int = 5,
     return compile_seconds, statistics.median(row[0] for row in times), compiled
 
 
-def interleaved_times(compiled: Sequence[Callable], args: Sequence[tuple], *, rounds: int = 9,
-                      min_seconds: float = 0.3) -> list[list[float]]:
+def interleaved_times(
+    compiled: Sequence[Callable], args: Sequence[tuple], *, rounds: int = 9, min_seconds: float = 0.3
+) -> list[list[float]]:
     """Steady-state seconds per call of several compiled programs, timed in turns.
 
     Each round times every program once (a batch of calls at least ``min_seconds`` long), so
@@ -78,5 +78,7 @@ def machine_line() -> str:
 
     import jax
 
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-            f"jax {jax.__version__}, {len(jax.devices())} XLA CPU device(s)")
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"jax {jax.__version__}, {len(jax.devices())} XLA CPU device(s)"
+    )

@@ -52,4 +52,4 @@ def repeat_row(x: jax.Array, *, row: int, count: int) -> jax.Array:
     the row its compiled programs are built with.
     """
     start = row % x.shape[0]
-    return jnp.concatenate([x, jnp.repeat(x[start:start + 1], count, axis=0)], axis=0)
+    return jnp.concatenate([x, jnp.repeat(x[start : start + 1], count, axis=0)], axis=0)

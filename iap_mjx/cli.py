@@ -72,8 +72,11 @@ def cmd_show(args: argparse.Namespace) -> int:
         "policy": {
             "settings": dataclasses.asdict(policy) if dataclasses.is_dataclass(policy) else repr(policy),
             "parameters": parts.num_dims,
-            **({"parameters_per_level": parts.policy.level_param_counts(parts.template_params)}
-               if hasattr(parts.policy, "level_param_counts") else {}),
+            **(
+                {"parameters_per_level": parts.policy.level_param_counts(parts.template_params)}
+                if hasattr(parts.policy, "level_param_counts")
+                else {}
+            ),
         },
         "env_steps_per_iteration": parts.steps_per_iteration,
     }
@@ -123,15 +126,21 @@ def cmd_train(args: argparse.Namespace) -> int:
 
         step = checkpoint.latest_step(run_dir)
         saved = f"last checkpoint: iteration {step}" if step is not None else "no checkpoint yet"
-        print(f"\ninterrupted; {saved}. Resume with: iap-mjx train {args.preset} "
-              f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(), file=sys.stderr)
+        print(
+            f"\ninterrupted; {saved}. Resume with: iap-mjx train {args.preset} "
+            f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(),
+            file=sys.stderr,
+        )
         return 130
     if not primary:
         return 0
     written = artifacts.write_run_artifacts(result, run_dir, video_program)
     last = next((row for row in reversed(result.history) if "eval_return" in row), None)
-    summary = {"run_dir": str(run_dir), "iterations": config.run.iterations,
-               "artifacts": [str(path) for path in written]}
+    summary = {
+        "run_dir": str(run_dir),
+        "iterations": config.run.iterations,
+        "artifacts": [str(path) for path in written],
+    }
     if last is not None:
         summary["eval_return"] = last["eval_return"]
     print(json.dumps(summary))
@@ -145,21 +154,26 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from iap_mjx import es
 
     try:
-        results = es.evaluate_run_episodes(args.run_dir, episodes=args.episodes, seed=args.seed,
-                                           overrides=tuple(args.overrides))
+        results = es.evaluate_run_episodes(
+            args.run_dir, episodes=args.episodes, seed=args.seed, overrides=tuple(args.overrides)
+        )
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     returns = results.pop("return")
-    print(json.dumps({
-        "run_dir": str(args.run_dir),
-        "overrides": list(args.overrides),
-        "episodes": int(len(returns)),
-        "return_mean": float(returns.mean()),
-        "return_std": float(returns.std()),
-        "returns": [float(r) for r in returns],
-        **{f"{name}_mean": float(values.mean()) for name, values in results.items()},
-    }))
+    print(
+        json.dumps(
+            {
+                "run_dir": str(args.run_dir),
+                "overrides": list(args.overrides),
+                "episodes": int(len(returns)),
+                "return_mean": float(returns.mean()),
+                "return_std": float(returns.std()),
+                "returns": [float(r) for r in returns],
+                **{f"{name}_mean": float(values.mean()) for name, values in results.items()},
+            }
+        )
+    )
     return 0
 
 
@@ -184,8 +198,9 @@ def cmd_attended(args: argparse.Namespace) -> int:
 
     try:
         result = in_condition(es.load_run(args.run_dir), args.overrides)
-        counts = attended.episode_counts(result.env, result.policy, result.params, episodes=args.episodes, seed=args.seed,
-                                         obs_stats=result.obs_stats)
+        counts = attended.episode_counts(
+            result.env, result.policy, result.params, episodes=args.episodes, seed=args.seed, obs_stats=result.obs_stats
+        )
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -224,16 +239,27 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         if args.figure == "fig11":
             from iap_mjx import fig11
 
-            markdown = fig11.reproduce_fig11(args.out, seeds=args.seeds, overrides=tuple(args.overrides),
-                                             episodes=args.episodes, train=not args.report_only,
-                                             results=args.results, export=args.export)
+            markdown = fig11.reproduce_fig11(
+                args.out,
+                seeds=args.seeds,
+                overrides=tuple(args.overrides),
+                episodes=args.episodes,
+                train=not args.report_only,
+                results=args.results,
+                export=args.export,
+            )
         elif args.figure == "table2":
             from iap_mjx import table2
 
             settings = parse_settings(args.settings) if args.settings else table2.SETTINGS
-            markdown = table2.reproduce_table2(args.out, settings=settings, seed=args.seed,
-                                               overrides=tuple(args.overrides), train=not args.report_only,
-                                               results=args.results)
+            markdown = table2.reproduce_table2(
+                args.out,
+                settings=settings,
+                seed=args.seed,
+                overrides=tuple(args.overrides),
+                train=not args.report_only,
+                results=args.results,
+            )
         elif args.figure == "fig10":
             from iap_mjx import fig10
 
@@ -242,21 +268,39 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             run_dirs = tuple(part.strip() for part in args.run_dirs.split(",")) if args.run_dirs else None
             markdown = fig10.reproduce_fig10(args.out, run_dirs=run_dirs, frames=args.frames, results=args.results)
         elif args.figure == "fig8":
-            markdown = wallclock.reproduce_fig8(args.out, overrides=tuple(args.overrides), train=not args.report_only,
-                                                results=args.results)
+            markdown = wallclock.reproduce_fig8(
+                args.out, overrides=tuple(args.overrides), train=not args.report_only, results=args.results
+            )
         elif args.figure == "fig7":
-            markdown = patch_sweep.reproduce_fig7(args.out, overrides=tuple(args.overrides), episodes=args.episodes,
-                                                  train=not args.report_only, results=args.results)
+            markdown = patch_sweep.reproduce_fig7(
+                args.out,
+                overrides=tuple(args.overrides),
+                episodes=args.episodes,
+                train=not args.report_only,
+                results=args.results,
+            )
         elif args.figure == "table1":
             tasks = tuple(t.strip() for t in args.tasks.split(",")) if args.tasks else table1.TASKS
-            markdown = table1.reproduce_table1(args.out, seeds=args.seeds, overrides=tuple(args.overrides),
-                                               episodes=args.episodes, train=not args.report_only,
-                                               tasks=tasks, results=args.results, export=args.export,
-                                               policy=args.policy)
+            markdown = table1.reproduce_table1(
+                args.out,
+                seeds=args.seeds,
+                overrides=tuple(args.overrides),
+                episodes=args.episodes,
+                train=not args.report_only,
+                tasks=tasks,
+                results=args.results,
+                export=args.export,
+                policy=args.policy,
+            )
         else:
-            markdown = reproduce.reproduce(args.figure, args.out, seeds=args.seeds,
-                                           overrides=tuple(args.overrides), passes=args.passes,
-                                           train=not args.report_only)
+            markdown = reproduce.reproduce(
+                args.figure,
+                args.out,
+                seeds=args.seeds,
+                overrides=tuple(args.overrides),
+                passes=args.passes,
+                train=not args.report_only,
+            )
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -312,115 +356,165 @@ def build_parser() -> argparse.ArgumentParser:
     presets.set_defaults(func=cmd_presets)
 
     show = commands.add_parser(
-        "show", help="print a preset's resolved config",
+        "show",
+        help="print a preset's resolved config",
         description="Print the config PRESET (or a run directory's config.json) resolves to "
-                    "with key=value overrides, every env setting, the policy's settings and "
-                    "its parameter count, building nothing that compiles.")
+        "with key=value overrides, every env setting, the policy's settings and "
+        "its parameter count, building nothing that compiles.",
+    )
     show.add_argument("target", metavar="PRESET", help="a name from `iap-mjx presets`, or a run directory")
     show.add_argument("overrides", nargs="*", metavar="key=value")
     show.set_defaults(func=cmd_show)
 
     train = commands.add_parser(
-        "train", help="train a preset",
+        "train",
+        help="train a preset",
         description="Train PRESET with key=value overrides (e.g. es.population_size=128 "
-                    "iterations=50 policy.hidden_sizes=64,64). Re-running with the same "
-                    "--run-dir resumes from its latest checkpoint; Ctrl-C saves one.",
+        "iterations=50 policy.hidden_sizes=64,64). Re-running with the same "
+        "--run-dir resumes from its latest checkpoint; Ctrl-C saves one.",
     )
     train.add_argument("preset", help="a name from `iap-mjx presets`")
     train.add_argument("overrides", nargs="*", metavar="key=value")
-    train.add_argument("--run-dir", help="where metrics and checkpoints go "
-                                         "(default: runs/PRESET-TIME)")
+    train.add_argument("--run-dir", help="where metrics and checkpoints go (default: runs/PRESET-TIME)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
-    train.add_argument("--coordinator", metavar="HOST:PORT",
-                       help="multi-host: the coordinator address (see iap_mjx.es.distributed)")
+    train.add_argument(
+        "--coordinator", metavar="HOST:PORT", help="multi-host: the coordinator address (see iap_mjx.es.distributed)"
+    )
     train.add_argument("--num-processes", type=_count, default=1, help="multi-host: processes")
     train.add_argument("--process-id", type=_index, default=0, help="multi-host: this process")
     train.set_defaults(func=cmd_train)
 
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
     evaluate.add_argument("run_dir")
-    evaluate.add_argument("overrides", nargs="*", metavar="env.key=value",
-                          help="the evaluation's condition, e.g. env.distraction=none, env.dynamic=true, "
-                               "env.background_videos=val (held-out backgrounds)")
+    evaluate.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="env.key=value",
+        help="the evaluation's condition, e.g. env.distraction=none, env.dynamic=true, "
+        "env.background_videos=val (held-out backgrounds)",
+    )
     evaluate.add_argument("--episodes", type=_count, default=8)
-    evaluate.add_argument("--seed", type=int, default=12345,
-                          help="evaluation seed (distinct from the training seeds)")
+    evaluate.add_argument("--seed", type=int, default=12345, help="evaluation seed (distinct from the training seeds)")
     evaluate.set_defaults(func=cmd_eval)
 
-    video = commands.add_parser("video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)")
+    video = commands.add_parser(
+        "video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)"
+    )
     video.add_argument("run_dir")
-    video.add_argument("overrides", nargs="*", metavar="env.key=value",
-                       help="the episode's condition, e.g. env.background_videos=val (held-out backgrounds)")
+    video.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="env.key=value",
+        help="the episode's condition, e.g. env.background_videos=val (held-out backgrounds)",
+    )
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
     video.add_argument("--steps", type=_count, default=None, help="control steps (default: the episode)")
-    video.add_argument("--strip", default=None, metavar="PNG",
-                       help="instead of a video, a PNG of --frames frames evenly spaced over the episode")
+    video.add_argument(
+        "--strip",
+        default=None,
+        metavar="PNG",
+        help="instead of a video, a PNG of --frames frames evenly spaced over the episode",
+    )
     video.add_argument("--frames", type=_count, default=6, help="frames in a --strip (default 6)")
     video.set_defaults(func=cmd_video)
 
-    look = commands.add_parser("attended", help="what an attention policy's selected patches show, share per geom",
-                               description="Runs episodes of a run's latest checkpoint and prints the share of "
-                                           "the selected patches' pixels that show each geom of the scene or the "
-                                           "background (sky or distraction picture).")
+    look = commands.add_parser(
+        "attended",
+        help="what an attention policy's selected patches show, share per geom",
+        description="Runs episodes of a run's latest checkpoint and prints the share of "
+        "the selected patches' pixels that show each geom of the scene or the "
+        "background (sky or distraction picture).",
+    )
     look.add_argument("run_dir")
-    look.add_argument("overrides", nargs="*", metavar="env.key=value",
-                      help="the episodes' condition, e.g. env.background_videos=val")
+    look.add_argument(
+        "overrides", nargs="*", metavar="env.key=value", help="the episodes' condition, e.g. env.background_videos=val"
+    )
     look.add_argument("--episodes", type=_count, default=3)
     look.add_argument("--seed", type=int, default=0, help="episode seed")
     look.set_defaults(func=cmd_attended)
 
     repro = commands.add_parser(
-        "reproduce", help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
-                          "Table 1, or the quadruped's Figures 10, 11 and Table 2",
+        "reproduce",
+        help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
+        "Table 1, or the quadruped's Figures 10, 11 and Table 2",
         description="fig1/fig6: times one forward pass of every attention variant and trains each "
-                    "preset on --seeds seeds. fig7: on dcs-cartpole-swingup, one seed per cell of patch "
-                    "size {2, 4, 8} x selected patches {5, 10, 20}, then d_qk {2, 4, 8} at the best cell. fig8: "
-                    "brute force, IAP ReLU and hybrid on dcs-cartpole-swingup against wall-clock seconds, "
-                    "each method's seconds per iteration measured first (leave the machine alone). "
-                    "table1: trains dcs-<task> for every Distracting Control "
-                    "task and seed, then evaluates each finished run in four conditions (training "
-                    "backgrounds, held-out backgrounds, dynamic, no distraction); --policy cnn does the same "
-                    "for the convolutional baseline. fig11: trains quadruped-walls-iap, -cnn and -blind on "
-                    "--seeds seeds, then evaluates each finished run on --episodes courses not seen in "
-                    "training (walls passed, falls, wall contacts, distance). table2: quadruped-walls-iap at "
-                    "each --settings patch size and stride, one --seed, reporting the maximum episode return. "
-                    "fig10: a PNG strip of the camera with the selected patches along one episode of each of "
-                    "--run-dirs (default: table2's patch 1 and 4 runs in --out). key=value overrides "
-                    "apply to every preset (e.g. run.iterations=100).")
+        "preset on --seeds seeds. fig7: on dcs-cartpole-swingup, one seed per cell of patch "
+        "size {2, 4, 8} x selected patches {5, 10, 20}, then d_qk {2, 4, 8} at the best cell. fig8: "
+        "brute force, IAP ReLU and hybrid on dcs-cartpole-swingup against wall-clock seconds, "
+        "each method's seconds per iteration measured first (leave the machine alone). "
+        "table1: trains dcs-<task> for every Distracting Control "
+        "task and seed, then evaluates each finished run in four conditions (training "
+        "backgrounds, held-out backgrounds, dynamic, no distraction); --policy cnn does the same "
+        "for the convolutional baseline. fig11: trains quadruped-walls-iap, -cnn and -blind on "
+        "--seeds seeds, then evaluates each finished run on --episodes courses not seen in "
+        "training (walls passed, falls, wall contacts, distance). table2: quadruped-walls-iap at "
+        "each --settings patch size and stride, one --seed, reporting the maximum episode return. "
+        "fig10: a PNG strip of the camera with the selected patches along one episode of each of "
+        "--run-dirs (default: table2's patch 1 and 4 runs in --out). key=value overrides "
+        "apply to every preset (e.g. run.iterations=100).",
+    )
     repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "fig8", "fig10", "fig11", "table1", "table2"])
     repro.add_argument("overrides", nargs="*", metavar="key=value")
     repro.add_argument("--out", default="results", help="output directory (default: results)")
     repro.add_argument("--seeds", type=_count, default=3)
     repro.add_argument("--passes", type=_count, default=100, help="timed forward passes (fig1, fig6)")
-    repro.add_argument("--episodes", type=_count, default=20,
-                       help="table1, fig7, fig11: evaluation episodes per condition and run (default 20)")
-    repro.add_argument("--tasks", default=None,
-                       help="table1: comma-separated suite tasks (default: all six)")
-    repro.add_argument("--results", default=None, metavar="RESULTS.md",
-                       help="table1, table2, fig7, fig8, fig10, fig11: rewrite this markdown file's section")
-    repro.add_argument("--export", default=None, metavar="DIR",
-                       help="table1, fig11: copy each run's newest checkpoint, config and metrics to "
-                            "DIR/<task>-seed<k> (table1, e.g. pretrained/dcs) or DIR/<preset>-seed<k> (fig11, "
-                            "e.g. pretrained/quadruped), tracked by git")
-    repro.add_argument("--settings", default=None, metavar="PxS,...",
-                       help="table2: comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)")
+    repro.add_argument(
+        "--episodes",
+        type=_count,
+        default=20,
+        help="table1, fig7, fig11: evaluation episodes per condition and run (default 20)",
+    )
+    repro.add_argument("--tasks", default=None, help="table1: comma-separated suite tasks (default: all six)")
+    repro.add_argument(
+        "--results",
+        default=None,
+        metavar="RESULTS.md",
+        help="table1, table2, fig7, fig8, fig10, fig11: rewrite this markdown file's section",
+    )
+    repro.add_argument(
+        "--export",
+        default=None,
+        metavar="DIR",
+        help="table1, fig11: copy each run's newest checkpoint, config and metrics to "
+        "DIR/<task>-seed<k> (table1, e.g. pretrained/dcs) or DIR/<preset>-seed<k> (fig11, "
+        "e.g. pretrained/quadruped), tracked by git",
+    )
+    repro.add_argument(
+        "--settings",
+        default=None,
+        metavar="PxS,...",
+        help="table2: comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)",
+    )
     repro.add_argument("--seed", type=_index, default=0, help="table2: the training seed (default 0)")
-    repro.add_argument("--run-dirs", default=None, metavar="DIR,...",
-                       help="fig10: comma-separated trained quadruped-walls-iap runs (default: "
-                            "OUT/table2-p1-s1-seed0,OUT/quadruped-walls-iap-seed0)")
+    repro.add_argument(
+        "--run-dirs",
+        default=None,
+        metavar="DIR,...",
+        help="fig10: comma-separated trained quadruped-walls-iap runs (default: "
+        "OUT/table2-p1-s1-seed0,OUT/quadruped-walls-iap-seed0)",
+    )
     repro.add_argument("--frames", type=_count, default=6, help="fig10: frames per strip (default 6)")
-    repro.add_argument("--policy", default="iap", choices=["iap", "cnn"],
-                       help="table1: iap (dcs-<task>) or cnn, the same-budget convolutional baseline "
-                            "(dcs-<task>-cnn), reported beside the IAP runs in --out")
-    repro.add_argument("--report-only", action="store_true",
-                       help="train nothing: report the runs already in --out, however far they got")
+    repro.add_argument(
+        "--policy",
+        default="iap",
+        choices=["iap", "cnn"],
+        help="table1: iap (dcs-<task>) or cnn, the same-budget convolutional baseline "
+        "(dcs-<task>-cnn), reported beside the IAP runs in --out",
+    )
+    repro.add_argument(
+        "--report-only",
+        action="store_true",
+        help="train nothing: report the runs already in --out, however far they got",
+    )
     repro.set_defaults(func=cmd_reproduce)
 
     figures = commands.add_parser(
-        "figures", help="write the paper's figures as PNGs",
+        "figures",
+        help="write the paper's figures as PNGs",
         description="mse: Figures 3 and 4 (MSE of the trig, exp and hybrid estimators, "
-                    "closed forms with Monte Carlo points).")
+        "closed forms with Monte Carlo points).",
+    )
     figures.add_argument("which", choices=["mse"])
     figures.add_argument("--out", default="figures", help="output directory (default: figures)")
     figures.add_argument("--draws", type=_count, default=100_000, help="Monte Carlo draws per point")

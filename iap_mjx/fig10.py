@@ -42,9 +42,11 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, A
         config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
         env, policy = env_and_policy(config)
         if config.policy.kind != "hierarchical" or not hasattr(policy, "select"):
-            raise ValueError(f"{run_dir}: its {config.policy.kind!r} policy selects no patches of the camera "
-                             "(fig10 shows a hierarchical policy's IAP high level with its eyes open, e.g. "
-                             "quadruped-walls-iap's, not -cnn's or -blind's)")
+            raise ValueError(
+                f"{run_dir}: its {config.policy.kind!r} policy selects no patches of the camera "
+                "(fig10 shows a hierarchical policy's IAP high level with its eyes open, e.g. "
+                "quadruped-walls-iap's, not -cnn's or -blind's)"
+            )
         checked[run_dir] = (config, env, policy)
     return checked
 
@@ -55,8 +57,13 @@ def strip_name(policy: Any) -> str:
     return f"fig10-p{attention.patch_size}-s{attention.effective_stride}.png"
 
 
-def reproduce_fig10(out_dir: str | Path, *, run_dirs: tuple[str | Path, ...] | None = None, frames: int = 6,
-                    results: str | Path | None = None) -> str:
+def reproduce_fig10(
+    out_dir: str | Path,
+    *,
+    run_dirs: tuple[str | Path, ...] | None = None,
+    frames: int = 6,
+    results: str | Path | None = None,
+) -> str:
     """Writes one strip per run (default: :data:`DEFAULT_RUNS` in ``out_dir``) into ``out_dir``
     and returns markdown with each image and its caption; ``results``: a markdown file whose
     ``fig10`` section is rewritten with it."""
@@ -76,13 +83,26 @@ def reproduce_fig10(out_dir: str | Path, *, run_dirs: tuple[str | Path, ...] | N
     parts = []
     for (run_dir, (config, env, policy)), name in zip(checked.items(), names):
         result = es.load_run(run_dir)
-        path, episode_return = video.episode_strip(env, policy, result.params, out_dir / name,
-                                                   key=jax.random.PRNGKey(EVAL_SEED), steps=env.episode_length,
-                                                   frames=frames, obs_stats=result.obs_stats, scale=SCALE)
+        path, episode_return = video.episode_strip(
+            env,
+            policy,
+            result.params,
+            out_dir / name,
+            key=jax.random.PRNGKey(EVAL_SEED),
+            steps=env.episode_length,
+            frames=frames,
+            obs_stats=result.obs_stats,
+            scale=SCALE,
+        )
         attention = policy.layer.config
-        parts.append((path, f"Patch size {attention.patch_size}, stride {attention.effective_stride} "
-                            f"(L = {policy.layer.num_patches:,} patches, top {attention.top_l} selected): `{run_dir}`, "
-                            f"episode return {episode_return:.2f}."))
+        parts.append(
+            (
+                path,
+                f"Patch size {attention.patch_size}, stride {attention.effective_stride} "
+                f"(L = {policy.layer.num_patches:,} patches, top {attention.top_l} selected): `{run_dir}`, "
+                f"episode return {episode_return:.2f}.",
+            )
+        )
         logger.info("fig10: %s, return %.2f", path, episode_return)
     links = [path if results is None else image_link(path, Path(results)) for path, _ in parts]
     markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link})" for (path, caption), link in zip(parts, links))
@@ -93,11 +113,20 @@ def reproduce_fig10(out_dir: str | Path, *, run_dirs: tuple[str | Path, ...] | N
 
 def write_results(path: Path, markdown: str, *, run_dirs: tuple[Path, ...], frames: int, out_dir: Path) -> None:
     """The ``fig10`` section of ``path``: the command and the strips."""
-    command = " ".join(["iap-mjx reproduce fig10", "--run-dirs " + ",".join(str(run_dir) for run_dir in run_dirs),
-                        f"--frames {frames}", f"--out {out_dir}", f"--results {path.name}"])
-    body = (f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
-            f"Command: `{command}`. One episode of each run's final centre on a course not seen in training "
-            f"(seed {EVAL_SEED}); {frames} frames of the first-person camera evenly spaced over it, {SCALE}x, the "
-            f"selected patches in red (the high level's choice were it asked at that step; it is asked when the "
-            f"command it holds runs out).\n\n{markdown}\n")
+    command = " ".join(
+        [
+            "iap-mjx reproduce fig10",
+            "--run-dirs " + ",".join(str(run_dir) for run_dir in run_dirs),
+            f"--frames {frames}",
+            f"--out {out_dir}",
+            f"--results {path.name}",
+        ]
+    )
+    body = (
+        f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
+        f"Command: `{command}`. One episode of each run's final centre on a course not seen in training "
+        f"(seed {EVAL_SEED}); {frames} frames of the first-person camera evenly spaced over it, {SCALE}x, the "
+        f"selected patches in red (the high level's choice were it asked at that step; it is asked when the "
+        f"command it holds runs out).\n\n{markdown}\n"
+    )
     write_section(path, "fig10", body, title="# Results")

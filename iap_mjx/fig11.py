@@ -70,8 +70,16 @@ def evaluate_course(run_dir: Path, step: int, *, episodes: int) -> dict[str, lis
     return stored_evaluation(run_dir, evaluation_key(COURSE, step, episodes), episodes, evaluate)
 
 
-def run_row(label: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool, episodes: int,
-            export: Path | None = None) -> dict[str, Any] | None:
+def run_row(
+    label: str,
+    config: configs.TrainConfig,
+    seed: int,
+    out_dir: Path,
+    *,
+    train: bool,
+    episodes: int,
+    export: Path | None = None,
+) -> dict[str, Any] | None:
     """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses;
     with ``export``, its newest checkpoint and files are copied to ``export/<preset>-seed<k>``."""
     from iap_mjx.es import checkpoint
@@ -89,8 +97,16 @@ def run_row(label: str, config: configs.TrainConfig, seed: int, out_dir: Path, *
     return row
 
 
-def reproduce_fig11(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (), episodes: int = 20,
-                    train: bool = True, results: str | Path | None = None, export: str | Path | None = None) -> str:
+def reproduce_fig11(
+    out_dir: str | Path,
+    *,
+    seeds: int = 3,
+    overrides: tuple[str, ...] = (),
+    episodes: int = 20,
+    train: bool = True,
+    results: str | Path | None = None,
+    export: str | Path | None = None,
+) -> str:
     """Trains (``train=False``: only reads) every policy on ``seeds`` seeds, seed by seed so that
     the policies compare early, evaluates the finished runs on ``episodes`` fresh courses each,
     writes ``fig11.json`` / ``fig11.png`` in ``out_dir`` and returns the markdown table;
@@ -109,15 +125,20 @@ def reproduce_fig11(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     export = None if export is None else Path(export)
-    rows = [row for seed in range(seeds) for label, config in checked.items()
-            if (row := run_row(label, config, seed, out_dir, train=train, episodes=episodes, export=export))
-            is not None]
+    rows = [
+        row
+        for seed in range(seeds)
+        for label, config in checked.items()
+        if (row := run_row(label, config, seed, out_dir, train=train, episodes=episodes, export=export)) is not None
+    ]
     if not rows:
         raise ValueError(f"no fig11 runs in {out_dir} to report")
-    summaries = {label: summarise([row for row in rows if row["policy"] == label], parameters[label])
-                 for label in POLICIES}
-    (out_dir / "fig11.json").write_text(json.dumps({"parameters": parameters, "summaries": summaries,
-                                                    "rows": rows}, indent=1))
+    summaries = {
+        label: summarise([row for row in rows if row["policy"] == label], parameters[label]) for label in POLICIES
+    }
+    (out_dir / "fig11.json").write_text(
+        json.dumps({"parameters": parameters, "summaries": summaries, "rows": rows}, indent=1)
+    )
     png = plot(rows, summaries, out_dir / "fig11.png")
     markdown = table(summaries, seeds=seeds)
     if results is not None:
@@ -130,10 +151,13 @@ def summarise(rows: list[dict[str, Any]], parameters: int) -> dict[str, Any]:
     episodes (``"return"`` and each statistic: lists over finished seeds), how many finished,
     and the furthest run's iterations and env steps."""
     done = [row for row in rows if row["finished"]]
-    return {"parameters": parameters, "finished": len(done),
-            "iterations": max((row["iterations"] for row in rows), default=0),
-            "env_steps": max((row["env_steps"] for row in rows), default=0),
-            **{name: [float(np.mean(row["course"][name])) for row in done] for name in ("return", *STATISTICS)}}
+    return {
+        "parameters": parameters,
+        "finished": len(done),
+        "iterations": max((row["iterations"] for row in rows), default=0),
+        "env_steps": max((row["env_steps"] for row in rows), default=0),
+        **{name: [float(np.mean(row["course"][name])) for row in done] for name in ("return", *STATISTICS)},
+    }
 
 
 def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
@@ -142,21 +166,27 @@ def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
     ratio = cnn["parameters"] / iap["parameters"]
     if any(summary["finished"] < seeds for summary in summaries.values()):
         finished = sum(summary["finished"] for summary in summaries.values())
-        return [f"Bars: not decided yet ({finished} of {len(POLICIES) * seeds} runs finished). Parameters: CNN "
-                f"{cnn['parameters']:,}, IAP {iap['parameters']:,} ({ratio:.1f}x; bar: >= {MIN_PARAMETER_RATIO:.0f}x)."]
+        return [
+            f"Bars: not decided yet ({finished} of {len(POLICIES) * seeds} runs finished). Parameters: CNN "
+            f"{cnn['parameters']:,}, IAP {iap['parameters']:,} ({ratio:.1f}x; bar: >= {MIN_PARAMETER_RATIO:.0f}x)."
+        ]
     floor = np.mean(cnn["return"]) - np.std(cnn["return"])
     near = np.mean(iap["return"]) >= floor and ratio >= MIN_PARAMETER_RATIO
-    lines = [f"IAP against CNN: final return {mean_std(iap['return'])} against {mean_std(cnn['return'])} (bar: IAP's "
-             f"mean >= the CNN's mean minus its seed-std, {floor:.1f}), with {ratio:.1f}x fewer parameters "
-             f"({iap['parameters']:,} against {cnn['parameters']:,}; bar: >= {MIN_PARAMETER_RATIO:.0f}x): "
-             f"{'met' if near else 'not met'}."]
+    lines = [
+        f"IAP against CNN: final return {mean_std(iap['return'])} against {mean_std(cnn['return'])} (bar: IAP's "
+        f"mean >= the CNN's mean minus its seed-std, {floor:.1f}), with {ratio:.1f}x fewer parameters "
+        f"({iap['parameters']:,} against {cnn['parameters']:,}; bar: >= {MIN_PARAMETER_RATIO:.0f}x): "
+        f"{'met' if near else 'not met'}."
+    ]
     ceiling = np.mean(blind["walls_passed"]) + np.std(blind["walls_passed"])
     for label in ("IAP", "CNN"):
         walls = summaries[label]["walls_passed"]
         above = np.mean(walls) - np.std(walls) > ceiling
-        lines.append(f"{label} above blind in walls passed per episode: {mean_std(walls, 2)} against "
-                     f"{mean_std(blind['walls_passed'], 2)} (bar, 'clearly': the mean minus its seed-std above "
-                     f"blind's mean plus its seed-std, {ceiling:.2f}): {'met' if above else 'not met'}.")
+        lines.append(
+            f"{label} above blind in walls passed per episode: {mean_std(walls, 2)} against "
+            f"{mean_std(blind['walls_passed'], 2)} (bar, 'clearly': the mean minus its seed-std above "
+            f"blind's mean plus its seed-std, {ceiling:.2f}): {'met' if above else 'not met'}."
+        )
     return lines
 
 
@@ -164,14 +194,18 @@ def table(summaries: dict[str, dict[str, Any]], *, seeds: int) -> str:
     """Markdown: per policy its parameters, final return, walls passed, falls, wall contacts and
     distance per episode (each the mean ± std over finished seeds of the per-seed means over
     the evaluation episodes), how far the runs got; then the bars."""
-    lines = ["| policy | parameters | final return | walls passed per episode | fell off (share of episodes) | "
-             "wall contact steps per episode | distance (m) | seeds finished | iterations | env steps per run |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| policy | parameters | final return | walls passed per episode | fell off (share of episodes) | "
+        "wall contact steps per episode | distance (m) | seeds finished | iterations | env steps per run |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for label, summary in summaries.items():
-        lines.append(f"| {label} (`{POLICIES[label]}`) | {summary['parameters']:,} | {mean_std(summary['return'])} | "
-                     f"{mean_std(summary['walls_passed'], 2)} | {mean_std(summary['fell_off'], 2)} | "
-                     f"{mean_std(summary['wall_contacts'])} | {mean_std(summary['distance'], 2)} | "
-                     f"{summary['finished']} of {seeds} | {summary['iterations']} | {summary['env_steps']:,} |")
+        lines.append(
+            f"| {label} (`{POLICIES[label]}`) | {summary['parameters']:,} | {mean_std(summary['return'])} | "
+            f"{mean_std(summary['walls_passed'], 2)} | {mean_std(summary['fell_off'], 2)} | "
+            f"{mean_std(summary['wall_contacts'])} | {mean_std(summary['distance'], 2)} | "
+            f"{summary['finished']} of {seeds} | {summary['iterations']} | {summary['env_steps']:,} |"
+        )
     return "\n".join([*lines, "", *bars(summaries, seeds=seeds)])
 
 
@@ -193,14 +227,20 @@ def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path:
             plot_mean_band(curves, runs, f"{label} ({summary['parameters']:,} parameters, {len(runs)} seeds)")
     curves.set_xlabel("ES iteration (the centre at its start)")
     curves.set_ylabel("evaluation return (m along the course)")
-    curves.set_title(f"quadruped-walls: IAP {summaries['IAP']['parameters']:,} parameters, "
-                     f"CNN {summaries['CNN']['parameters']:,}")
+    curves.set_title(
+        f"quadruped-walls: IAP {summaries['IAP']['parameters']:,} parameters, CNN {summaries['CNN']['parameters']:,}"
+    )
     curves.legend(fontsize="small")
     labels = list(summaries)
-    walls.bar(labels, [np.mean(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0
-                       for label in labels],
-              yerr=[np.std(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0
-                    for label in labels], capsize=4, color=["tab:blue", "tab:orange", "tab:gray"])
+    walls.bar(
+        labels,
+        [np.mean(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0 for label in labels],
+        yerr=[
+            np.std(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0 for label in labels
+        ],
+        capsize=4,
+        color=["tab:blue", "tab:orange", "tab:gray"],
+    )
     walls.set_ylabel("walls passed per episode (fresh courses)")
     walls.set_title("finished runs, mean ± std over seeds")
     fig.tight_layout()
@@ -209,14 +249,25 @@ def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path:
     return path
 
 
-def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...],
-                  episodes: int) -> None:
+def write_results(
+    path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...], episodes: int
+) -> None:
     """The ``fig11`` section of ``path``: the command, the figure and the table."""
-    command = " ".join(["iap-mjx reproduce fig11", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
-                        f"--out {png.parent}", f"--results {path.name}"])
-    body = (f"## Figure 11: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
-            f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
-            f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
-            f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
-            f"the mean ± std over seeds of the per-seed means.\n\n![fig11]({image_link(png, path)})\n\n{markdown}\n")
+    command = " ".join(
+        [
+            "iap-mjx reproduce fig11",
+            *overrides,
+            f"--seeds {seeds}",
+            f"--episodes {episodes}",
+            f"--out {png.parent}",
+            f"--results {path.name}",
+        ]
+    )
+    body = (
+        f"## Figure 11: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
+        f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
+        f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
+        f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
+        f"the mean ± std over seeds of the per-seed means.\n\n![fig11]({image_link(png, path)})\n\n{markdown}\n"
+    )
     write_section(path, "fig11", body, title="# Results")

@@ -50,8 +50,9 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.Trai
     compiles; ``overrides`` may not set what the sweep varies."""
     from iap_mjx import envs
 
-    swept = [item for item in overrides
-             if item.split("=")[0].strip() in ("policy.patch_size", "policy.top_l", "policy.d_qk")]
+    swept = [
+        item for item in overrides if item.split("=")[0].strip() in ("policy.patch_size", "policy.top_l", "policy.d_qk")
+    ]
     if swept:
         raise ValueError(f"fig7 sets the patch size, top_l and d_qk per cell; remove {', '.join(swept)}")
     cells = {}
@@ -67,8 +68,9 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.Trai
     return cells
 
 
-def cell_row(cell: tuple[int, int, int], config: configs.TrainConfig, seed: int, out_dir: Path, *,
-             train: bool, episodes: int) -> dict[str, Any] | None:
+def cell_row(
+    cell: tuple[int, int, int], config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool, episodes: int
+) -> dict[str, Any] | None:
     """One cell: its curve and (finished) its final centre's evaluation returns."""
     from iap_mjx.es import checkpoint
     from iap_mjx.reproduce import trained_curve
@@ -79,9 +81,17 @@ def cell_row(cell: tuple[int, int, int], config: configs.TrainConfig, seed: int,
     if trained is None or not trained[0]:
         return None
     curve, seconds = trained
-    row = {"patch_size": cell[0], "top_l": cell[1], "d_qk": cell[2], "seed": seed, "curve": curve,
-           "seconds": seconds, "iterations": len(curve), "finished": len(curve) == config.run.iterations,
-           "run": run_dir.name}
+    row = {
+        "patch_size": cell[0],
+        "top_l": cell[1],
+        "d_qk": cell[2],
+        "seed": seed,
+        "curve": curve,
+        "seconds": seconds,
+        "iterations": len(curve),
+        "finished": len(curve) == config.run.iterations,
+        "run": run_dir.name,
+    }
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
         row["returns"] = evaluate_conditions(run_dir, step, episodes=episodes, conditions=TRAIN_CONDITION)["train"]
@@ -91,15 +101,21 @@ def cell_row(cell: tuple[int, int, int], config: configs.TrainConfig, seed: int,
 
 def best_cell(rows: list[dict[str, Any]]) -> tuple[int, int] | None:
     """The grid's ``(patch_size, top_l)`` of highest return, once all nine are finished."""
-    grid = {(row["patch_size"], row["top_l"]): row for row in rows
-            if row["d_qk"] == GRID_D_QK and row["finished"]}
+    grid = {(row["patch_size"], row["top_l"]): row for row in rows if row["d_qk"] == GRID_D_QK and row["finished"]}
     if len(grid) < len(PATCH_SIZES) * len(TOP_LS):
         return None
     return max(grid, key=lambda cell: grid[cell]["return"])
 
 
-def reproduce_fig7(out_dir: str | Path, *, seed: int = 0, overrides: tuple[str, ...] = (), episodes: int = 20,
-                   train: bool = True, results: str | Path | None = None) -> str:
+def reproduce_fig7(
+    out_dir: str | Path,
+    *,
+    seed: int = 0,
+    overrides: tuple[str, ...] = (),
+    episodes: int = 20,
+    train: bool = True,
+    results: str | Path | None = None,
+) -> str:
     """Trains (``train=False``: only reads) the grid, then the ``d_qk`` row at its best cell;
     writes ``fig7.json`` / ``fig7.png`` in ``out_dir`` and returns the markdown table;
     ``results``: a markdown file whose ``fig7`` section is rewritten with it."""
@@ -135,21 +151,31 @@ def command(overrides: tuple[str, ...], row: dict[str, Any], seed: int) -> str:
     return " ".join(["iap-mjx train", PRESET, *overrides, *cell, f"run.seed={seed}"])
 
 
-def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides: tuple[str, ...],
-          seed: int) -> str:
+def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides: tuple[str, ...], seed: int) -> str:
     """Markdown: one line per cell with its command, its return and how far it got."""
-    lines = ["| patch size | l | d_qk | patches L (240x320) | return (mean ± std, episodes) | best eval return on the way | "
-             "iterations | wall-clock (s) | command |", "|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    lines = [
+        "| patch size | l | d_qk | patches L (240x320) | return (mean ± std, episodes) | best eval return on the way | "
+        "iterations | wall-clock (s) | command |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
     for row in rows:
         patches = (240 // row["patch_size"]) * (320 // row["patch_size"])
-        final = (f"{row['return']:.1f} ± {np.std(row['returns']):.1f} ({len(row['returns'])})"
-                 if row["finished"] else "running")
-        lines.append(f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {patches:,} | {final} | "
-                     f"{max(row['curve']):.1f} | {row['iterations']} | {row['seconds']:.0f} | "
-                     f"`{command(overrides, row, seed)}` |")
+        final = (
+            f"{row['return']:.1f} ± {np.std(row['returns']):.1f} ({len(row['returns'])})"
+            if row["finished"]
+            else "running"
+        )
+        lines.append(
+            f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {patches:,} | {final} | "
+            f"{max(row['curve']):.1f} | {row['iterations']} | {row['seconds']:.0f} | "
+            f"`{command(overrides, row, seed)}` |"
+        )
     lines.append("")
-    lines.append("Best grid cell (patch size, l): " + (f"{best}" if best is not None else
-                                                        "not chosen yet (the grid is not finished)") + ".")
+    lines.append(
+        "Best grid cell (patch size, l): "
+        + (f"{best}" if best is not None else "not chosen yet (the grid is not finished)")
+        + "."
+    )
     return "\n".join(lines)
 
 
@@ -169,8 +195,7 @@ def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -
     image = ax.imshow(grid, cmap="viridis", origin="lower")
     for i in range(len(PATCH_SIZES)):
         for j in range(len(TOP_LS)):
-            ax.text(j, i, "-" if np.isnan(grid[i, j]) else f"{grid[i, j]:.0f}", ha="center", va="center",
-                    color="white")
+            ax.text(j, i, "-" if np.isnan(grid[i, j]) else f"{grid[i, j]:.0f}", ha="center", va="center", color="white")
     ax.set_xticks(range(len(TOP_LS)), [str(l) for l in TOP_LS])
     ax.set_yticks(range(len(PATCH_SIZES)), [str(p) for p in PATCH_SIZES])
     ax.set_xlabel("selected patches l")
@@ -178,8 +203,11 @@ def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -
     ax.set_title(f"cartpole-swingup (static medium), d_qk = {GRID_D_QK}")
     fig.colorbar(image, ax=ax, label="return")
     if best is not None:
-        done = sorted((row["d_qk"], row["return"]) for row in rows
-                      if (row["patch_size"], row["top_l"]) == best and row["finished"])
+        done = sorted(
+            (row["d_qk"], row["return"])
+            for row in rows
+            if (row["patch_size"], row["top_l"]) == best and row["finished"]
+        )
         bars.bar([str(d) for d, _ in done], [r for _, r in done], color="tab:blue")
         bars.set_title(f"d_qk at patch size {best[0]}, l = {best[1]}")
     else:
@@ -192,15 +220,25 @@ def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -
     return path
 
 
-def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int,
-                  seed: int) -> None:
+def write_results(
+    path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int, seed: int
+) -> None:
     """The ``fig7`` section of ``path``: the command, the figure and the table."""
     from iap_mjx.viz.sections import image_link, write_section
 
-    command_line = " ".join(["iap-mjx reproduce fig7", *overrides, f"--episodes {episodes}",
-                             f"--out {png.parent}", f"--results {path.name}"])
+    command_line = " ".join(
+        [
+            "iap-mjx reproduce fig7",
+            *overrides,
+            f"--episodes {episodes}",
+            f"--out {png.parent}",
+            f"--results {path.name}",
+        ]
+    )
     image = image_link(png, path)
-    body = (f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
-            f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "
-            f"evaluation episodes in the training condition.\n\n![fig7]({image})\n\n{markdown}\n")
+    body = (
+        f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
+        f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "
+        f"evaluation episodes in the training condition.\n\n![fig7]({image})\n\n{markdown}\n"
+    )
     write_section(path, "fig7", body, title="# Results")

@@ -28,9 +28,14 @@ from iap_mjx import configs
 logger = logging.getLogger(__name__)
 
 VARIANTS = {
-    "fig6": [("ReLU", "cheetah-run-pixels-relu"), ("(3,2)", "cheetah-run-pixels-hybrid-3-2"),
-             ("(6,3)", "cheetah-run-pixels-hybrid-6-3"), ("(10,5)", "cheetah-run-pixels"),
-             ("(16,8)", "cheetah-run-pixels-hybrid-16-8"), ("Brute", "cheetah-run-pixels-brute")],
+    "fig6": [
+        ("ReLU", "cheetah-run-pixels-relu"),
+        ("(3,2)", "cheetah-run-pixels-hybrid-3-2"),
+        ("(6,3)", "cheetah-run-pixels-hybrid-6-3"),
+        ("(10,5)", "cheetah-run-pixels"),
+        ("(16,8)", "cheetah-run-pixels-hybrid-16-8"),
+        ("Brute", "cheetah-run-pixels-brute"),
+    ],
     "fig1": [("IAP", "cheetah-run-pixels"), ("Brute Force", "cheetah-run-pixels-brute")],
 }
 
@@ -53,8 +58,9 @@ def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> floa
     return (time.perf_counter() - start) / passes
 
 
-def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path, *,
-                  train: bool = True) -> tuple[list[float], float] | None:
+def trained_curve(
+    config: configs.TrainConfig, seed: int, run_dir: Path, *, train: bool = True
+) -> tuple[list[float], float] | None:
     """Trains ``config`` with ``seed`` in ``run_dir`` (resuming from its checkpoint, so a
     finished run is not trained again).
 
@@ -77,13 +83,14 @@ def trained_curve(config: configs.TrainConfig, seed: int, run_dir: Path, *,
         if step is None:
             return None
         history = read_history(run_dir, up_to=step)
-    history = history[:config.run.iterations]
+    history = history[: config.run.iterations]
     seconds = sum(row["run_s"] for row in history) + (history[0]["compile_s"] if history else 0.0)
     return [float(row["eval_return"]) for row in history], seconds
 
 
-def run_summary(config: configs.TrainConfig, seed: int, run_dir: Path, *,
-                train: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+def run_summary(
+    config: configs.TrainConfig, seed: int, run_dir: Path, *, train: bool = True
+) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
     """:func:`trained_curve`'s run as a report's row, ``{"seed", "curve", "seconds",
     "iterations", "env_steps", "finished"}`` (``env_steps``: the training steps of its last
     iteration), and its metrics rows up to that iteration; ``None`` while it has none."""
@@ -94,9 +101,14 @@ def run_summary(config: configs.TrainConfig, seed: int, run_dir: Path, *,
         return None
     curve, seconds = trained
     history = read_history(run_dir, up_to=len(curve))
-    row = {"seed": seed, "curve": curve, "seconds": seconds, "iterations": len(curve),
-           "env_steps": int(history[-1]["env_steps"]) if history else 0,
-           "finished": len(curve) == config.run.iterations}
+    row = {
+        "seed": seed,
+        "curve": curve,
+        "seconds": seconds,
+        "iterations": len(curve),
+        "env_steps": int(history[-1]["env_steps"]) if history else 0,
+        "finished": len(curve) == config.run.iterations,
+    }
     return row, history
 
 
@@ -112,13 +124,21 @@ def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
         if spec not in built_envs:
             built_envs[spec] = envs.make(config.env.name, **dict(config.env.overrides))
         env = built_envs[spec]
-        out[name] = policies.make(config.policy.kind, env.observation_shape, env.action_size,
-                                  **dict(config.policy.options))
+        out[name] = policies.make(
+            config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options)
+        )
     return out
 
 
-def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
-              passes: int = 100, train: bool = True) -> str:
+def reproduce(
+    figure: str,
+    out_dir: str | Path,
+    *,
+    seeds: int = 3,
+    overrides: tuple[str, ...] = (),
+    passes: int = 100,
+    train: bool = True,
+) -> str:
     """Runs ``figure`` (``fig1`` or ``fig6``); writes PNG and JSON; returns a markdown table.
 
     Each (preset, seed) trains in ``<out_dir>/<preset>-seed<seed>``: a killed run resumes
@@ -130,8 +150,9 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
     from iap_mjx import envs
 
-    variants = [(label, configs.apply_overrides(configs.get(preset), overrides), preset)
-                for label, preset in VARIANTS[figure]]  # every config validated before any compile
+    variants = [
+        (label, configs.apply_overrides(configs.get(preset), overrides), preset) for label, preset in VARIANTS[figure]
+    ]  # every config validated before any compile
     for _, config, _ in variants:
         envs.check(config.env.name, **dict(config.env.overrides))
     if any(config.run.eval_episodes < 1 for _, config, _ in variants):
@@ -140,8 +161,7 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
     out_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for label, config, preset in variants:
-        runs = [trained_curve(config, seed, out_dir / f"{preset}-seed{seed}", train=train)
-                for seed in range(seeds)]
+        runs = [trained_curve(config, seed, out_dir / f"{preset}-seed{seed}", train=train) for seed in range(seeds)]
         trained = [run for run in runs if run is not None and run[0]]
         if not trained:
             logger.info("%s: no runs in %s yet", label, out_dir)
@@ -149,17 +169,28 @@ def reproduce(figure: str, out_dir: str | Path, *, seeds: int = 3, overrides: tu
         curves = [curve for curve, _ in trained]
         length = min(len(curve) for curve in curves)  # seeds compared at the same iteration
         seconds = inference_seconds(config, passes=passes)
-        rows.append({"variant": label, "preset": preset, "inference_s": seconds,
-                     "returns": [curve[length - 1] for curve in curves], "curves": curves,
-                     "train_wall_s": sum(s for _, s in trained), "iterations": length})
+        rows.append(
+            {
+                "variant": label,
+                "preset": preset,
+                "inference_s": seconds,
+                "returns": [curve[length - 1] for curve in curves],
+                "curves": curves,
+                "train_wall_s": sum(s for _, s in trained),
+                "iterations": length,
+            }
+        )
         rows[-1]["complete"] = len(curves) == seeds and rows[-1]["iterations"] == config.run.iterations
         logger.info("%s: %.4f s per forward pass, returns %s", label, seconds, rows[-1]["returns"])
     if not rows:
         raise ValueError(f"no runs of {figure} in {out_dir} to report")
     complete = len(rows) == len(variants) and all(row["complete"] for row in rows)
     (out_dir / f"{figure}.json").write_text(json.dumps(rows, indent=2))
-    plot(rows, out_dir / f"{figure}.png", title=f"{figure}: Cheetah-Run from 100x100 RGB"
-         + ("" if complete else " (in progress)"))
+    plot(
+        rows,
+        out_dir / f"{figure}.png",
+        title=f"{figure}: Cheetah-Run from 100x100 RGB" + ("" if complete else " (in progress)"),
+    )
     return table(rows)
 
 
@@ -191,8 +222,15 @@ def figure(rows: list[dict[str, Any]], *, title: str):
     ax.set_ylabel("inference time (s)")
     ax.set_xticks(x, labels)
     twin = ax.twinx()
-    twin.errorbar(x, [np.mean(row["returns"]) for row in rows], yerr=[np.std(row["returns"]) for row in rows],
-                  fmt="x", color="tab:orange", markersize=10, capsize=4)
+    twin.errorbar(
+        x,
+        [np.mean(row["returns"]) for row in rows],
+        yerr=[np.std(row["returns"]) for row in rows],
+        fmt="x",
+        color="tab:orange",
+        markersize=10,
+        capsize=4,
+    )
     twin.set_ylabel("reward (mean over seeds)")
     ax.set_title(title)
     for row in rows:
@@ -209,10 +247,14 @@ def table(rows: list[dict[str, Any]]) -> str:
     """A markdown table of the rows."""
     from iap_mjx.viz.sections import mean_std
 
-    lines = ["| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training s (all seeds) |",
-             "|---|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training s (all seeds) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
     for row in rows:
-        lines.append(f"| {row['variant']} | `{row['preset']}` | {1e3 * row['inference_s']:.3f} | "
-                     f"{mean_std(row['returns'])} | {len(row['returns'])} | "
-                     f"{row['iterations']} | {row['train_wall_s']:.0f} |")
+        lines.append(
+            f"| {row['variant']} | `{row['preset']}` | {1e3 * row['inference_s']:.3f} | "
+            f"{mean_std(row['returns'])} | {len(row['returns'])} | "
+            f"{row['iterations']} | {row['train_wall_s']:.0f} |"
+        )
     return "\n".join(lines)

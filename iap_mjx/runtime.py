@@ -64,8 +64,10 @@ def write_entries_atomically() -> bool:
     if getattr(installed, "writes_atomically", False):
         return True
     if installed is not lru_cache.LRUCache or not hasattr(lru_cache, "_CACHE_SUFFIX"):
-        logger.warning("this JAX's compilation cache is not the one iap_mjx knows; entries are "
-                       "written as JAX writes them (not atomically)")
+        logger.warning(
+            "this JAX's compilation cache is not the one iap_mjx knows; entries are "
+            "written as JAX writes them (not atomically)"
+        )
         return False
 
     class AtomicLRUCache(lru_cache.LRUCache):
@@ -136,7 +138,7 @@ def set_host_device_count(count: int | None = None) -> int:
     key = "--xla_force_host_platform_device_count="
     for flag in flags.split():
         if flag.startswith(key):
-            return int(flag[len(key):])
+            return int(flag[len(key) :])
     count = count if count is not None else (os.cpu_count() or 1)
     os.environ["XLA_FLAGS"] = f"{flags} {key}{count}".strip()
     return count

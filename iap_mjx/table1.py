@@ -38,13 +38,22 @@ from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
 from iap_mjx.viz.sections import image_link, mean_std, write_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
-BASELINES = {"cheetah-run": (77.0, 74.0), "walker-walk": (24.0, 111.0), "cartpole-swingup": (196.0, 167.0),
-             "ball_in_cup-catch": (109.0, 62.0), "reacher-easy": (75.0, 109.0)}
+BASELINES = {
+    "cheetah-run": (77.0, 74.0),
+    "walker-walk": (24.0, 111.0),
+    "cartpole-swingup": (196.0, 167.0),
+    "ball_in_cup-catch": (109.0, 62.0),
+    "reacher-easy": (75.0, 109.0),
+}
 # The best six-task static-medium mean the suite's own paper reports (QT-Opt with DrQ
 # augmentation, 500k env steps).
 SUITE_BEST_MEAN, SUITE_BEST_STEPS = 170.0, 500_000
-CONDITIONS = {"train": (), "held-out": ("env.background_videos=val",), "dynamic": ("env.dynamic=true",),
-              "none": ("env.distraction=none",)}
+CONDITIONS = {
+    "train": (),
+    "held-out": ("env.background_videos=val",),
+    "dynamic": ("env.dynamic=true",),
+    "none": ("env.distraction=none",),
+}
 
 
 POLICIES = {"iap": "", "cnn": "-cnn"}
@@ -61,8 +70,9 @@ def parameters(config: configs.TrainConfig) -> int:
 
     env_config = envs.check(config.env.name, **dict(config.env.overrides))
     action_size = envs.make(config.env.name).action_size  # the state env's: pixels do not change it
-    policy = policies.make(config.policy.kind, (env_config.height, env_config.width, 3), action_size,
-                           **dict(config.policy.options))
+    policy = policies.make(
+        config.policy.kind, (env_config.height, env_config.width, 3), action_size, **dict(config.policy.options)
+    )
     return policies.init_param_count(policy)
 
 
@@ -87,8 +97,9 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap
     return result
 
 
-def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
-                        conditions: dict[str, tuple[str, ...]] = CONDITIONS) -> dict[str, list[float]]:
+def evaluate_conditions(
+    run_dir: Path, step: int, *, episodes: int, conditions: dict[str, tuple[str, ...]] = CONDITIONS
+) -> dict[str, list[float]]:
     """``{condition: returns}`` of the run's checkpoint ``step``, read from ``eval.json``
     where stored, evaluated (and stored) otherwise."""
     from iap_mjx import es
@@ -97,13 +108,25 @@ def evaluate_conditions(run_dir: Path, step: int, *, episodes: int,
         returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
         return [float(r) for r in returns]
 
-    return {name: stored_evaluation(run_dir, evaluation_key(name, step, episodes), episodes,
-                                    functools.partial(evaluate, condition))
-            for name, condition in conditions.items()}
+    return {
+        name: stored_evaluation(
+            run_dir, evaluation_key(name, step, episodes), episodes, functools.partial(evaluate, condition)
+        )
+        for name, condition in conditions.items()
+    }
 
 
-def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool,
-            episodes: int, export: Path | None = None, policy: str = "iap") -> dict[str, Any] | None:
+def run_row(
+    task: str,
+    config: configs.TrainConfig,
+    seed: int,
+    out_dir: Path,
+    *,
+    train: bool,
+    episodes: int,
+    export: Path | None = None,
+    policy: str = "iap",
+) -> dict[str, Any] | None:
     """One run: its curve, env steps, seconds, and (finished runs) every condition's returns;
     with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
@@ -123,10 +146,18 @@ def run_row(task: str, config: configs.TrainConfig, seed: int, out_dir: Path, *,
     return row
 
 
-def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[str, ...] = (),
-                     episodes: int = 20, train: bool = True, tasks: tuple[str, ...] = TASKS,
-                     results: str | Path | None = None, export: str | Path | None = None,
-                     policy: str = "iap") -> str:
+def reproduce_table1(
+    out_dir: str | Path,
+    *,
+    seeds: int = 3,
+    overrides: tuple[str, ...] = (),
+    episodes: int = 20,
+    train: bool = True,
+    tasks: tuple[str, ...] = TASKS,
+    results: str | Path | None = None,
+    export: str | Path | None = None,
+    policy: str = "iap",
+) -> str:
     """Trains (``train=False``: only reads) every task and seed, evaluates the finished runs,
     writes ``<name>.json`` / ``<name>.png`` in ``out_dir`` (``name``: ``table1``, or
     ``table1-cnn`` for ``policy="cnn"``) and returns the markdown table; ``results``: a
@@ -140,9 +171,13 @@ def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[st
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     export = None if export is None else Path(export)
-    rows = [row for task, config in task_configs.items() for seed in range(seeds)
-            if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes,
-                               export=export, policy=policy)) is not None]
+    rows = [
+        row
+        for task, config in task_configs.items()
+        for seed in range(seeds)
+        if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes, export=export, policy=policy))
+        is not None
+    ]
     if not rows:
         raise ValueError(f"no table1 {policy} runs in {out_dir} to report")
     name = "table1" + POLICIES[policy]
@@ -151,35 +186,53 @@ def reproduce_table1(out_dir: str | Path, *, seeds: int = 3, overrides: tuple[st
     if policy == "iap":
         markdown = table(rows, seeds=seeds)
     else:  # beside the IAP runs of the same tasks, read (and evaluated) but never trained here
-        iap = [row for task, config in check(tuple(tasks), tuple(overrides)).items() for seed in range(seeds)
-               if (row := run_row(task, config, seed, out_dir, train=False, episodes=episodes)) is not None]
+        iap = [
+            row
+            for task, config in check(tuple(tasks), tuple(overrides)).items()
+            for seed in range(seeds)
+            if (row := run_row(task, config, seed, out_dir, train=False, episodes=episodes)) is not None
+        ]
         markdown = comparison(rows, iap, seeds=seeds)
     if results is not None:
-        write_results(Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes,
-                      policy=policy)
+        write_results(
+            Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes, policy=policy
+        )
     return markdown
 
 
-def write_results(path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...],
-                  episodes: int, policy: str = "iap") -> None:
+def write_results(
+    path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...], episodes: int, policy: str = "iap"
+) -> None:
     """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
     curves."""
     name = "table1" + POLICIES[policy]
-    command = " ".join(["iap-mjx reproduce table1", *overrides, f"--seeds {seeds}", f"--episodes {episodes}",
-                        *([f"--policy {policy}"] if policy != "iap" else []), f"--out {png.parent}",
-                        f"--results {path.name}"])
+    command = " ".join(
+        [
+            "iap-mjx reproduce table1",
+            *overrides,
+            f"--seeds {seeds}",
+            f"--episodes {episodes}",
+            *([f"--policy {policy}"] if policy != "iap" else []),
+            f"--out {png.parent}",
+            f"--results {path.name}",
+        ]
+    )
     image = image_link(png, path)
     if policy == "iap":
-        title = ("## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
-                 "the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
-                 "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
-                 "Stone et al. 2021).")
+        title = (
+            "## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
+            "the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
+            "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
+            "Stone et al. 2021)."
+        )
     else:
-        title = ("## Table 1's baseline: convolutions against attention, the same budget\n\nCommand: "
-                 "`{command}`. The `dcs-<task>-cnn` presets: the same frames, ES setting, iterations and "
-                 "LSTM(16) controller as `dcs-<task>`, with three convolutions, a max pool and a dense "
-                 "embedding in place of the attention. Return: the final centre's mean over {episodes} "
-                 "evaluation episodes per seed; mean ± std over seeds.")
+        title = (
+            "## Table 1's baseline: convolutions against attention, the same budget\n\nCommand: "
+            "`{command}`. The `dcs-<task>-cnn` presets: the same frames, ES setting, iterations and "
+            "LSTM(16) controller as `dcs-<task>`, with three convolutions, a max pool and a dense "
+            "embedding in place of the attention. Return: the final centre's mean over {episodes} "
+            "evaluation episodes per seed; mean ± std over seeds."
+        )
     body = f"{title.format(command=command, episodes=episodes)}\n\n![{name}]({image})\n\n{markdown}\n"
     write_section(path, name, body, title="# Results")
 
@@ -188,10 +241,12 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
     """Markdown: per task the paper's baselines, our final return in the training condition
     (mean ± std over seeds; the per-seed means of ``episodes`` evaluation episodes), the other
     conditions, env steps and wall-clock; then the bar's summary."""
-    lines = ["| task | SAC | QT-Opt | IAP (ours), train condition | per seed | held-out backgrounds | "
-             "dynamic | no distraction | seeds finished | iterations | env steps per run | wall-clock per run (s) "
-             "| parameters |",
-             "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| task | SAC | QT-Opt | IAP (ours), train condition | per seed | held-out backgrounds | "
+        "dynamic | no distraction | seeds finished | iterations | env steps per run | wall-clock per run (s) "
+        "| parameters |",
+        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     met, means = 0, {}
     for task in TASKS:
         task_rows = [row for row in rows if row["task"] == task]
@@ -209,13 +264,16 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
             f"{mean_std(per['held-out'])} | {mean_std(per['dynamic'])} | {mean_std(per['none'])} | "
             f"{len(done)} of {seeds} | {max(row['iterations'] for row in task_rows)} | "
             f"{max(row['env_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} | "
-            f"{task_rows[0]['parameters']:,} |")
+            f"{task_rows[0]['parameters']:,} |"
+        )
     scored = [task for task in BASELINES if task in means]
     lines.append("")
     lines.append(f"At or above the better of SAC and QT-Opt: {met} of {len(scored)} finished tasks (bar: 4 of 5).")
     if len(means) == len(TASKS):
-        lines.append(f"Six-task mean: {np.mean(list(means.values())):.1f} (bar: {SUITE_BEST_MEAN:.0f}, the suite "
-                     f"paper's best, at {SUITE_BEST_STEPS:,} env steps).")
+        lines.append(
+            f"Six-task mean: {np.mean(list(means.values())):.1f} (bar: {SUITE_BEST_MEAN:.0f}, the suite "
+            f"paper's best, at {SUITE_BEST_STEPS:,} env steps)."
+        )
     return "\n".join(lines)
 
 
@@ -223,24 +281,31 @@ def comparison(cnn: list[dict[str, Any]], iap: list[dict[str, Any]], *, seeds: i
     """Markdown: per task, the parameter counts and each policy's returns in the training
     condition and on held-out backgrounds (mean ± std over finished seeds), then the CNN's in
     the other two conditions."""
-    lines = ["| task | IAP parameters | IAP, train | IAP, held-out | CNN parameters | CNN, train | CNN, held-out "
-             "| CNN, dynamic | CNN, no distraction | seeds finished (IAP, CNN) | iterations |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|"]
+    lines = [
+        "| task | IAP parameters | IAP, train | IAP, held-out | CNN parameters | CNN, train | CNN, held-out "
+        "| CNN, dynamic | CNN, no distraction | seeds finished (IAP, CNN) | iterations |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
     for task in TASKS:
         ours = [row for row in cnn if row["task"] == task]
         if not ours:
             continue
         theirs = [row for row in iap if row["task"] == task]
-        per = {policy: {name: [float(np.mean(row["conditions"][name])) for row in task_rows if row["finished"]]
-                        for name in CONDITIONS}
-               for policy, task_rows in (("iap", theirs), ("cnn", ours))}
+        per = {
+            policy: {
+                name: [float(np.mean(row["conditions"][name])) for row in task_rows if row["finished"]]
+                for name in CONDITIONS
+            }
+            for policy, task_rows in (("iap", theirs), ("cnn", ours))
+        }
         counts = [f"{task_rows[0]['parameters']:,}" if task_rows else "-" for task_rows in (theirs, ours)]
         finished = [sum(row["finished"] for row in task_rows) for task_rows in (theirs, ours)]
         lines.append(
             f"| {task} | {counts[0]} | {mean_std(per['iap']['train'])} | {mean_std(per['iap']['held-out'])} | "
             f"{counts[1]} | {mean_std(per['cnn']['train'])} | {mean_std(per['cnn']['held-out'])} | "
             f"{mean_std(per['cnn']['dynamic'])} | {mean_std(per['cnn']['none'])} | "
-            f"{finished[0]} and {finished[1]} of {seeds} | {max(row['iterations'] for row in ours)} |")
+            f"{finished[0]} and {finished[1]} of {seeds} | {max(row['iterations'] for row in ours)} |"
+        )
     return "\n".join(lines)
 
 

@@ -65,8 +65,9 @@ def fits(patch_size: int, stride: int, height: int, width: int, top_l: int) -> s
     return None if rows * cols >= top_l else f"L = {rows * cols} patches, fewer than top_l = {top_l}"
 
 
-def check(settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...],
-          seed: int) -> dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]]:
+def check(
+    settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...], seed: int
+) -> dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]]:
     """``{setting: (config, run name, the setting's overrides)}`` (the preset's own setting: its
     own run, no overrides), every setting validated before anything compiles (``ValueError``
     naming a bad one and the valid settings)."""
@@ -79,9 +80,14 @@ def check(settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...],
     if swept:
         raise ValueError(f"table2 sets the patch size and stride per setting; remove {', '.join(swept)}")
     settings = tuple(tuple(setting) for setting in settings)
-    if not settings or len(set(settings)) != len(settings) or not all(
+    if (
+        not settings
+        or len(set(settings)) != len(settings)
+        or not all(
             len(setting) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in setting)
-            for setting in settings):
+            for setting in settings
+        )
+    ):
         raise ValueError(f"settings = {settings!r} must be distinct (patch size, stride) pairs of ints")
     base = configs.apply_overrides(configs.get(PRESET), overrides)
     camera = envs.check(base.env.name, **dict(base.env.overrides))
@@ -91,25 +97,40 @@ def check(settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...],
     for patch_size, stride in settings:
         reason = fits(patch_size, stride, camera.height, camera.width, top_l)
         if reason is not None:
-            valid = [(p, s) for p in range(1, LARGEST_LISTED_PATCH + 1) for s in range(1, p + 1)
-                     if fits(p, s, camera.height, camera.width, top_l) is None]
-            raise ValueError(f"table2 setting (patch size {patch_size}, stride {stride}): {reason}. Valid (patch "
-                             f"size, stride) on the {camera.height}x{camera.width} camera with top_l = {top_l}, "
-                             f"stride <= patch size <= {LARGEST_LISTED_PATCH}: "
-                             + ", ".join(f"({p}, {s})" for p, s in valid))
+            valid = [
+                (p, s)
+                for p in range(1, LARGEST_LISTED_PATCH + 1)
+                for s in range(1, p + 1)
+                if fits(p, s, camera.height, camera.width, top_l) is None
+            ]
+            raise ValueError(
+                f"table2 setting (patch size {patch_size}, stride {stride}): {reason}. Valid (patch "
+                f"size, stride) on the {camera.height}x{camera.width} camera with top_l = {top_l}, "
+                f"stride <= patch size <= {LARGEST_LISTED_PATCH}: " + ", ".join(f"({p}, {s})" for p, s in valid)
+            )
     checked = {}
     for setting in settings:
         if setting == own_setting(base):
             checked[setting] = (base, f"{PRESET}-seed{seed}", ())
         else:
             extra = setting_overrides(*setting)
-            checked[setting] = (configs.apply_overrides(base, extra), f"table2-p{setting[0]}-s{setting[1]}-seed{seed}",
-                                extra)
+            checked[setting] = (
+                configs.apply_overrides(base, extra),
+                f"table2-p{setting[0]}-s{setting[1]}-seed{seed}",
+                extra,
+            )
     return checked
 
 
-def reproduce_table2(out_dir: str | Path, *, settings: tuple[tuple[int, int], ...] = SETTINGS, seed: int = 0,
-                     overrides: tuple[str, ...] = (), train: bool = True, results: str | Path | None = None) -> str:
+def reproduce_table2(
+    out_dir: str | Path,
+    *,
+    settings: tuple[tuple[int, int], ...] = SETTINGS,
+    seed: int = 0,
+    overrides: tuple[str, ...] = (),
+    train: bool = True,
+    results: str | Path | None = None,
+) -> str:
     """Trains (``train=False``: only reads) every setting on ``seed``, writes ``table2.json`` /
     ``table2.png`` in ``out_dir`` and returns the markdown table; ``results``: a markdown file
     whose ``table2`` section is rewritten with it."""
@@ -128,11 +149,22 @@ def reproduce_table2(out_dir: str | Path, *, settings: tuple[tuple[int, int], ..
             continue
         row, history = summary
         best = [float(entry["return_max"]) for entry in history]
-        rows.append({"patch_size": setting[0], "stride": setting[1], "patches": built[setting].layer.num_patches,
-                     "parameters": policies.init_param_count(built[setting]), "run": name,
-                     "command": " ".join(["iap-mjx train", PRESET, *overrides, *extra, f"run.seed={seed}",
-                                          f"--run-dir {out_dir / name}"]),
-                     "population_max": best, "max_return": max(best), "max_eval_return": max(row["curve"]), **row})
+        rows.append(
+            {
+                "patch_size": setting[0],
+                "stride": setting[1],
+                "patches": built[setting].layer.num_patches,
+                "parameters": policies.init_param_count(built[setting]),
+                "run": name,
+                "command": " ".join(
+                    ["iap-mjx train", PRESET, *overrides, *extra, f"run.seed={seed}", f"--run-dir {out_dir / name}"]
+                ),
+                "population_max": best,
+                "max_return": max(best),
+                "max_eval_return": max(row["curve"]),
+                **row,
+            }
+        )
     if not rows:
         raise ValueError(f"no table2 runs in {out_dir} to report")
     (out_dir / "table2.json").write_text(json.dumps(rows, indent=1))
@@ -146,13 +178,17 @@ def reproduce_table2(out_dir: str | Path, *, settings: tuple[tuple[int, int], ..
 def table(rows: list[dict[str, Any]], *, settings: int) -> str:
     """Markdown: per setting its patches, parameters, maximum returns, how far it got and its
     command; then the best setting, once all are finished."""
-    lines = ["| patch size | stride | patches L | parameters | max episode return (population) | "
-             "max centre evaluation return | iterations | wall-clock (s) | command |",
-             "|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    lines = [
+        "| patch size | stride | patches L | parameters | max episode return (population) | "
+        "max centre evaluation return | iterations | wall-clock (s) | command |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
     for row in rows:
-        lines.append(f"| {row['patch_size']} | {row['stride']} | {row['patches']:,} | {row['parameters']:,} | "
-                     f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {row['iterations']}"
-                     f"{'' if row['finished'] else ' (running)'} | {row['seconds']:.0f} | `{row['command']}` |")
+        lines.append(
+            f"| {row['patch_size']} | {row['stride']} | {row['patches']:,} | {row['parameters']:,} | "
+            f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {row['iterations']}"
+            f"{'' if row['finished'] else ' (running)'} | {row['seconds']:.0f} | `{row['command']}` |"
+        )
     lines.append("")
     finished = [row for row in rows if row["finished"]]
     if len(finished) < settings:
@@ -160,10 +196,12 @@ def table(rows: list[dict[str, Any]], *, settings: int) -> str:
     else:
         best = max(rows, key=lambda row: row["max_return"])
         most = max(rows, key=lambda row: row["patches"])
-        lines.append(f"Best setting: patch size {best['patch_size']}, stride {best['stride']} "
-                     f"(L = {best['patches']:,}, max return {best['max_return']:.1f}); the paper's best had the most "
-                     f"patches, here patch size {most['patch_size']}, stride {most['stride']} "
-                     f"(L = {most['patches']:,}, max return {most['max_return']:.1f}).")
+        lines.append(
+            f"Best setting: patch size {best['patch_size']}, stride {best['stride']} "
+            f"(L = {best['patches']:,}, max return {best['max_return']:.1f}); the paper's best had the most "
+            f"patches, here patch size {most['patch_size']}, stride {most['stride']} "
+            f"(L = {most['patches']:,}, max return {most['max_return']:.1f})."
+        )
     return "\n".join(lines)
 
 
@@ -177,8 +215,11 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 4))
     for row in rows:
         best = row["population_max"]
-        ax.plot(np.arange(1, len(best) + 1), np.maximum.accumulate(best),
-                label=f"patch {row['patch_size']}, stride {row['stride']} (L = {row['patches']:,})")
+        ax.plot(
+            np.arange(1, len(best) + 1),
+            np.maximum.accumulate(best),
+            label=f"patch {row['patch_size']}, stride {row['stride']} (L = {row['patches']:,})",
+        )
     ax.set_xlabel("ES iteration")
     ax.set_ylabel("max episode return so far (population)")
     ax.set_title("quadruped-walls-iap: patch size and stride")
@@ -189,15 +230,31 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     return path
 
 
-def write_results(path: Path, markdown: str, png: Path, *, settings: tuple[tuple[int, int], ...], seed: int,
-                  overrides: tuple[str, ...]) -> None:
+def write_results(
+    path: Path,
+    markdown: str,
+    png: Path,
+    *,
+    settings: tuple[tuple[int, int], ...],
+    seed: int,
+    overrides: tuple[str, ...],
+) -> None:
     """The ``table2`` section of ``path``: the command, the table and the curves."""
-    command_line = " ".join(["iap-mjx reproduce table2", *overrides,
-                             "--settings " + ",".join(f"{p}x{s}" for p, s in settings), f"--seed {seed}",
-                             f"--out {png.parent}", f"--results {path.name}"])
-    body = (f"## Table 2: patch size and stride of the quadruped's IAP high level\n\nCommand: `{command_line}`. "
-            f"One seed (seed {seed}) per setting, the same budget. Max episode return: the largest `return_max` "
-            "of the run's metrics (each iteration's best population member), over the iterations trained; "
-            "beside it the largest `eval_return` (the centre's mean over its evaluation episodes). L: patches "
-            f"on the course's camera.\n\n![table2]({image_link(png, path)})\n\n{markdown}\n")
+    command_line = " ".join(
+        [
+            "iap-mjx reproduce table2",
+            *overrides,
+            "--settings " + ",".join(f"{p}x{s}" for p, s in settings),
+            f"--seed {seed}",
+            f"--out {png.parent}",
+            f"--results {path.name}",
+        ]
+    )
+    body = (
+        f"## Table 2: patch size and stride of the quadruped's IAP high level\n\nCommand: `{command_line}`. "
+        f"One seed (seed {seed}) per setting, the same budget. Max episode return: the largest `return_max` "
+        "of the run's metrics (each iteration's best population member), over the iterations trained; "
+        "beside it the largest `eval_return` (the centre's mean over its evaluation episodes). L: patches "
+        f"on the course's camera.\n\n![table2]({image_link(png, path)})\n\n{markdown}\n"
+    )
     write_section(path, "table2", body, title="# Results")

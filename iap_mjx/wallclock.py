@@ -83,24 +83,30 @@ def time_iterations(config: configs.TrainConfig, iterations: int) -> dict[str, f
     iterations after the first (steady state) and the first's compile seconds."""
     from iap_mjx.es import train
 
-    config = dataclasses.replace(config, run=dataclasses.replace(config.run, iterations=iterations,
-                                                                 checkpoint_every=0))
+    config = dataclasses.replace(config, run=dataclasses.replace(config.run, iterations=iterations, checkpoint_every=0))
     with tempfile.TemporaryDirectory() as scratch:
         history = train(config, run_dir=Path(scratch) / "run", progress=False).history
-    return {"iteration_s": float(np.median([row["run_s"] for row in history[1:]])),
-            "compile_s": float(history[0]["compile_s"]), "iterations_timed": iterations - 1}
+    return {
+        "iteration_s": float(np.median([row["run_s"] for row in history[1:]])),
+        "compile_s": float(history[0]["compile_s"]),
+        "iterations_timed": iterations - 1,
+    }
 
 
-def measure(checked: dict[tuple[str, int], configs.TrainConfig], *, iterations: int = 3,
-            passes: int = 3) -> dict[str, Any]:
+def measure(
+    checked: dict[tuple[str, int], configs.TrainConfig], *, iterations: int = 3, passes: int = 3
+) -> dict[str, Any]:
     """Every variant's seconds per iteration, then brute force's projected cost per
     iteration at ``p = 2`` from the forward passes of brute force and hybrid at ``p = 2``."""
     from iap_mjx.reproduce import inference_seconds
 
     if iterations < 2:
         raise ValueError(f"iterations = {iterations}: timing needs >= 2 (the first one compiles)")
-    timings: dict[str, Any] = {"variants": {}, "machine": f"{platform.machine()}, {platform.node()}",
-                               "started": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+    timings: dict[str, Any] = {
+        "variants": {},
+        "machine": f"{platform.machine()}, {platform.node()}",
+        "started": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+    }
     for kernel, patch in VARIANTS:
         logger.info("timing %s at patch size %d (%d iterations)", kernel, patch, iterations)
         timings["variants"][name(kernel, patch)] = time_iterations(checked[kernel, patch], iterations)
@@ -109,14 +115,23 @@ def measure(checked: dict[tuple[str, int], configs.TrainConfig], *, iterations: 
     hybrid_pass = inference_seconds(hybrid, passes=max(passes, 20))
     frames = frames_per_iteration(hybrid)
     hybrid_iteration = timings["variants"][name("hybrid", 2)]["iteration_s"]
-    timings["brute_p2"] = {"forward_pass_s": brute_pass, "hybrid_forward_pass_s": hybrid_pass,
-                           "frames_per_iteration": frames,
-                           "projected_iteration_s": hybrid_iteration + frames * (brute_pass - hybrid_pass)}
+    timings["brute_p2"] = {
+        "forward_pass_s": brute_pass,
+        "hybrid_forward_pass_s": hybrid_pass,
+        "frames_per_iteration": frames,
+        "projected_iteration_s": hybrid_iteration + frames * (brute_pass - hybrid_pass),
+    }
     return timings
 
 
-def reproduce_fig8(out_dir: str | Path, *, overrides: tuple[str, ...] = (), train: bool = True,
-                   results: str | Path | None = None, timing_iterations: int = 3) -> str:
+def reproduce_fig8(
+    out_dir: str | Path,
+    *,
+    overrides: tuple[str, ...] = (),
+    train: bool = True,
+    results: str | Path | None = None,
+    timing_iterations: int = 3,
+) -> str:
     """Measures the timings (once, when ``timings.json`` is missing), trains every variant
     (``train=False``: only reads), writes ``fig8.json`` / ``fig8.png`` and returns the table."""
     from iap_mjx.reproduce import trained_curve
@@ -138,8 +153,17 @@ def reproduce_fig8(out_dir: str | Path, *, overrides: tuple[str, ...] = (), trai
             continue
         curve, seconds = trained
         timing = timings["variants"][name(kernel, patch)]
-        rows.append({"kernel": kernel, "patch_size": patch, "curve": curve, "iterations": len(curve),
-                     "patches": (HEIGHT // patch) * (WIDTH // patch), "run_seconds": seconds, **timing})
+        rows.append(
+            {
+                "kernel": kernel,
+                "patch_size": patch,
+                "curve": curve,
+                "iterations": len(curve),
+                "patches": (HEIGHT // patch) * (WIDTH // patch),
+                "run_seconds": seconds,
+                **timing,
+            }
+        )
     if not rows:
         raise ValueError(f"no fig8 runs in {out_dir} to report")
     (out_dir / "fig8.json").write_text(json.dumps({"timings": timings, "rows": rows}, indent=1))
@@ -165,9 +189,13 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     colours = {"brute": "tab:red", "relu": "tab:green", "hybrid": "tab:blue"}
     fig, ax = plt.subplots(figsize=(7, 4))
     for row in rows:
-        ax.plot(wall_seconds(row), row["curve"], color=colours[row["kernel"]],
-                linestyle="-" if row["patch_size"] == 8 else "--",
-                label=f"{LABELS[row['kernel']]}, p = {row['patch_size']} (L = {row['patches']:,})")
+        ax.plot(
+            wall_seconds(row),
+            row["curve"],
+            color=colours[row["kernel"]],
+            linestyle="-" if row["patch_size"] == 8 else "--",
+            label=f"{LABELS[row['kernel']]}, p = {row['patch_size']} (L = {row['patches']:,})",
+        )
     ax.set_xlabel("wall-clock seconds (iterations x seconds per iteration measured alone)")
     ax.set_ylabel("evaluation return")
     ax.set_title("cartpole-swingup, static medium distractions")
@@ -181,31 +209,40 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
 def table(rows: list[dict[str, Any]], timings: dict[str, Any]) -> str:
     """Markdown: per curve its seconds per iteration, compile, final and best return; then
     brute force at ``p = 2`` projected, as a ratio to hybrid's measured iteration."""
-    lines = ["| method | patch size | L | s / iteration (alone) | compile s | iterations | final eval return | "
-             "best eval return | wall-clock at the last point (s) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| method | patch size | L | s / iteration (alone) | compile s | iterations | final eval return | "
+        "best eval return | wall-clock at the last point (s) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for row in rows:
-        lines.append(f"| {LABELS[row['kernel']]} | {row['patch_size']} | {row['patches']:,} | {row['iteration_s']:.1f} | "
-                     f"{row['compile_s']:.0f} | {row['iterations']} | {row['curve'][-1]:.1f} | {max(row['curve']):.1f} | "
-                     f"{wall_seconds(row)[-1]:.0f} |")
+        lines.append(
+            f"| {LABELS[row['kernel']]} | {row['patch_size']} | {row['patches']:,} | {row['iteration_s']:.1f} | "
+            f"{row['compile_s']:.0f} | {row['iterations']} | {row['curve'][-1]:.1f} | {max(row['curve']):.1f} | "
+            f"{wall_seconds(row)[-1]:.0f} |"
+        )
     brute = timings["brute_p2"]
     hybrid = timings["variants"][name("hybrid", 2)]["iteration_s"]
-    lines += ["", f"Brute force at patch size 2 (L = 19,200), not trained: one forward pass measured "
-              f"{brute['forward_pass_s']:.2f} s against hybrid's {1e3 * brute['hybrid_forward_pass_s']:.2f} ms; "
-              f"with {brute['frames_per_iteration']:,} frames per iteration its projected iteration takes "
-              f"{brute['projected_iteration_s']:,.0f} s, **{brute['projected_iteration_s'] / hybrid:,.0f}x** "
-              f"hybrid's measured {hybrid:.1f} s (same timing run, {timings['started']})."]
+    lines += [
+        "",
+        f"Brute force at patch size 2 (L = 19,200), not trained: one forward pass measured "
+        f"{brute['forward_pass_s']:.2f} s against hybrid's {1e3 * brute['hybrid_forward_pass_s']:.2f} ms; "
+        f"with {brute['frames_per_iteration']:,} frames per iteration its projected iteration takes "
+        f"{brute['projected_iteration_s']:,.0f} s, **{brute['projected_iteration_s'] / hybrid:,.0f}x** "
+        f"hybrid's measured {hybrid:.1f} s (same timing run, {timings['started']}).",
+    ]
     return "\n".join(lines)
 
 
-def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...],
-                  timings: dict[str, Any]) -> None:
+def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], timings: dict[str, Any]) -> None:
     """The ``fig8`` section of ``path``: the command, the figure and the table."""
     from iap_mjx.viz.sections import image_link, write_section
 
     command_line = " ".join(["iap-mjx reproduce fig8", *overrides, f"--out {png.parent}", f"--results {path.name}"])
     image = image_link(png, path)
-    body = (f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
-            f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "
-            f"process on {timings['machine']}, {timings['started']}, one after another with the machine alone "
-            f"(`{TIMINGS_FILE}`); the training runs' own timings are not used.\n\n![fig8]({image})\n\n{markdown}\n")
+    body = (
+        f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
+        f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "
+        f"process on {timings['machine']}, {timings['started']}, one after another with the machine alone "
+        f"(`{TIMINGS_FILE}`); the training runs' own timings are not used.\n\n![fig8]({image})\n\n{markdown}\n"
+    )
     write_section(path, "fig8", body, title="# Results")

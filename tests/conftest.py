@@ -29,14 +29,11 @@ for _flag, _value in _FAST_COMPILE.items():
 runtime.hoist_large_constants()  # as the CLI: large closed-over arrays are arguments
 runtime.set_host_device_count(2)
 runtime.disable_dm_control_rendering()  # reference renders run in child processes
-runtime.enable_compilation_cache(
-    Path(__file__).resolve().parent.parent / ".jax_cache"
-)
+runtime.enable_compilation_cache(Path(__file__).resolve().parent.parent / ".jax_cache")
 
 
 def pytest_collection_modifyitems(items):
     """Slow tests first, tests marked ``last`` at the end (a stable sort: the order within each
     group is kept). A ``last`` test compiles what an earlier test compiled (the same shapes), so
     it loads the programs from the shared compilation cache instead."""
-    items.sort(key=lambda item: (item.get_closest_marker("last") is not None,
-                                 item.get_closest_marker("slow") is None))
+    items.sort(key=lambda item: (item.get_closest_marker("last") is not None, item.get_closest_marker("slow") is None))

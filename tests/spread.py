@@ -57,14 +57,22 @@ def spread(reference: np.ndarray, runs: list[np.ndarray] | np.ndarray) -> np.nda
     return np.maximum.accumulate(gaps, axis=0)
 
 
-def violations(ours: np.ndarray, reference: np.ndarray, spread_: np.ndarray, *, atol: float,
-               factor: float = FACTOR) -> np.ndarray:
+def violations(
+    ours: np.ndarray, reference: np.ndarray, spread_: np.ndarray, *, atol: float, factor: float = FACTOR
+) -> np.ndarray:
     """Boolean ``(T, ...)``: where ``|ours - reference|`` exceeds ``atol + factor * spread``."""
     return np.abs(np.asarray(ours) - reference) > atol + factor * spread_
 
 
-def assert_within_spread(ours: np.ndarray, reference: np.ndarray, spread_: np.ndarray, *,
-                         atol: float, factor: float = FACTOR, what: str = "trajectory") -> None:
+def assert_within_spread(
+    ours: np.ndarray,
+    reference: np.ndarray,
+    spread_: np.ndarray,
+    *,
+    atol: float,
+    factor: float = FACTOR,
+    what: str = "trajectory",
+) -> None:
     """Fails at the first step where ``ours`` leaves ``reference`` by more than
     ``atol + factor * spread``, naming the step, the entry, the gap and the bound."""
     bad = violations(ours, reference, spread_, atol=atol, factor=factor)
@@ -74,15 +82,18 @@ def assert_within_spread(ours: np.ndarray, reference: np.ndarray, spread_: np.nd
         raise AssertionError(
             f"{what}: {int(bad.sum())} of {bad.size} entries out of bounds; first at (step, "
             f"entry) {where}: |ours - reference| = {gap:.3g} > atol {atol:g} + {factor:g} x the "
-            f"reference's own spread {float(spread_[where]):.3g}")
+            f"reference's own spread {float(spread_[where]):.3g}"
+        )
 
 
-def assert_wrong_step_is_caught(wrong: np.ndarray, reference: np.ndarray, spread_: np.ndarray, *,
-                                atol: float, factor: float = FACTOR) -> None:
+def assert_wrong_step_is_caught(
+    wrong: np.ndarray, reference: np.ndarray, spread_: np.ndarray, *, atol: float, factor: float = FACTOR
+) -> None:
     """The bound's power: a trajectory of a wrong physics step must break it somewhere."""
     assert violations(wrong, reference, spread_, atol=atol, factor=factor).any(), (
         "a native run with a wrong number of physics steps stays within the bound: the bound "
-        "cannot tell a wrong step from rounding")
+        "cannot tell a wrong step from rounding"
+    )
 
 
 def wrong_sub_steps(n_sub_steps: int) -> int:
@@ -90,9 +101,9 @@ def wrong_sub_steps(n_sub_steps: int) -> int:
     return n_sub_steps - 1 if n_sub_steps > 1 else 2
 
 
-def dm_control_run(name: str, seed: int, actions: np.ndarray, *,
-                   rng: np.random.Generator | None = None,
-                   sub_steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def dm_control_run(
+    name: str, seed: int, actions: np.ndarray, *, rng: np.random.Generator | None = None, sub_steps: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """dm_control's ``name`` (reset with ``seed``) under ``actions``: flat observations
     ``(T, n)`` and rewards ``(T,)`` after each control step.
 
@@ -129,12 +140,12 @@ def dm_control_run(name: str, seed: int, actions: np.ndarray, *,
     return np.array(observations), np.array(rewards)
 
 
-def dm_control_spread(name: str, seed: int, actions: np.ndarray, reference_obs: np.ndarray,
-                      reference_reward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def dm_control_spread(
+    name: str, seed: int, actions: np.ndarray, reference_obs: np.ndarray, reference_reward: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """``spread`` of dm_control's observations and rewards under float32 noise."""
     runs = [dm_control_run(name, seed, actions, rng=rng) for rng in noise_generators()]
-    return (spread(reference_obs, [obs for obs, _ in runs]),
-            spread(reference_reward, [reward for _, reward in runs]))
+    return (spread(reference_obs, [obs for obs, _ in runs]), spread(reference_reward, [reward for _, reward in runs]))
 
 
 def flat(observation) -> np.ndarray:

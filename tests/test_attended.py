@@ -43,9 +43,18 @@ def test_count_geoms_counts_every_selected_pixel_per_step():
 
 @pytest.mark.slow
 def test_shares_over_a_distracted_episode_describe_the_frames_the_policy_saw():
-    env = envs.make("cartpole-swingup", obs_mode="pixels", height=48, width=64, action_repeat=8,
-                    distraction="medium", dynamic=False, episode_length=6, background_size=64,
-                    background_frames=4)
+    env = envs.make(
+        "cartpole-swingup",
+        obs_mode="pixels",
+        height=48,
+        width=64,
+        action_repeat=8,
+        distraction="medium",
+        dynamic=False,
+        episode_length=6,
+        background_size=64,
+        background_frames=4,
+    )
     policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=2, top_l=10)
     params = policy.init(jax.random.PRNGKey(1))
     program = attended.episode_program(env, policy, steps=6)

@@ -88,7 +88,8 @@ def test_davis_loader_reads_both_layouts(tmp_path, layout):
     # Each frame is the decoded file through the reference's resize.
     first = tmp_path / layout / EASY[1] / "00002.jpg"
     np.testing.assert_array_equal(
-        videos.frames[1, 2], backgrounds.resize_frame(np.asarray(Image.open(first).convert("RGB")), 8))
+        videos.frames[1, 2], backgrounds.resize_frame(np.asarray(Image.open(first).convert("RGB")), 8)
+    )
 
 
 def test_davis_levels_take_the_first_videos_of_the_training_list(tmp_path):
@@ -178,12 +179,18 @@ def test_bad_sizes_are_named(setting):
 
 
 def test_videos_validate_their_arrays():
-    good = dict(frames=np.zeros((2, 3, 4, 4, 3), np.uint8), lengths=np.array([3, 1], np.int32),
-                names=("a", "b"), source="test")
+    good = dict(
+        frames=np.zeros((2, 3, 4, 4, 3), np.uint8), lengths=np.array([3, 1], np.int32), names=("a", "b"), source="test"
+    )
     assert backgrounds.BackgroundVideos(**good).nbytes == 2 * 3 * 4 * 4 * 3
-    for bad in (dict(frames=np.zeros((2, 3, 4, 4, 3), np.float32)), dict(frames=np.zeros((2, 3, 4, 5, 3), np.uint8)),
-                dict(lengths=np.array([4, 1], np.int32)), dict(lengths=np.array([3, 0], np.int32)),
-                dict(lengths=np.array([3, 1])), dict(names=("a",))):
+    for bad in (
+        dict(frames=np.zeros((2, 3, 4, 4, 3), np.float32)),
+        dict(frames=np.zeros((2, 3, 4, 5, 3), np.uint8)),
+        dict(lengths=np.array([4, 1], np.int32)),
+        dict(lengths=np.array([3, 0], np.int32)),
+        dict(lengths=np.array([3, 1])),
+        dict(names=("a",)),
+    ):
         with pytest.raises(ValueError, match="BackgroundVideos"):
             backgrounds.BackgroundVideos(**{**good, **bad})
 

@@ -51,9 +51,15 @@ def test_eval_of_missing_run_fails_and_creates_nothing(tmp_path, capsys):
     assert not (tmp_path / "nothing").exists()
 
 
-@pytest.mark.parametrize("argv", [["eval", "x", "--episodes", "0"], ["video", "x", "--steps", "0"],
-                                  ["reproduce", "fig1", "--seeds", "0"],
-                                  ["train", "cheetah-run-state", "--process-id", "-1"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["eval", "x", "--episodes", "0"],
+        ["video", "x", "--steps", "0"],
+        ["reproduce", "fig1", "--seeds", "0"],
+        ["train", "cheetah-run-state", "--process-id", "-1"],
+    ],
+)
 def test_counts_below_one_are_refused_by_the_parser(argv, capsys):
     with pytest.raises(SystemExit) as exit_:
         cli.main(argv)
@@ -92,10 +98,13 @@ def test_show_prints_the_resolved_config_of_a_preset_and_of_a_run(tmp_path, caps
     assert again == configs.apply_overrides(expected, ["es.sigma=0.1"])
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["show", "no-such-preset"], "no-such-preset"),
-    (["show", "cheetah-run-state", "env.heigth=3"], "height"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["show", "no-such-preset"], "no-such-preset"),
+        (["show", "cheetah-run-state", "env.heigth=3"], "height"),
+    ],
+)
 def test_show_fails_naming_the_problem(argv, message, tmp_path, capsys):
     assert cli.main(argv) == 2
     assert message in capsys.readouterr().err

@@ -31,21 +31,24 @@ def test_unknown_preset_lists_the_valid_ones():
         assert name in str(error.value)
 
 
-@pytest.mark.parametrize("make, field", [
-    (lambda: ESConfig(population_size=7), "es.population_size"),
-    (lambda: ESConfig(sigma=0.0), "es.sigma"),
-    (lambda: ESConfig(optimizer="adamw"), "es.optimizer"),
-    (lambda: ESConfig(shaping="ranks"), "es.shaping"),
-    (lambda: ESConfig(strategy="NotAnES"), "es.strategy"),
-    (lambda: ESConfig(n_episodes=0), "es.n_episodes"),
-    (lambda: ESConfig(sigma_schedule="cosine"), "es.sigma_schedule"),
-    (lambda: RunConfig(iterations=-1), "run.iterations"),
-    (lambda: RunConfig(iterations_per_call=4, checkpoint_every=10), "run.checkpoint_every"),
-    (lambda: RunConfig(eval_episodes=-1), "run.eval_episodes"),
-    (lambda: RunConfig(chunk_size=0), "run.chunk_size"),
-    (lambda: PolicySpec(kind="transformer"), "policy.kind"),
-    (lambda: PolicySpec(options=(("hidden_sizes", [8]),)), "policy.options"),
-])
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda: ESConfig(population_size=7), "es.population_size"),
+        (lambda: ESConfig(sigma=0.0), "es.sigma"),
+        (lambda: ESConfig(optimizer="adamw"), "es.optimizer"),
+        (lambda: ESConfig(shaping="ranks"), "es.shaping"),
+        (lambda: ESConfig(strategy="NotAnES"), "es.strategy"),
+        (lambda: ESConfig(n_episodes=0), "es.n_episodes"),
+        (lambda: ESConfig(sigma_schedule="cosine"), "es.sigma_schedule"),
+        (lambda: RunConfig(iterations=-1), "run.iterations"),
+        (lambda: RunConfig(iterations_per_call=4, checkpoint_every=10), "run.checkpoint_every"),
+        (lambda: RunConfig(eval_episodes=-1), "run.eval_episodes"),
+        (lambda: RunConfig(chunk_size=0), "run.chunk_size"),
+        (lambda: PolicySpec(kind="transformer"), "policy.kind"),
+        (lambda: PolicySpec(options=(("hidden_sizes", [8]),)), "policy.options"),
+    ],
+)
 def test_invalid_values_fail_naming_the_field(make, field):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
         make()
@@ -57,10 +60,19 @@ def test_cmaes_needs_no_even_population():
 
 def test_overrides_parse_coerce_and_route():
     base = configs.get("cheetah-run-state-mlp")
-    config = apply_overrides(base, [
-        "iterations=5", "es.sigma=1", "es.antithetic=true", "policy.hidden_sizes=64,64",
-        "es.optimizer=sgd", "env.episode_length=100", "run.seed=3", "policy.activation='relu'",
-    ])
+    config = apply_overrides(
+        base,
+        [
+            "iterations=5",
+            "es.sigma=1",
+            "es.antithetic=true",
+            "policy.hidden_sizes=64,64",
+            "es.optimizer=sgd",
+            "env.episode_length=100",
+            "run.seed=3",
+            "policy.activation='relu'",
+        ],
+    )
     assert config.run.iterations == 5 and config.run.seed == 3
     assert config.es.sigma == 1.0 and isinstance(config.es.sigma, float)
     assert config.es.optimizer == "sgd"
@@ -70,14 +82,17 @@ def test_overrides_parse_coerce_and_route():
     hash(config)
 
 
-@pytest.mark.parametrize("override, message", [
-    ("es.sigma=-1", r"es\.sigma"),
-    ("nope=1", "not a config field"),
-    ("run.nope=1", "run has no field 'nope'"),
-    ("bogus.x=1", "unknown section"),
-    ("es.population_size", "key=value"),
-    ("es.population_size=33", r"es\.population_size"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("es.sigma=-1", r"es\.sigma"),
+        ("nope=1", "not a config field"),
+        ("run.nope=1", "run has no field 'nope'"),
+        ("bogus.x=1", "unknown section"),
+        ("es.population_size", "key=value"),
+        ("es.population_size=33", r"es\.population_size"),
+    ],
+)
 def test_bad_overrides_fail_with_the_field(override, message):
     with pytest.raises(ValueError, match=message):
         apply_overrides(configs.get("cheetah-run-state"), [override])
@@ -91,8 +106,7 @@ def test_configs_are_frozen():
 def test_none_is_a_string_setting_and_None_or_null_is_None():
     assert configs.parse_value("none") == "none"  # e.g. the attention's scaling=none
     assert configs.parse_value("None") is None and configs.parse_value("null") is None
-    config = apply_overrides(configs.get("cheetah-run-pixels"), ["policy.scaling=none",
-                                                                  "env.episode_length=None"])
+    config = apply_overrides(configs.get("cheetah-run-pixels"), ["policy.scaling=none", "env.episode_length=None"])
     assert dict(config.policy.options)["scaling"] == "none"
     assert dict(config.env.overrides)["episode_length"] is None
 
@@ -112,9 +126,11 @@ def test_distraction_settings_are_validated_without_the_envs():
     """Configs sit below the envs: importing them and validating a distraction (its background
     set included) in a fresh interpreter loads no ``iap_mjx.envs``, ``iap_mjx.es`` or MuJoCo.
     (jax is loaded: validating ``PolicySpec``'s default looks up the policy kinds.)"""
-    code = ("import sys; from iap_mjx.configs import EnvConfig; "
-            "EnvConfig(obs_mode='pixels', distraction='medium').distraction_config(); "
-            "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('mujoco', 'orbax') "
-            "or m.startswith(('iap_mjx.envs', 'iap_mjx.es'))))")
+    code = (
+        "import sys; from iap_mjx.configs import EnvConfig; "
+        "EnvConfig(obs_mode='pixels', distraction='medium').distraction_config(); "
+        "print(' '.join(m for m in sys.modules if m.split('.')[0] in ('mujoco', 'orbax') "
+        "or m.startswith(('iap_mjx.envs', 'iap_mjx.es'))))"
+    )
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert loaded.split() == []

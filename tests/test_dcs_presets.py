@@ -20,8 +20,14 @@ from iap_mjx import configs, envs, policies
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.presets import ACTION_REPEAT
 
-SUITE = {"cartpole-swingup": 8, "cheetah-run": 4, "ball_in_cup-catch": 4, "reacher-easy": 4,
-         "walker-walk": 2, "finger-spin": 2}
+SUITE = {
+    "cartpole-swingup": 8,
+    "cheetah-run": 4,
+    "ball_in_cup-catch": 4,
+    "reacher-easy": 4,
+    "walker-walk": 2,
+    "finger-spin": 2,
+}
 """The suite's six tasks and their action repeats (PlaNet/DrQ's, as the issue states them)."""
 
 
@@ -53,8 +59,21 @@ def test_cnn_quick_preset_trains_from_the_command_line(tmp_path):
     from iap_mjx import cli, es
 
     run_dir = tmp_path / "run"
-    assert cli.main(["train", "dcs-cartpole-swingup-cnn-quick", "env.height=48", "env.width=64", "run.iterations=1",
-                     "--run-dir", str(run_dir), "--no-progress"]) == 0
+    assert (
+        cli.main(
+            [
+                "train",
+                "dcs-cartpole-swingup-cnn-quick",
+                "env.height=48",
+                "env.width=64",
+                "run.iterations=1",
+                "--run-dir",
+                str(run_dir),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     result = es.load_run(run_dir)
     assert result.config.policy.kind == "convnet" and np.isfinite(result.history[-1]["eval_return"])
 
@@ -76,8 +95,14 @@ def test_preset_is_the_papers_setting(task):
     assert (dcs.difficulty, dcs.dynamic, dcs.kinds) == ("medium", False, ("background", "camera", "colour"))
     options = dict(config.policy.options)
     assert config.policy.kind == "iap"
-    assert (options["patch_size"], options["top_l"], options["kernel"], options["m"], options["r"],
-            options["controller"]) == (2, 10, "hybrid", 10, 5, "lstm")
+    assert (
+        options["patch_size"],
+        options["top_l"],
+        options["kernel"],
+        options["m"],
+        options["r"],
+        options["controller"],
+    ) == (2, 10, "hybrid", 10, 5, "lstm")
     quick = configs.get(f"dcs-{task}-quick")
     assert quick.policy == config.policy and quick.env.name == config.env.name
     assert envs.check(quick.env.name, **dict(quick.env.overrides)).distraction_config().kinds == dcs.kinds
@@ -86,8 +111,14 @@ def test_preset_is_the_papers_setting(task):
     assert policy.layer.num_patches == 19200
 
 
-DISTRACTION_SETTINGS = ("distraction", "dynamic", "distraction_kinds", "background_dir", "background_size",
-                        "background_frames")
+DISTRACTION_SETTINGS = (
+    "distraction",
+    "dynamic",
+    "distraction_kinds",
+    "background_dir",
+    "background_size",
+    "background_frames",
+)
 """The env settings of the distraction: the rest of a preset's settings make its undistracted env."""
 STEPS = 5
 """Env steps per episode (40 control steps at action repeat 8; the preset's episodes are 10)."""
@@ -122,8 +153,10 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     config = configs.get("dcs-cartpole-swingup-quick")
     overrides = {**dict(config.env.overrides), "height": 60, "width": 80, "dynamic": True}
     env = envs.make(config.env.name, **overrides)
-    plain = envs.make(config.env.name, **{**{k: v for k, v in overrides.items() if k not in DISTRACTION_SETTINGS},
-                                          "obs_mode": "state"})
+    plain = envs.make(
+        config.env.name,
+        **{**{k: v for k, v in overrides.items() if k not in DISTRACTION_SETTINGS}, "obs_mode": "state"},
+    )
     repeat = env.config.action_repeat
     assert plain.config.action_repeat == repeat == SUITE[config.env.name]
     keys = jax.random.split(jax.random.PRNGKey(4), 12)
@@ -139,8 +172,7 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
         def step(s, inputs):
             # phase 1: the episode has ended; phase 2: ended, with another episode's perturbation
             phase, action = inputs
-            other = s.replace(info={**s.info, "distraction": jax.tree.map(lambda x: x[shuffle],
-                                                                          s.info["distraction"])})
+            other = s.replace(info={**s.info, "distraction": jax.tree.map(lambda x: x[shuffle], s.info["distraction"])})
             s = jax.tree.map(lambda a, b: jnp.where(phase == 2, b, a), s, other)
             s = s.replace(done=jnp.where(phase > 0, jnp.ones_like(s.done), s.done))
             s = jax.vmap(env.step)(s, action)
@@ -148,8 +180,7 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
 
         states = jax.lax.scan(step, first, (phases, padded))[1]
         two = jax.vmap(lambda p: env.distraction.advance(p, 8))(first.info["distraction"])
-        seen = jax.vmap(lambda d, p: env.distraction.scene(d, p)[0].cam_xpos[0])(
-            first.data, first.info["distraction"])
+        seen = jax.vmap(lambda d, p: env.distraction.scene(d, p)[0].cam_xpos[0])(first.data, first.info["distraction"])
         return first, states, two, seen, jax.vmap(plain.reset)(keys)
 
     first, states, walked, seen, plain_first = run(keys, actions)
@@ -165,8 +196,10 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
             assert not np.allclose(sphere[i], sphere[j]) and not np.allclose(colour[i], colour[j])
 
     # the reset: the undistracted env's from the same keys, every float of it
-    for a, b in zip(jax.tree.leaves((first.data, first.reward, first.done)),
-                    jax.tree.leaves((plain_first.data, plain_first.reward, plain_first.done))):
+    for a, b in zip(
+        jax.tree.leaves((first.data, first.reward, first.done)),
+        jax.tree.leaves((plain_first.data, plain_first.reward, plain_first.done)),
+    ):
         np.testing.assert_allclose(a, b, rtol=0, atol=SAME_KEY_ATOL)
     assert np.ptp(np.asarray(first.data.qpos), axis=0).min() > 1e-3  # the keys drew different states
 
@@ -192,14 +225,17 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
         after = jax.tree.map(lambda x, t=t: x[t], states)
         for e in range(12):
             theirs = dm_control_step(before[t].data.qpos[e], before[t].data.qvel[e], actions[t, e])
-            ours = (np.concatenate([after.data.qpos[e], after.data.qvel[e]]),
-                    np.concatenate([after.data.cam_xpos[e, 0], np.ravel(after.data.cam_xmat[e, 0])]),
-                    float(after.reward[e]))
+            ours = (
+                np.concatenate([after.data.qpos[e], after.data.qvel[e]]),
+                np.concatenate([after.data.cam_xpos[e, 0], np.ravel(after.data.cam_xmat[e, 0])]),
+                float(after.reward[e]),
+            )
             for (what, gap), mine, reference_value in zip(gaps.items(), ours, theirs):
                 gaps[what] = max(gap, float(np.max(np.abs(mine - reference_value))))
     assert max(gaps.values()) < STEP_ATOL, gaps
-    wrong = dm_control_step(first.data.qpos[0], first.data.qvel[0], actions[0, 0],
-                            sub_steps=spread.wrong_sub_steps(reference._n_sub_steps))[0]
+    wrong = dm_control_step(
+        first.data.qpos[0], first.data.qvel[0], actions[0, 0], sub_steps=spread.wrong_sub_steps(reference._n_sub_steps)
+    )[0]
     right = np.concatenate([moved.data.qpos[0], moved.data.qvel[0]])
     assert np.max(np.abs(wrong - right)) > 100 * STEP_ATOL
 
@@ -207,8 +243,12 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     # exists only in what is rendered
     for e in range(12):
         camera = dm_control_step(first.data.qpos[e], first.data.qvel[e], actions[0, e], control_steps=0)[1]
-        np.testing.assert_allclose(np.concatenate([first.data.cam_xpos[e, 0], np.ravel(first.data.cam_xmat[e, 0])]),
-                                   camera, rtol=0, atol=STEP_ATOL)
+        np.testing.assert_allclose(
+            np.concatenate([first.data.cam_xpos[e, 0], np.ravel(first.data.cam_xmat[e, 0])]),
+            camera,
+            rtol=0,
+            atol=STEP_ATOL,
+        )
     assert np.all(np.linalg.norm(np.asarray(seen) - np.asarray(first.data.cam_xpos[:, 0]), axis=-1) > 1e-3)
 
     # one env step = 8 control steps of every walk

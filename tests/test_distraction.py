@@ -31,20 +31,22 @@ LENGTHS = (5, 3, 1)
 def videos():
     rng = np.random.default_rng(0)
     frames = rng.integers(0, 256, (len(LENGTHS), max(LENGTHS), 16, 16, 3), dtype=np.uint8)
-    return backgrounds.BackgroundVideos(frames=frames, lengths=np.asarray(LENGTHS, np.int32),
-                                        names=("a", "b", "c"), source="test")
+    return backgrounds.BackgroundVideos(
+        frames=frames, lengths=np.asarray(LENGTHS, np.int32), names=("a", "b", "c"), source="test"
+    )
 
 
 def _layer(name, videos, dynamic, difficulty="medium", action_repeat=2, kinds=dcs.KINDS):
     base = _task_classes()[name](envs.EnvConfig(action_repeat=action_repeat))
     config = dcs.DistractionConfig(difficulty=difficulty, dynamic=dynamic, kinds=kinds)
-    return with_pixels(base, height=SIZE[0], width=SIZE[1], distraction=config,
-                       videos=videos if "background" in kinds else None)
+    return with_pixels(
+        base, height=SIZE[0], width=SIZE[1], distraction=config, videos=videos if "background" in kinds else None
+    )
 
 
 def _dm_state(name):
     """A dm_control state of ``name`` as ``mjx.Data`` (the camera draw reads its camera)."""
-    (model, data), = render_compare.suite_states(*name.split("-"), n_states=1, seed=0)
+    ((model, data),) = render_compare.suite_states(*name.split("-"), n_states=1, seed=0)
     return mjx.put_data(model, data)
 
 
@@ -63,8 +65,10 @@ def test_bad_settings_fail_before_compiling_naming_the_setting(tmp_path):
         (dict(distraction="hard", background_size=1024, background_frames=200), "background_size = 1024.*GiB"),
         (dict(distraction="easy", background_frames=0), "background_frames"),
         (dict(distraction="easy", camera_id=1), "camera_id = 1.*valid camera_id: 0"),
-        (dict(distraction="easy", distraction_kinds="camera", background_dir=str(tmp_path)),
-         "background_dir.*background distraction is off"),
+        (
+            dict(distraction="easy", distraction_kinds="camera", background_dir=str(tmp_path)),
+            "background_dir.*background distraction is off",
+        ),
         # distraction-only settings without a distraction are refused, not ignored
         (dict(dynamic=True), "dynamic=True set without a distraction.*easy, medium, hard"),
         (dict(background_dir=str(tmp_path)), "background_dir=.*without a distraction"),
@@ -79,8 +83,10 @@ def test_bad_settings_fail_before_compiling_naming_the_setting(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="background_dir"):
         check("cartpole-swingup", **px, distraction="easy", background_dir=str(tmp_path / "empty"))
-    message = ("'quadruped-flat' is not a Distracting Control Suite task; valid: cheetah-run, walker-walk, "
-               "cartpole-swingup, ball_in_cup-catch, reacher-easy, finger-spin")
+    message = (
+        "'quadruped-flat' is not a Distracting Control Suite task; valid: cheetah-run, walker-walk, "
+        "cartpole-swingup, ball_in_cup-catch, reacher-easy, finger-spin"
+    )
     with pytest.raises(ValueError, match=message):
         check("quadruped-flat", **px, distraction="medium")
     # no background: no directory needed; the kinds are parsed from a command-line string
@@ -112,14 +118,18 @@ def test_reset_draws_cover_and_stay_inside_their_intervals(videos):
     maps it through Cartesian coordinates into the box (as the reference's first ``_apply``:
     a negative polar angle becomes a positive one), so after it the camera is inside the box.
     Static: advancing changes nothing."""
-    layers = {name: _layer(name, videos, dynamic=False, difficulty="hard").distraction
-              for name in ("cheetah-run", "reacher-easy")}
+    layers = {
+        name: _layer(name, videos, dynamic=False, difficulty="hard").distraction
+        for name in ("cheetah-run", "reacher-easy")
+    }
     states = {name: _dm_state(name) for name in layers}
     keys = jax.random.split(jax.random.PRNGKey(1), 4000)
+
     def draws(layer, state):
         cam_pos, cam_mat, com = layer._camera_now(state)
-        start = jax.vmap(lambda k: camera_walk.start(k, layer.walk_settings, cam_pos, cam_mat, com,
-                                                     layer.tracking))(keys)
+        start = jax.vmap(lambda k: camera_walk.start(k, layer.walk_settings, cam_pos, cam_mat, com, layer.tracking))(
+            keys
+        )
         return start, jax.vmap(lambda k: layer.reset(k, state))(keys)
 
     drawn = jax.jit(lambda states: {name: draws(layer, states[name]) for name, layer in layers.items()})(states)
@@ -138,8 +148,9 @@ def test_reset_draws_cover_and_stay_inside_their_intervals(videos):
         sphere = np.asarray(p.camera.sphere)
         assert np.all(sphere >= low - 1e-5) and np.all(sphere <= high + 1e-5), name
         for values, lo, hi in [(start.sphere[:, i], low[i], high[i]) for i in range(3)] + [
-                (p.camera.roll, -delta, delta),
-                (p.colour.reshape(len(keys), -1), layer.colour_low.reshape(-1), layer.colour_high.reshape(-1))]:
+            (p.camera.roll, -delta, delta),
+            (p.colour.reshape(len(keys), -1), layer.colour_low.reshape(-1), layer.colour_high.reshape(-1)),
+        ]:
             values = np.asarray(values)
             assert np.all(values >= lo - 1e-6) and np.all(values <= hi + 1e-6), name
             width = np.maximum(np.asarray(hi) - np.asarray(lo), 1e-12)
@@ -162,8 +173,7 @@ def test_dynamic_walks_keep_to_their_boxes_and_caps(videos):
     @jax.jit
     def run(keys):
         first = jax.vmap(lambda k: layer.reset(k, data))(keys)
-        _, (after, before) = jax.lax.scan(lambda p, _: (q := jax.vmap(layer.advance)(p), (q, p)), first,
-                                          length=150)
+        _, (after, before) = jax.lax.scan(lambda p, _: (q := jax.vmap(layer.advance)(p), (q, p)), first, length=150)
         to_xyz = jax.vmap(jax.vmap(camera_walk.to_cartesian))
         return after, before, to_xyz(after.camera.sphere), to_xyz(before.camera.sphere)
 
@@ -195,8 +205,9 @@ def test_each_kind_switches_on_alone(videos):
 
     @jax.jit
     def scenes(key):
-        return {kind: env.distraction.scene(data, env.distraction.reset(key, data))
-                for kind, env in envs_by_kind.items()}
+        return {
+            kind: env.distraction.scene(data, env.distraction.reset(key, data)) for kind, env in envs_by_kind.items()
+        }
 
     out = scenes(jax.random.PRNGKey(7))
     plain = with_pixels(_task_classes()[name](), height=SIZE[0], width=SIZE[1])

@@ -66,7 +66,7 @@ def _interior(mask, ids):
     same = np.ones_like(mask)
     for dr in (-1, 0, 1):
         for dc in (-1, 0, 1):
-            same &= padded[1 + dr: 1 + dr + ids.shape[0], 1 + dc: 1 + dc + ids.shape[1]] == ids
+            same &= padded[1 + dr : 1 + dr + ids.shape[0], 1 + dc : 1 + dc + ids.shape[1]] == ids
     return mask & same
 
 
@@ -74,8 +74,13 @@ def _interior(mask, ids):
 @pytest.mark.parametrize("name", dcs.TASKS)
 def test_distracted_frames_match_mujoco_renderer(name, videos):
     domain, task = name.split("-")
-    env = with_pixels(_task_classes()[name](envs.EnvConfig()), height=HEIGHT, width=WIDTH,
-                      distraction=dcs.DistractionConfig(difficulty="hard"), videos=videos)
+    env = with_pixels(
+        _task_classes()[name](envs.EnvConfig()),
+        height=HEIGHT,
+        width=WIDTH,
+        distraction=dcs.DistractionConfig(difficulty="hard"),
+        videos=videos,
+    )
     layer, camera = env.distraction, env.camera
     states = render_compare.suite_states(domain, task, n_states=2, seed=4)
     data = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])
@@ -100,10 +105,12 @@ def test_distracted_frames_match_mujoco_renderer(name, videos):
     own[grid, 3] = alpha
     perturbed = np.stack([own] * 2)
     perturbed[:, :, :3] = np.asarray(perturbation.colour)
-    edits = {"mat_rgba": np.concatenate([perturbed, np.stack([own] * 2)]),
-             "sky": np.concatenate([sky, sky]),
-             "cam_xpos": np.concatenate([cam_xpos, cam_xpos]).astype(np.float64),
-             "cam_xmat": np.concatenate([cam_xmat, cam_xmat]).astype(np.float64)}
+    edits = {
+        "mat_rgba": np.concatenate([perturbed, np.stack([own] * 2)]),
+        "sky": np.concatenate([sky, sky]),
+        "cam_xpos": np.concatenate([cam_xpos, cam_xpos]).astype(np.float64),
+        "cam_xmat": np.concatenate([cam_xmat, cam_xmat]).astype(np.float64),
+    }
     ref = render_compare.reference_frames(domain, states + states, [0], HEIGHT, WIDTH, distractions=edits)
     for i in range(2):
         ref_ids, ref_rgb, own_rgb = ref["segmentation"][i, 0], ref["rgb"][i, 0] / 255.0, ref["rgb"][i + 2, 0] / 255.0

@@ -58,8 +58,9 @@ def _f32(x):
 
 def _videos(lengths=(5, 3, 1), size=8):
     frames = np.random.default_rng(0).integers(0, 256, (len(lengths), max(lengths), size, size, 3), np.uint8)
-    return backgrounds.BackgroundVideos(frames=frames, lengths=np.asarray(lengths, np.int32),
-                                        names=tuple("abc"[: len(lengths)]), source="test")
+    return backgrounds.BackgroundVideos(
+        frames=frames, lengths=np.asarray(lengths, np.int32), names=tuple("abc"[: len(lengths)]), source="test"
+    )
 
 
 @functools.cache
@@ -91,21 +92,29 @@ def test_levels_and_settings_are_the_reference_modules():
     assert list(dcs.DAVIS17_TRAINING_VIDEOS) == _reference_constant("DAVIS17_TRAINING_VIDEOS")
     # the reference's six domains (its get_camera_kwargs asserts them), one task each
     assert sorted(t.split("-")[0] for t in dcs.TASKS) == sorted(
-        ["reacher", "cartpole", "finger", "cheetah", "ball_in_cup", "walker"])
+        ["reacher", "cartpole", "finger", "cheetah", "ball_in_cup", "walker"]
+    )
     videos = _videos()
     for task in dcs.TASKS:
         domain = task.split("-")[0]
         env = _layer(task, "medium", False)
         for level, scale in ref_suite.DIFFICULTY_SCALE.items():
             for dynamic in (False, True):
-                layer = distraction.Distraction(
-                    env.env, env.camera, dcs.DistractionConfig(level, dynamic), videos)
+                layer = distraction.Distraction(env.env, env.camera, dcs.DistractionConfig(level, dynamic), videos)
                 kwargs = ref_suite.get_camera_kwargs(domain, scale, dynamic)
                 s = layer.walk_settings
-                ours = dict(vertical_delta=s.delta, horizontal_delta=s.delta, roll_delta=s.delta,
-                            vel_std=s.vel_std, max_vel=s.max_vel, roll_std=s.roll_std,
-                            max_roll_vel=s.max_roll_vel, max_zoom_in_percent=s.zoom_in,
-                            max_zoom_out_percent=s.zoom_out, limit_to_upper_quadrant=s.upper_quadrant)
+                ours = dict(
+                    vertical_delta=s.delta,
+                    horizontal_delta=s.delta,
+                    roll_delta=s.delta,
+                    vel_std=s.vel_std,
+                    max_vel=s.max_vel,
+                    roll_std=s.roll_std,
+                    max_roll_vel=s.max_roll_vel,
+                    max_zoom_in_percent=s.zoom_in,
+                    max_zoom_out_percent=s.zoom_out,
+                    limit_to_upper_quadrant=s.upper_quadrant,
+                )
                 assert ours.keys() == kwargs.keys()
                 for key, value in kwargs.items():
                     assert ours[key] == pytest.approx(value, abs=1e-12), (task, level, dynamic, key)
@@ -137,17 +146,25 @@ def test_rotations_and_coordinates_match_the_reference_functions():
     @jax.jit
     @jax.vmap
     def ours(t, p, r, s, e):
-        return (camera_walk.look_at_upright(t, p), camera_walk.look_at_rotation(t, p), camera_walk.rz(r),
-                camera_walk.to_sphere(p), camera_walk.to_cartesian(s),
-                camera_walk.rz(e[2]) @ camera_walk._rx(e[0]))  # eul2mat([x, 0, z]), composed
+        return (
+            camera_walk.look_at_upright(t, p),
+            camera_walk.look_at_rotation(t, p),
+            camera_walk.rz(r),
+            camera_walk.to_sphere(p),
+            camera_walk.to_cartesian(s),
+            camera_walk.rz(e[2]) @ camera_walk._rx(e[0]),
+        )  # eul2mat([x, 0, z]), composed
 
     got = [np.asarray(x) for x in ours(*map(_f32, (target, position, roll, sphere, euler)))]
     for i in range(n):
-        expected = (ref_camera.get_lookat_xmat_no_roll(target[i].copy(), position[i].copy()).reshape(3, 3),
-                    ref_camera.get_lookat_xmat(target[i].copy(), position[i].copy()),
-                    ref_camera.rotvec2mat(roll[i], np.array([0.0, 0.0, 1.0])),
-                    ref_camera.cart2sphere(position[i]), ref_camera.sphere2cart(sphere[i]),
-                    ref_camera.eul2mat([euler[i, 0], 0.0, euler[i, 2]]))
+        expected = (
+            ref_camera.get_lookat_xmat_no_roll(target[i].copy(), position[i].copy()).reshape(3, 3),
+            ref_camera.get_lookat_xmat(target[i].copy(), position[i].copy()),
+            ref_camera.rotvec2mat(roll[i], np.array([0.0, 0.0, 1.0])),
+            ref_camera.cart2sphere(position[i]),
+            ref_camera.sphere2cart(sphere[i]),
+            ref_camera.eul2mat([euler[i, 0], 0.0, euler[i, 2]]),
+        )
         for k, e in enumerate(expected):
             np.testing.assert_allclose(got[k][i], e, atol=ATOL, err_msg=f"case {i} function {k}")
 
@@ -155,11 +172,15 @@ def test_rotations_and_coordinates_match_the_reference_functions():
 def _snapshot(ref):
     """The reference camera wrapper's walk state and box, as our ``CameraWalk``."""
     return camera_walk.CameraWalk(
-        sphere=_f32([ref._radius, ref._h_angle, ref._v_angle]), roll=_f32(ref._roll),
-        velocity=_f32(ref._camera_vel), roll_velocity=_f32(ref._roll_vel),
+        sphere=_f32([ref._radius, ref._h_angle, ref._v_angle]),
+        roll=_f32(ref._roll),
+        velocity=_f32(ref._camera_vel),
+        roll_velocity=_f32(ref._roll_vel),
         low=_f32([ref._min_radius, ref._min_h_angle, ref._min_v_angle]),
         high=_f32([ref._max_radius, ref._max_h_angle, ref._max_v_angle]),
-        velocity_scale=_f32(ref._vel_scaling), lookat=_f32(ref._cam_initial_lookat_point))
+        velocity_scale=_f32(ref._vel_scaling),
+        lookat=_f32(ref._cam_initial_lookat_point),
+    )
 
 
 @pytest.mark.parametrize("task", dcs.TASKS)
@@ -169,8 +190,9 @@ def test_layer_matches_the_reference_wrappers_on_dm_control(task):
     domain, name = task.split("-")
     env = suite.load(domain, name, task_kwargs={"random": 3})
     physics = env.physics
-    ref_cam = ref_camera.DistractingCameraEnv(env, camera_id=0, seed=7,
-                                              **ref_suite.get_camera_kwargs(domain, 0.3, True))
+    ref_cam = ref_camera.DistractingCameraEnv(
+        env, camera_id=0, seed=7, **ref_suite.get_camera_kwargs(domain, 0.3, True)
+    )
     ref_col = ref_color.DistractingColorEnv(env, seed=8, **ref_suite.get_color_kwargs(0.3, True))
     pixel_env = _layer(task, "hard", True, kinds=("camera", "colour"))
     layer = pixel_env.distraction
@@ -196,19 +218,23 @@ def test_layer_matches_the_reference_wrappers_on_dm_control(task):
         draws = copy.deepcopy(ref_cam._random_state)  # the noise _apply is about to draw
         noise, roll_noise = draws.randn(3), draws.randn()
         ref_cam._apply()
-        drawn, walked, cam_xpos, cam_xmat, geom_rgb = ours(key, data, before, _f32(noise), _f32(roll_noise),
-                                                           _f32(ref_col._current_rgb))
+        drawn, walked, cam_xpos, cam_xmat, geom_rgb = ours(
+            key, data, before, _f32(noise), _f32(roll_noise), _f32(ref_col._current_rgb)
+        )
         if step == 0:  # the reset's box, velocity scale and look-at point, from the same state
             for field in ("low", "high", "velocity_scale", "lookat"):
-                np.testing.assert_allclose(getattr(drawn, field), getattr(before, field), atol=ATOL,
-                                           err_msg=f"{task} {field}")
+                np.testing.assert_allclose(
+                    getattr(drawn, field), getattr(before, field), atol=ATOL, err_msg=f"{task} {field}"
+                )
         after = _snapshot(ref_cam)
         for field in ("sphere", "roll", "velocity", "roll_velocity"):
-            np.testing.assert_allclose(getattr(walked, field), getattr(after, field), atol=ATOL,
-                                       err_msg=f"{task} step {step} {field}")
+            np.testing.assert_allclose(
+                getattr(walked, field), getattr(after, field), atol=ATOL, err_msg=f"{task} step {step} {field}"
+            )
         np.testing.assert_allclose(cam_xpos, physics.data.cam_xpos[0], atol=ATOL, err_msg=f"{task} cam_xpos")
-        np.testing.assert_allclose(cam_xmat, physics.data.cam_xmat[0].reshape(3, 3), atol=ATOL,
-                                   err_msg=f"{task} cam_xmat")
+        np.testing.assert_allclose(
+            cam_xmat, physics.data.cam_xmat[0].reshape(3, 3), atol=ATOL, err_msg=f"{task} cam_xmat"
+        )
     assert np.linalg.norm(np.asarray(after.velocity)) > 0, "the dynamic camera should move"
     # colours: the reference's box around dm_control's materials; and what MuJoCo's own
     # visualiser draws with the reference's perturbed materials (the wrapper writes them into
@@ -240,12 +266,12 @@ def _mujoco_drawn(model, data):
     scene = mujoco.MjvScene(model, maxgeom=10_000)
     camera = mujoco.MjvCamera()
     camera.type, camera.fixedcamid = mujoco.mjtCamera.mjCAMERA_FIXED, 0
-    mujoco.mjv_updateScene(model, data, mujoco.MjvOption(), mujoco.MjvPerturb(), camera,
-                           mujoco.mjtCatBit.mjCAT_ALL, scene)
+    mujoco.mjv_updateScene(
+        model, data, mujoco.MjvOption(), mujoco.MjvPerturb(), camera, mujoco.mjtCatBit.mjCAT_ALL, scene
+    )
     geoms = [scene.geoms[i] for i in range(scene.ngeom)]
     drawn = {int(g.objid): np.array(g.rgba) for g in geoms if g.objtype == mujoco.mjtObj.mjOBJ_GEOM}
-    others = [(int(g.objtype), int(g.objid), np.array(g.rgba)) for g in geoms
-              if g.objtype != mujoco.mjtObj.mjOBJ_GEOM]
+    others = [(int(g.objtype), int(g.objid), np.array(g.rgba)) for g in geoms if g.objtype != mujoco.mjtObj.mjOBJ_GEOM]
     return drawn, others
 
 
@@ -261,8 +287,11 @@ def test_dynamic_colour_step_has_the_reference_size():
     before, after = np.asarray(before.colour, np.float64), np.asarray(after.colour, np.float64)
     assert np.all(after >= layer.colour_low - 1e-6) and np.all(after <= layer.colour_high + 1e-6)
     expected = ref_suite.get_color_kwargs(0.2, True)["step_std"]
-    inside = ((before - layer.colour_low > 6 * expected) & (layer.colour_high - before > 6 * expected)
-              & (np.broadcast_to(layer.colour_high - layer.colour_low, before.shape) > 0))
+    inside = (
+        (before - layer.colour_low > 6 * expected)
+        & (layer.colour_high - before > 6 * expected)
+        & (np.broadcast_to(layer.colour_high - layer.colour_low, before.shape) > 0)
+    )
     steps = (after - before)[inside]
     n = steps.size
     assert n > 20000, n
@@ -288,8 +317,7 @@ def _reference_ping_pong(frame, direction, length, steps):
 
 def test_dynamic_background_walks_frames_as_the_reference():
     lengths = (5, 3, 1)
-    env = _layer("cartpole-swingup", "medium", True, kinds=("background",), action_repeat=3,
-                 videos=_videos(lengths))
+    env = _layer("cartpole-swingup", "medium", True, kinds=("background",), action_repeat=3, videos=_videos(lengths))
     layer = env.distraction
 
     @jax.jit

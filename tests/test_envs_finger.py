@@ -88,8 +88,12 @@ def _square_wave_rollout(seed: int, steps: int = 200) -> dict:
     env = suite.load("finger", "spin", task_kwargs={"random": 0})
     timestep = env.reset()
     physics = env.physics
-    start = {"qpos": physics.data.qpos.copy(), "qvel": physics.data.qvel.copy(),
-             "obs": _flat(timestep.observation), "info": {}}
+    start = {
+        "qpos": physics.data.qpos.copy(),
+        "qvel": physics.data.qvel.copy(),
+        "obs": _flat(timestep.observation),
+        "info": {},
+    }
     record = {key: [] for key in ("last_qpos", "last_qvel", "qpos", "qvel", "obs", "reward")}
     for action in actions:
         physics.set_control(action)
@@ -150,9 +154,7 @@ def test_touch_and_spin_reward_match_dm_control(finger):
     actions = reference["actions"][window]
     obs, reward = reference["obs"][window], reference["reward"][window]
     obs_spread, reward_spread = spread.dm_control_spread("finger-spin", 0, actions, obs, reward)
-    spread.assert_within_spread(ours["obs"][window], obs, obs_spread, atol=1e-2,
-                                what="finger-spin observations")
-    spread.assert_within_spread(ours["reward"][window], reward, reward_spread, atol=0.0,
-                                what="finger-spin rewards")
+    spread.assert_within_spread(ours["obs"][window], obs, obs_spread, atol=1e-2, what="finger-spin observations")
+    spread.assert_within_spread(ours["reward"][window], reward, reward_spread, atol=0.0, what="finger-spin rewards")
     wrong, _ = spread.dm_control_run("finger-spin", 0, actions, sub_steps=spread.wrong_sub_steps(finger.n_sub_steps))
     spread.assert_wrong_step_is_caught(wrong, obs, obs_spread, atol=1e-2)

@@ -151,23 +151,25 @@ def _our_rollouts(case: Case, reference: dict) -> dict:
 def test_parity_with_dm_control(case):
     """One test per task (so parallel workers do not build the same rollouts twice)."""
     domain, task = case.name.split("-")
-    assert envs.make(case.name).control_timestep == pytest.approx(
-        suite.load(domain, task).control_timestep()
-    )
+    assert envs.make(case.name).control_timestep == pytest.approx(suite.load(domain, task).control_timestep())
     reference = _dm_control_rollout(case.name, seed=3)
     ours = _our_rollouts(case, reference)
 
     np.testing.assert_allclose(ours["first_obs"], reference["start"]["obs"], rtol=1e-5, atol=1e-5)
 
     obs_spread, reward_spread = spread.dm_control_spread(
-        case.name, 3, reference["actions"], reference["obs"], reference["reward"])
-    spread.assert_within_spread(ours["obs"], reference["obs"], obs_spread, atol=case.obs_atol,
-                                what=f"{case.name} observations")
-    spread.assert_within_spread(ours["reward"], reference["reward"], reward_spread,
-                                atol=case.reward_atol, what=f"{case.name} rewards")
+        case.name, 3, reference["actions"], reference["obs"], reference["reward"]
+    )
+    spread.assert_within_spread(
+        ours["obs"], reference["obs"], obs_spread, atol=case.obs_atol, what=f"{case.name} observations"
+    )
+    spread.assert_within_spread(
+        ours["reward"], reference["reward"], reward_spread, atol=case.reward_atol, what=f"{case.name} rewards"
+    )
     # the bound's power: dm_control with a wrong number of physics steps per control step
-    wrong_obs, _ = spread.dm_control_run(case.name, 3, reference["actions"],
-                                         sub_steps=spread.wrong_sub_steps(envs.make(case.name).n_sub_steps))
+    wrong_obs, _ = spread.dm_control_run(
+        case.name, 3, reference["actions"], sub_steps=spread.wrong_sub_steps(envs.make(case.name).n_sub_steps)
+    )
     spread.assert_wrong_step_is_caught(wrong_obs, reference["obs"], obs_spread, atol=case.obs_atol)
 
     # Identical states: float32 evaluation of float64 states, so a relative error of a few
@@ -241,7 +243,7 @@ def _first_observations(name: str, n: int, settle: bool = True) -> tuple[np.ndar
     reset = jax.jit(jax.vmap(env.reset))
     keys = jax.random.split(jax.random.key(0), n)
     chunk = min(n, RESET_CHUNK)
-    ours = np.concatenate([np.asarray(reset(keys[i:i + chunk]).obs, np.float64) for i in range(0, n, chunk)])
+    ours = np.concatenate([np.asarray(reset(keys[i : i + chunk]).obs, np.float64) for i in range(0, n, chunk)])
     assert ours.shape == theirs.shape and np.all(np.isfinite(ours))
     return ours, theirs
 
@@ -272,6 +274,8 @@ def _assert_same_distribution(ours: np.ndarray, theirs: np.ndarray) -> None:
     ks = np.array([stats.ks_2samp(ours[:, j], theirs[:, j]).pvalue for j in varying])
     assert np.all(z_mean < z_star), f"means: z = {dict(zip(varying, np.round(z_mean, 2)))} (z* = {z_star:.2f})"
     worst = np.unravel_index(np.argmax(z_cov), z_cov.shape)
-    assert np.all(z_cov < z_star), (f"covariances: z = {z_cov[worst]:.2f} at coordinates "
-                                    f"{varying[worst[0]]}, {varying[worst[1]]} (z* = {z_star:.2f})")
+    assert np.all(z_cov < z_star), (
+        f"covariances: z = {z_cov[worst]:.2f} at coordinates "
+        f"{varying[worst[0]]}, {varying[worst[1]]} (z* = {z_star:.2f})"
+    )
     assert np.all(ks > level), f"KS p-values {dict(zip(varying, ks))} (level {level:.2g})"

@@ -66,9 +66,17 @@ def test_walls_step_native_parity_reward_and_episode_end(walls):
     _check_episode_ends_on_falling_off_or_touching_the_ground(*walls)
 
 
-def _native_qpos(env, model: mujoco.MjModel, start, targets: np.ndarray, *, move_wall: bool,
-                 rng: np.random.Generator | None = None, sub_steps: int | None = None,
-                 touch_geom: int | None = None) -> tuple[np.ndarray, int]:
+def _native_qpos(
+    env,
+    model: mujoco.MjModel,
+    start,
+    targets: np.ndarray,
+    *,
+    move_wall: bool,
+    rng: np.random.Generator | None = None,
+    sub_steps: int | None = None,
+    touch_geom: int | None = None,
+) -> tuple[np.ndarray, int]:
     """Native MuJoCo (float64) on ``model`` from the MJX data ``start`` under PD ``targets``
     ``(T, 12)``: ``qpos`` after each control step ``(T, nq)`` and how many physics steps had
     ``touch_geom`` in a contact. ``move_wall``: the env's one colliding wall follows the trunk
@@ -92,8 +100,9 @@ def _native_qpos(env, model: mujoco.MjModel, start, targets: np.ndarray, *, move
     return np.array(qpos), touched
 
 
-def _check_against_native(env, model, start, targets, ours, *, move_wall: bool, what: str,
-                          touch_geom: int | None = None) -> np.ndarray:
+def _check_against_native(
+    env, model, start, targets, ours, *, move_wall: bool, what: str, touch_geom: int | None = None
+) -> np.ndarray:
     """``ours`` ``(T, nq)`` within 1e-3 plus native MuJoCo's own spread under float32 noise
     (``tests/spread.py``) of native's run from ``start``, and a native run with 4 physics steps
     per control step instead of 5 outside it. Returns native's run and its touch count."""
@@ -131,8 +140,7 @@ def _check_parity_with_native_mujoco(env, reset, step):
         state = step(state, jnp.asarray(action))
         ours.append(np.asarray(state.data.qpos))
     targets = np.asarray(a1.action_to_targets(actions), np.float64)
-    theirs, _ = _check_against_native(env, env.mj_model, start, targets, ours, move_wall=True,
-                                      what="quadruped qpos")
+    theirs, _ = _check_against_native(env, env.mj_model, start, targets, ours, move_wall=True, what="quadruped qpos")
     assert float(np.max(np.asarray(state.done))) == 0.0
     assert theirs[-1, 0] != theirs[0, 0]  # the robot moved
 
@@ -159,8 +167,9 @@ def _check_one_colliding_wall_touches_like_all_walls(env, reset, step):
     state = reset(jax.random.key(4))
     walls = np.asarray(env.walls(state.data)).copy()
     walls[1] = [a1.TRUNK_HALF_SIZE[0] + 0.1 + env.WALL_HALF_SIZE[0], 0.0, env.WALL_HALF_SIZE[2]]
-    data0 = jax.jit(env.forward)(env.place_walls(state.data, walls).replace(
-        qvel=state.data.qvel.at[0].set(1.5)))  # walking into the wall at 1.5 m/s
+    data0 = jax.jit(env.forward)(
+        env.place_walls(state.data, walls).replace(qvel=state.data.qvel.at[0].set(1.5))
+    )  # walking into the wall at 1.5 m/s
     state = state.replace(data=data0)
     assert int(np.argmin(np.abs(walls[:, 0]))) == 1  # the colliding wall is on wall 1, not wall 0
     m = _all_walls_collide(env)
@@ -170,8 +179,9 @@ def _check_one_colliding_wall_touches_like_all_walls(env, reset, step):
         state = step(state, jnp.asarray(hold))
         ours.append(np.asarray(state.data.qpos))
     targets = np.tile(np.asarray(a1.HOME_JOINTS, np.float64), (40, 1))
-    _, touched = _check_against_native(env, m, data0, targets, ours, move_wall=False,
-                                       what="walking into the wall", touch_geom=m.geom("wall1").id)
+    _, touched = _check_against_native(
+        env, m, data0, targets, ours, move_wall=False, what="walking into the wall", touch_geom=m.geom("wall1").id
+    )
     assert touched > 0
 
 
@@ -312,8 +322,10 @@ def test_course_statistics_count_walls_passed_falls_contacts_and_distance(walls)
     side = metrics(state, at(beyond + 0.5, y=1.05))
     assert (float(side["fell_off"]), float(side["walls_passed"])) == (1.0, 0.0)
     # past the far end: the finish, every wall passed on the way (the step before), no fall
-    end = metrics(at(env.PLATFORM[1] - 0.02).replace(metrics={**state.metrics, "walls_passed": jnp.float32(3.0)}),
-                  at(env.PLATFORM[1] + 0.02))
+    end = metrics(
+        at(env.PLATFORM[1] - 0.02).replace(metrics={**state.metrics, "walls_passed": jnp.float32(3.0)}),
+        at(env.PLATFORM[1] + 0.02),
+    )
     assert (float(end["fell_off"]), float(end["walls_passed"])) == (0.0, 3.0)
     # an ended episode's statistics stay as they were, wherever its (frozen) state says it is
     ended = metrics(at(0.0, done=1.0), at(beyond + 0.5, y=1.05))

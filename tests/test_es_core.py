@@ -39,8 +39,9 @@ def test_each_shaping_name_gives_the_shaping_it_names():
     assert tuple(SHAPINGS) == training.SHAPINGS
     fitness = jnp.array([3.0, 1.0, 2.0])
     np.testing.assert_allclose(SHAPINGS["centred_rank"](fitness), [0.5, -0.5, 0.0])
-    np.testing.assert_allclose(SHAPINGS["z_score"](fitness), (np.array([3.0, 1.0, 2.0]) - 2.0) / np.sqrt(2 / 3),
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        SHAPINGS["z_score"](fitness), (np.array([3.0, 1.0, 2.0]) - 2.0) / np.sqrt(2 / 3), rtol=1e-6
+    )
     np.testing.assert_array_equal(SHAPINGS["identity"](fitness), fitness)
 
 
@@ -51,8 +52,11 @@ def test_each_optimizer_name_gives_the_optimizer_it_names():
     step) then the same again (to float32's rounding of the corrections: 1e-5 relative; the
     three differ by 50% or more)."""
     grad, lr = jnp.array([2.0, -0.5]), 0.1
-    expected = {"sgd": (-lr * grad, -lr * grad), "momentum": (-lr * grad, -1.9 * lr * grad),
-                "adam": (-lr * jnp.sign(grad), -lr * jnp.sign(grad))}
+    expected = {
+        "sgd": (-lr * grad, -lr * grad),
+        "momentum": (-lr * grad, -1.9 * lr * grad),
+        "adam": (-lr * jnp.sign(grad), -lr * jnp.sign(grad)),
+    }
     assert set(expected) == set(training.OPTIMIZERS)
     for name, (first, second) in expected.items():
         optimizer = make_optimizer(ESConfig(optimizer=name, learning_rate=lr))
@@ -116,8 +120,7 @@ def test_plain_gradient_estimate_is_unbiased_on_quadratic():
     mean = jnp.array([0.3, -0.2, 0.5, 0.1])
     true_grad = jax.grad(objective)(mean)
     sigma = 0.1
-    strategy = OpenES(4001, sigma=sigma, optimizer=optax.sgd(1.0), shaping=identity,
-                      antithetic=False)
+    strategy = OpenES(4001, sigma=sigma, optimizer=optax.sgd(1.0), shaping=identity, antithetic=False)
     update, population = _one_step(strategy, objective, mean, jax.random.PRNGKey(2))
     eps = (population - mean) / sigma
     terms = jax.vmap(objective)(population)[:, None] * eps / sigma
@@ -206,16 +209,14 @@ def test_observation_statistics_merge_equals_whole_batch_moments():
     batches = [rng.normal(loc=2.0, scale=3.0, size=(n, 4)) for n in (5, 40, 1, 17)]
     stats = init_stats(4)
     for batch in batches:
-        stats = update_stats(stats, jnp.float32(len(batch)), jnp.asarray(batch.sum(0)),
-                             jnp.asarray((batch**2).sum(0)))
+        stats = update_stats(stats, jnp.float32(len(batch)), jnp.asarray(batch.sum(0)), jnp.asarray((batch**2).sum(0)))
     stats = update_stats(stats, jnp.float32(0), jnp.zeros(4), jnp.zeros(4))  # empty: no-op
     everything = np.concatenate(batches)
     np.testing.assert_allclose(stats.count, len(everything))
     np.testing.assert_allclose(stats.mean, everything.mean(0), rtol=1e-5)
     np.testing.assert_allclose(stats.var, everything.var(0), rtol=1e-4)
     z = normalize(stats, jnp.asarray(everything[0]))
-    np.testing.assert_allclose(z, (everything[0] - everything.mean(0)) / everything.std(0),
-                               rtol=1e-3)
+    np.testing.assert_allclose(z, (everything[0] - everything.mean(0)) / everything.std(0), rtol=1e-3)
 
 
 def test_policies_shapes_counts_and_registry():

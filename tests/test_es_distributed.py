@@ -48,8 +48,13 @@ def test_two_processes_train_one_population_and_agree(tmp_path):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1")
     children = []
     for process_id in range(2):
-        code = CHILD.format(tests=str(TESTS), port=port, process_id=process_id,
-                            run_dir=str(tmp_path / "run"), out=str(tmp_path / f"{process_id}.json"))
+        code = CHILD.format(
+            tests=str(TESTS),
+            port=port,
+            process_id=process_id,
+            run_dir=str(tmp_path / "run"),
+            out=str(tmp_path / f"{process_id}.json"),
+        )
         children.append(subprocess.Popen([sys.executable, "-c", code], env=env))
     try:
         codes = [child.wait(timeout=240) for child in children]
@@ -63,7 +68,6 @@ def test_two_processes_train_one_population_and_agree(tmp_path):
     assert results[0]["rows"] == results[1]["rows"]
     np.testing.assert_array_equal(results[0]["params"], results[1]["params"])
     # ...and it is the run one process with two devices computes (up to float rounding).
-    local = train(small_config(num_devices=2, checkpoint_every=0), env=PointMass(),
-                  progress=False)
+    local = train(small_config(num_devices=2, checkpoint_every=0), env=PointMass(), progress=False)
     np.testing.assert_allclose(results[0]["params"], flat(local.params), rtol=1e-4, atol=1e-5)
     assert sorted(p.name for p in (tmp_path / "run" / "checkpoints").iterdir()) == ["3", "6"]

@@ -44,8 +44,14 @@ class PointMass:
         target = jax.random.uniform(target_key, (2,), minval=-1.0, maxval=1.0)
         data = {"pos": pos, "vel": jnp.zeros(2)}
         zero = jnp.zeros(())
-        return State(data=data, obs=self._obs(data, target), reward=zero, done=zero,
-                     metrics={}, info={"t": jnp.zeros((), jnp.int32), "target": target})
+        return State(
+            data=data,
+            obs=self._obs(data, target),
+            reward=zero,
+            done=zero,
+            metrics={},
+            info={"t": jnp.zeros((), jnp.int32), "target": target},
+        )
 
     def _obs(self, data, target):
         return jnp.concatenate([data["pos"], data["vel"], target])
@@ -60,8 +66,14 @@ class PointMass:
         reward = jnp.where(far > self.nan_wall, jnp.nan, reward)
         t = state.info["t"] + 1
         done = jnp.where((t >= self.episode_length) | (far > self.wall), 1.0, state.done)
-        return State(data=data, obs=self._obs(data, target), reward=reward, done=done,
-                     metrics={}, info={"t": t, "target": target})
+        return State(
+            data=data,
+            obs=self._obs(data, target),
+            reward=reward,
+            done=done,
+            metrics={},
+            info={"t": t, "target": target},
+        )
 
 
 def python_return(env, policy, params, key):
@@ -100,8 +112,7 @@ def test_nan_rewards_are_masked_and_counted():
     result = run_episode(env, policy, params, jax.random.PRNGKey(1), None, False)
     assert np.isfinite(float(result.ret))
     assert float(result.bad) == 1.0
-    still = run_episode(env, LinearPolicy(6, 2), LinearPolicy(6, 2).init(None),
-                        jax.random.PRNGKey(1), None, False)
+    still = run_episode(env, LinearPolicy(6, 2), LinearPolicy(6, 2).init(None), jax.random.PRNGKey(1), None, False)
     assert float(still.bad) == 0.0
 
 

@@ -32,8 +32,9 @@ def small_config(**run) -> TrainConfig:
         env=EnvSpec("point-mass"),
         policy=PolicySpec("linear"),
         es=ESConfig(population_size=16, sigma=0.1, learning_rate=0.05, n_episodes=2),
-        run=RunConfig(**{"iterations": 6, "eval_episodes": 4,
-                         "checkpoint_every": 3, "chunk_size": 8, "tensorboard": False, **run}),
+        run=RunConfig(
+            **{"iterations": 6, "eval_episodes": 4, "checkpoint_every": 3, "chunk_size": 8, "tensorboard": False, **run}
+        ),
     )
 
 
@@ -53,8 +54,7 @@ def test_training_beats_the_zero_action_policy():
     from iap_mjx.policies import LinearPolicy
 
     policy = LinearPolicy(6, 2)
-    zero = np.array([float(run_episode(env, policy, policy.init(None), k, None, False).ret)
-                     for k in keys])
+    zero = np.array([float(run_episode(env, policy, policy.init(None), k, None, False).ret) for k in keys])
     stderr = zero.std() / np.sqrt(len(zero))
     assert eval_return > zero.mean() + 6 * stderr, (eval_return, zero.mean(), stderr)
 
@@ -82,15 +82,13 @@ def test_one_and_two_devices_agree():
 def test_fused_iterations_match_single_iterations():
     env = PointMass()
     single = train(small_config(checkpoint_every=0), env=env, progress=False)
-    fused = train(small_config(checkpoint_every=0, iterations_per_call=3), env=env,
-                  progress=False)
+    fused = train(small_config(checkpoint_every=0, iterations_per_call=3), env=env, progress=False)
     np.testing.assert_allclose(flat(single.params), flat(fused.params), rtol=1e-5, atol=1e-6)
 
 
 def test_metrics_files_and_policy_fn(tmp_path):
     env = PointMass()
-    config = dataclasses.replace(small_config(), run=dataclasses.replace(
-        small_config().run, tensorboard=True))
+    config = dataclasses.replace(small_config(), run=dataclasses.replace(small_config().run, tensorboard=True))
     result = train(config, env=env, run_dir=tmp_path, progress=False)
     rows = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
     assert [r["iteration"] for r in rows] == list(range(1, 7))
@@ -150,8 +148,10 @@ def test_contact_saturated_episodes_count_the_population_episodes_flagged():
     members = config.es.population_size * config.es.n_episodes  # 32; the 4 eval episodes not counted
     every = train(config, env=FlaggingPointMass(flag="always"), progress=False).history
     assert [row["contact_saturated_episodes"] for row in every] == [members] * 3
-    some = [row["contact_saturated_episodes"]
-            for row in train(config, env=FlaggingPointMass(flag="right"), progress=False).history]
+    some = [
+        row["contact_saturated_episodes"]
+        for row in train(config, env=FlaggingPointMass(flag="right"), progress=False).history
+    ]
     assert all(0 < count < members for count in some), some
 
 
@@ -177,8 +177,7 @@ def test_interrupt_saves_checkpoint_and_resume_is_exact(tmp_path, at, saved):
 def test_resume_with_a_different_config_is_refused(tmp_path):
     env = PointMass()
     train(small_config(iterations=3), env=env, run_dir=tmp_path, progress=False)
-    other = dataclasses.replace(small_config(), es=dataclasses.replace(small_config().es,
-                                                                       sigma=0.5))
+    other = dataclasses.replace(small_config(), es=dataclasses.replace(small_config().es, sigma=0.5))
     with pytest.raises(ValueError, match="es.sigma"):
         train(other, env=env, run_dir=tmp_path, progress=False)
     longer = train(small_config(iterations=6), env=env, run_dir=tmp_path, progress=False)
@@ -187,10 +186,10 @@ def test_resume_with_a_different_config_is_refused(tmp_path):
 
 def test_a_sigma_schedule_refuses_a_longer_resume(tmp_path):
     """The schedule decays over run.iterations: extending the run would make sigma jump."""
+
     def scheduled(iterations):
         config = small_config(iterations=iterations)
-        return dataclasses.replace(config, es=dataclasses.replace(
-            config.es, sigma_schedule="linear", sigma_final=0.01))
+        return dataclasses.replace(config, es=dataclasses.replace(config.es, sigma_schedule="linear", sigma_final=0.01))
 
     train(scheduled(3), env=PointMass(), run_dir=tmp_path, progress=False)
     with pytest.raises(ValueError, match="run.iterations"):
@@ -213,8 +212,7 @@ CHILD = textwrap.dedent("""
 
 def test_resume_after_sigkill_matches_uninterrupted_run(tmp_path):
     run_dir = tmp_path / "run"
-    code = CHILD.format(tests=str(TESTS), cache=str(TESTS.parent / ".jax_cache"),
-                        run_dir=str(run_dir))
+    code = CHILD.format(tests=str(TESTS), cache=str(TESTS.parent / ".jax_cache"), run_dir=str(run_dir))
     child = subprocess.Popen([sys.executable, "-c", code], env=dict(os.environ))
     try:
         deadline = time.time() + 240
@@ -239,8 +237,9 @@ def test_resume_after_sigkill_matches_uninterrupted_run(tmp_path):
 
 def test_evosax_strategy_trains_through_the_adapter():
     config = small_config(checkpoint_every=0)
-    config = dataclasses.replace(config, es=dataclasses.replace(
-        config.es, strategy="CMA_ES", antithetic=False, population_size=10))
+    config = dataclasses.replace(
+        config, es=dataclasses.replace(config.es, strategy="CMA_ES", antithetic=False, population_size=10)
+    )
     result = train(config, env=PointMass(), progress=False)
     assert np.all(np.isfinite(flat(result.params)))
     assert np.linalg.norm(flat(result.params)) > 0  # moved away from the zero init
@@ -261,8 +260,12 @@ def test_a_chunk_size_that_would_deadlock_xla_is_refused_before_compiling():
         assert limit is None
         return
     assert limit == (200_000 - 1) // (env.mj_model.nv**3 // 3) == 823
-    config = TrainConfig(EnvSpec("cheetah-run"), PolicySpec("linear"), ESConfig(population_size=4),
-                         RunConfig(iterations=1, eval_episodes=0, chunk_size=limit + 1))
+    config = TrainConfig(
+        EnvSpec("cheetah-run"),
+        PolicySpec("linear"),
+        ESConfig(population_size=4),
+        RunConfig(iterations=1, eval_episodes=0, chunk_size=limit + 1),
+    )
     with pytest.raises(ValueError, match=rf"run.chunk_size = {limit + 1} .*valid values are 1..{limit}"):
         build(config, env=env)
     build(config, env=env, devices=jax.devices()[:1])

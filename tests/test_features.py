@@ -21,9 +21,15 @@ Z = 5.0  # standard errors allowed
 
 # (|x|, |y|, theta): equal and unequal norms, theta from 0 to pi.
 POINTS = [
-    (0.8, 0.8, 0.0), (0.8, 0.8, 0.05), (0.8, 0.8, math.pi / 3), (0.8, 0.8, 2 * math.pi / 3),
-    (0.8, 0.8, math.pi - 0.05), (0.8, 0.8, math.pi), (1.0, 0.6, math.pi / 4),
-    (0.5, 1.1, math.pi / 2), (1.2, 1.2, 3 * math.pi / 4),
+    (0.8, 0.8, 0.0),
+    (0.8, 0.8, 0.05),
+    (0.8, 0.8, math.pi / 3),
+    (0.8, 0.8, 2 * math.pi / 3),
+    (0.8, 0.8, math.pi - 0.05),
+    (0.8, 0.8, math.pi),
+    (1.0, 0.6, math.pi / 4),
+    (0.5, 1.1, math.pi / 2),
+    (1.2, 1.2, 3 * math.pi / 4),
 ]
 
 
@@ -95,7 +101,8 @@ def test_monte_carlo_mse_matches_closed_form(kind):
     # float32 features: allow rounding error of the estimate itself (relative 1e-6).
     rounding = (1e-6 * exact(kind)) ** 2
     assert np.all(np.abs(mse - closed) <= Z * stderr + rounding + 1e-3 * closed), (
-        f"{kind}: empirical {mse} vs closed form {closed}")
+        f"{kind}: empirical {mse} vs closed form {closed}"
+    )
 
 
 def test_hybrid_error_vanishes_at_zero_and_pi_for_equal_norms():
@@ -125,7 +132,8 @@ def test_orthogonal_draws_are_block_orthogonal_with_gaussian_norms():
     np.testing.assert_allclose(gram - np.diag(np.diag(gram)), 0, atol=1e-4)
     # Squared norms are chi-squared with D degrees of freedom: mean D, variance 2D.
     many = jax.vmap(lambda k: ft.gaussian_directions(k, D, D, orthogonal=True))(
-        jax.random.split(jax.random.PRNGKey(4), 20_000))
+        jax.random.split(jax.random.PRNGKey(4), 20_000)
+    )
     sq_norms = np.asarray(jnp.sum(many**2, -1)).ravel()
     assert abs(sq_norms.mean() - D) < Z * math.sqrt(2 * D / sq_norms.size)
     assert abs(sq_norms.var() - 2 * D) < 0.05 * 2 * D
@@ -161,13 +169,16 @@ def test_stabilizer_only_rescales_scores(kind):
     q = 1.5 * jax.random.normal(keys[0], (50, D)) / math.sqrt(D)
     k = 1.5 * jax.random.normal(keys[1], (50, D)) / math.sqrt(D)
     proj = ft.draw_projections(keys[2], kind, m=M, d=D, r=R)
-    stable = np.asarray(ft.feature_map(kind, k, proj, role="key", stabilize=True)
-                        @ ft.feature_map(kind, q, proj, role="query", stabilize=True).sum(0))
+    stable = np.asarray(
+        ft.feature_map(kind, k, proj, role="key", stabilize=True)
+        @ ft.feature_map(kind, q, proj, role="query", stabilize=True).sum(0)
+    )
     with jax.enable_x64(True):
         proj64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), proj)
         q64, k64 = jnp.asarray(q, jnp.float64), jnp.asarray(k, jnp.float64)
-        plain = np.asarray(ft.feature_map(kind, k64, proj64, role="key")
-                           @ ft.feature_map(kind, q64, proj64, role="query").sum(0))
+        plain = np.asarray(
+            ft.feature_map(kind, k64, proj64, role="key") @ ft.feature_map(kind, q64, proj64, role="query").sum(0)
+        )
     ratio = stable / plain
     assert np.all(ratio > 0)
     np.testing.assert_allclose(ratio, ratio[0], rtol=2e-3)
@@ -184,13 +195,13 @@ def test_stabilized_top_l_matches_float64_at_norm_ten(kind):
     q, k = on_sphere(keys[0], 40), on_sphere(keys[1], 40)
     proj = ft.draw_projections(keys[2], kind, m=M, d=D, r=R)
     stable = ft.feature_map(kind, k, proj, role="key", stabilize=True) @ ft.feature_map(
-        kind, q, proj, role="query", stabilize=True).sum(0)
+        kind, q, proj, role="query", stabilize=True
+    ).sum(0)
     assert bool(jnp.all(jnp.isfinite(stable)))
     with jax.enable_x64(True):
         proj64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), proj)
         q64, k64 = jnp.asarray(q, jnp.float64), jnp.asarray(k, jnp.float64)
-        plain = ft.feature_map(kind, k64, proj64, role="key") @ ft.feature_map(
-            kind, q64, proj64, role="query").sum(0)
+        plain = ft.feature_map(kind, k64, proj64, role="key") @ ft.feature_map(kind, q64, proj64, role="query").sum(0)
         assert bool(jnp.all(jnp.isfinite(plain)))
     top = 5
     assert list(np.argsort(-np.asarray(stable))[:top]) == list(np.argsort(-np.asarray(plain))[:top])

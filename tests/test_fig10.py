@@ -45,8 +45,11 @@ def episodes(monkeypatch):
         keys.append(np.asarray(key).tolist())
         small = policy.layer.config.patch_size == 1
         first = np.array([32 * row + col for row, col in SMALL]) if small else np.full(10, 9)
-        return {"frames": np.zeros((steps, 24, 32, 3), np.float32), "indices": np.tile(first, (steps, 1)),
-                "rewards": np.full(steps, 0.01)}
+        return {
+            "frames": np.zeros((steps, 24, 32, 3), np.float32),
+            "indices": np.tile(first, (steps, 1)),
+            "rewards": np.full(steps, 0.01),
+        }
 
     from iap_mjx import es
 
@@ -88,7 +91,7 @@ def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episo
     for name in ("fig10-p1-s1.png", "fig10-p4-s4.png"):
         image = np.asarray(Image.open(tmp_path / name).convert("RGB"))
         assert image.shape == (16 + 24 * fig10.SCALE, 3 * 32 * fig10.SCALE + 2 * 4, 3)  # 3 tiles, 2 white gaps
-        tiles[name] = image[16:, :32 * fig10.SCALE]
+        tiles[name] = image[16:, : 32 * fig10.SCALE]
     red = np.array(video.RED)
     patch = 4 * fig10.SCALE
     large_tile = tiles["fig10-p4-s4.png"]
@@ -100,9 +103,10 @@ def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episo
         assert (small_tile[top, left] == red).all() and (small_tile[centre] == 0).all()
         assert (small_tile[centre[0], centre[1] + video.MARK_RADIUS - 1] == red).all()
         assert (small_tile[centre[0], centre[1] + video.MARK_RADIUS + 1] == 255).all()
-    assert (small_tile[11 * scale:14 * scale] == 0).all()  # between the two rows: nothing selected
-    assert markdown.splitlines()[0] == (f"Patch size 1, stride 1 (L = 768 patches, top 10 selected): `{small}`, "
-                                        "episode return 10.00.")
+    assert (small_tile[11 * scale : 14 * scale] == 0).all()  # between the two rows: nothing selected
+    assert markdown.splitlines()[0] == (
+        f"Patch size 1, stride 1 (L = 768 patches, top 10 selected): `{small}`, episode return 10.00."
+    )
     assert "![fig10-p4-s4](fig10-p4-s4.png)" in markdown and "(L = 48 patches" in markdown
     text = results.read_text()
     assert "<!-- BEGIN fig10 -->" in text and markdown in text

@@ -18,8 +18,14 @@ from iap_mjx.es import checkpoint
 
 ITERATIONS = ("run.iterations=3",)
 # (policy, seed): the evaluation's mean return and walls passed per episode - 0.5 (below)
-RUNS = {("iap", 0): (20.0, 1.0), ("iap", 1): (24.0, 2.0), ("cnn", 0): (24.0, 1.0), ("cnn", 1): (22.0, 2.0),
-        ("blind", 0): (8.0, 0.0), ("blind", 1): (12.0, 0.0)}
+RUNS = {
+    ("iap", 0): (20.0, 1.0),
+    ("iap", 1): (24.0, 2.0),
+    ("cnn", 0): (24.0, 1.0),
+    ("cnn", 1): (22.0, 2.0),
+    ("blind", 0): (8.0, 0.0),
+    ("blind", 1): (12.0, 0.0),
+}
 
 
 def _run(out, policy, seed, iterations=3):
@@ -40,9 +46,13 @@ def evaluations(monkeypatch):
         policy, run_seed = run_dir.name.split("-")[2], int(run_dir.name[-1])
         base, walls = RUNS[policy, run_seed]
         alternate = np.arange(episodes) % 2
-        return {"return": base - 2.0 + 4.0 * alternate, "walls_passed": walls + 1.0 - alternate,
-                "fell_off": (np.arange(episodes) % 4 == 3).astype(float),
-                "wall_contacts": np.full(episodes, 3.0 + run_seed), "distance": np.full(episodes, base / 2)}
+        return {
+            "return": base - 2.0 + 4.0 * alternate,
+            "walls_passed": walls + 1.0 - alternate,
+            "fell_off": (np.arange(episodes) % 4 == 3).astype(float),
+            "wall_contacts": np.full(episodes, 3.0 + run_seed),
+            "distance": np.full(episodes, base / 2),
+        }
 
     from iap_mjx import es
 
@@ -71,20 +81,33 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
     _run(tmp_path, "cnn", 1, iterations=2)  # unfinished: read as far as it got, not evaluated
     _run(tmp_path, "blind", 0, iterations=2)  # blind seed 1: no run yet
     markdown = fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False)
-    assert sorted(evaluations) == [(f"quadruped-walls-{policy}-seed{seed}", 4, run_eval.EVAL_SEED, ())
-                                   for policy, seed in (("cnn", 0), ("iap", 0), ("iap", 1))]
+    assert sorted(evaluations) == [
+        (f"quadruped-walls-{policy}-seed{seed}", 4, run_eval.EVAL_SEED, ())
+        for policy, seed in (("cnn", 0), ("iap", 0), ("iap", 1))
+    ]
     lines = markdown.splitlines()
-    assert lines[2] == ("| IAP (`quadruped-walls-iap`) | 873 | 22.0 ± 2.0 | 2.00 ± 0.50 | 0.25 ± 0.00 | 3.5 ± 0.5 | "
-                        "11.00 ± 1.00 | 2 of 2 | 3 | 3,000 |")
-    assert lines[3] == ("| CNN (`quadruped-walls-cnn`) | 7,269 | 24.0 ± 0.0 | 1.50 ± 0.00 | 0.25 ± 0.00 | 3.0 ± 0.0 | "
-                        "12.00 ± 0.00 | 1 of 2 | 3 | 3,000 |")
+    assert lines[2] == (
+        "| IAP (`quadruped-walls-iap`) | 873 | 22.0 ± 2.0 | 2.00 ± 0.50 | 0.25 ± 0.00 | 3.5 ± 0.5 | "
+        "11.00 ± 1.00 | 2 of 2 | 3 | 3,000 |"
+    )
+    assert lines[3] == (
+        "| CNN (`quadruped-walls-cnn`) | 7,269 | 24.0 ± 0.0 | 1.50 ± 0.00 | 0.25 ± 0.00 | 3.0 ± 0.0 | "
+        "12.00 ± 0.00 | 1 of 2 | 3 | 3,000 |"
+    )
     assert lines[4] == "| blind (`quadruped-walls-blind`) | 873 | - | - | - | - | - | 0 of 2 | 2 | 2,000 |"
-    assert lines[-1] == ("Bars: not decided yet (3 of 6 runs finished). Parameters: CNN 7,269, IAP 873 (8.3x; "
-                         "bar: >= 5x).")
+    assert lines[-1] == (
+        "Bars: not decided yet (3 of 6 runs finished). Parameters: CNN 7,269, IAP 873 (8.3x; bar: >= 5x)."
+    )
     stored = json.loads((tmp_path / "quadruped-walls-iap-seed1" / run_eval.EVAL_FILE).read_text())
-    assert stored == {"course@3x4s2021": {"return": [22.0, 26.0, 22.0, 26.0], "walls_passed": [3.0, 2.0, 3.0, 2.0],
-                                          "fell_off": [0.0, 0.0, 0.0, 1.0], "wall_contacts": [4.0] * 4,
-                                          "distance": [12.0] * 4}}
+    assert stored == {
+        "course@3x4s2021": {
+            "return": [22.0, 26.0, 22.0, 26.0],
+            "walls_passed": [3.0, 2.0, 3.0, 2.0],
+            "fell_off": [0.0, 0.0, 0.0, 1.0],
+            "wall_contacts": [4.0] * 4,
+            "distance": [12.0] * 4,
+        }
+    }
     assert fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False) == markdown
     assert len(evaluations) == 3  # read back from eval.json, not evaluated again
 
@@ -92,8 +115,9 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
     _run(tmp_path, "blind", 0)
     _run(tmp_path, "blind", 1)
     results = tmp_path / "RESULTS.md"
-    results.write_text("# Results\n\n<!-- BEGIN fig11 -->\nold\n<!-- END fig11 -->\n\n<!-- BEGIN other -->\nkept\n"
-                       "<!-- END other -->\n")
+    results.write_text(
+        "# Results\n\n<!-- BEGIN fig11 -->\nold\n<!-- END fig11 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n"
+    )
     markdown = fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False, results=results)
     assert len(evaluations) == 6
     assert markdown.splitlines()[-3:] == [
@@ -102,7 +126,8 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
         "IAP above blind in walls passed per episode: 2.00 ± 0.50 against 0.50 ± 0.00 (bar, 'clearly': the mean minus "
         "its seed-std above blind's mean plus its seed-std, 0.50): met.",
         "CNN above blind in walls passed per episode: 2.00 ± 0.50 against 0.50 ± 0.00 (bar, 'clearly': the mean minus "
-        "its seed-std above blind's mean plus its seed-std, 0.50): met."]
+        "its seed-std above blind's mean plus its seed-std, 0.50): met.",
+    ]
     text = results.read_text()
     assert "old" not in text and "kept" in text and markdown in text and "![fig11](fig11.png)" in text
     assert "`iap-mjx reproduce fig11 run.iterations=3 --seeds 2 --episodes 4" in text
@@ -117,22 +142,45 @@ def test_bars_need_the_parameter_ratio_and_a_clear_margin_over_blind():
         return {"parameters": parameters, "finished": len(returns), "return": returns, "walls_passed": walls}
 
     blind = summary(873, [5.0, 5.0], [0.5, 1.5])  # walls 1.0 ± 0.5: the margin is 1.5
-    lines = fig11.bars({"IAP": summary(873, [30.0, 30.0], [2.0, 3.0]), "CNN": summary(4000, [20.0, 20.0], [1.5, 2.5]),
-                        "blind": blind}, seeds=2)
+    lines = fig11.bars(
+        {"IAP": summary(873, [30.0, 30.0], [2.0, 3.0]), "CNN": summary(4000, [20.0, 20.0], [1.5, 2.5]), "blind": blind},
+        seeds=2,
+    )
     assert lines[0].endswith("with 4.6x fewer parameters (873 against 4,000; bar: >= 5x): not met.")
     assert lines[1].endswith(": met.") and lines[2].endswith(": not met.")  # 2.5 - 0.5 > 1.5; 2.0 - 0.5 is not
-    below = fig11.bars({"IAP": summary(873, [18.0, 20.0], [2.0, 3.0]), "CNN": summary(7269, [20.0, 22.0], [2.0, 3.0]),
-                        "blind": blind}, seeds=2)
-    assert below[0].endswith("(bar: IAP's mean >= the CNN's mean minus its seed-std, 20.0), with 8.3x fewer "
-                             "parameters (873 against 7,269; bar: >= 5x): not met.")  # 19.0 < 20.0
+    below = fig11.bars(
+        {"IAP": summary(873, [18.0, 20.0], [2.0, 3.0]), "CNN": summary(7269, [20.0, 22.0], [2.0, 3.0]), "blind": blind},
+        seeds=2,
+    )
+    assert below[0].endswith(
+        "(bar: IAP's mean >= the CNN's mean minus its seed-std, 20.0), with 8.3x fewer "
+        "parameters (873 against 7,269; bar: >= 5x): not met."
+    )  # 19.0 < 20.0
 
 
 def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations, capsys):
     _run(tmp_path / "out", "iap", 0)
     _run(tmp_path / "out", "blind", 0, iterations=2)
     export = tmp_path / "pretrained"
-    assert cli.main(["reproduce", "fig11", *ITERATIONS, "--seeds", "1", "--episodes", "2", "--report-only",
-                     "--out", str(tmp_path / "out"), "--export", str(export)]) == 0
+    assert (
+        cli.main(
+            [
+                "reproduce",
+                "fig11",
+                *ITERATIONS,
+                "--seeds",
+                "1",
+                "--episodes",
+                "2",
+                "--report-only",
+                "--out",
+                str(tmp_path / "out"),
+                "--export",
+                str(export),
+            ]
+        )
+        == 0
+    )
     assert "| IAP (`quadruped-walls-iap`) | 873 | 20.0 ± 0.0 |" in capsys.readouterr().out
     assert evaluations == [("quadruped-walls-iap-seed0", 2, run_eval.EVAL_SEED, ())]
     assert sorted(p.name for p in export.iterdir()) == ["quadruped-walls-blind-seed0", "quadruped-walls-iap-seed0"]

@@ -32,8 +32,13 @@ from iap_mjx import configs  # noqa: E402
 CACHE = ROOT / ".jax_cache"
 NOISE = re.compile(r"warn|error|deprecat|failed|traceback|fork", re.IGNORECASE)
 EPISODE_STEPS = 60
-BUDGET = [f"env.episode_length={EPISODE_STEPS}", "es.population_size=8", "run.iterations=2",
-          "run.eval_episodes=2", "run.checkpoint_every=1"]
+BUDGET = [
+    f"env.episode_length={EPISODE_STEPS}",
+    "es.population_size=8",
+    "run.iterations=2",
+    "run.eval_episodes=2",
+    "run.checkpoint_every=1",
+]
 
 
 def test_the_main_command_is_the_documented_default():
@@ -45,8 +50,9 @@ def test_the_main_command_is_the_documented_default():
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
     env.pop("MUJOCO_GL", None)  # as on a newcomer's machine (the tests' conftest sets it)
-    return subprocess.run([sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=1500)
+    return subprocess.run(
+        [sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=1500
+    )
 
 
 @pytest.mark.slow

@@ -83,19 +83,23 @@ def test_the_latent_changes_exactly_where_the_counter_runs_out_under_vmap():
         def step(state, inputs):
             pixels, obs_state = inputs
             action, state = jax.vmap(policy.apply, in_axes=(None, 0, 0))(
-                params, {"pixels": pixels, "state": obs_state}, state)
+                params, {"pixels": pixels, "state": obs_state}, state
+            )
             return state, (action, state.latent, state.counter, state.phase)
 
         return jax.lax.scan(step, first, (images, state_obs))[1]
 
     actions, latents, counters, phases = run(images, state_obs)
     taken_at = {0: [0, 2, 4, 6, 8, 10], 1: [0, 4, 8], 2: [0, 6], 3: [0, 2, 8, 10]}
-    expected = np.array([
-        [1, 1, 3, 3, 5, 5, 7, 7, 9, 9, 11, 11],
-        [101, 101, 101, 101, 105, 105, 105, 105, 109, 109, 109, 109],
-        [201, 201, 201, 201, 201, 201, 207, 207, 207, 207, 207, 207],
-        [301, 301, 303, 303, 303, 303, 303, 303, 309, 309, 311, 311],
-    ], np.float32).T  # (steps, episodes)
+    expected = np.array(
+        [
+            [1, 1, 3, 3, 5, 5, 7, 7, 9, 9, 11, 11],
+            [101, 101, 101, 101, 105, 105, 105, 105, 109, 109, 109, 109],
+            [201, 201, 201, 201, 201, 201, 207, 207, 207, 207, 207, 207],
+            [301, 301, 303, 303, 303, 303, 303, 303, 309, 309, 311, 311],
+        ],
+        np.float32,
+    ).T  # (steps, episodes)
     np.testing.assert_array_equal(latents[..., 0], expected)
     np.testing.assert_array_equal(latents[..., 1], expected)
     # the counter: the steps the command still holds after this one; 0 where it is asked anew
@@ -109,9 +113,11 @@ def test_the_latent_changes_exactly_where_the_counter_runs_out_under_vmap():
     previous_phase = np.concatenate([np.zeros((1, episodes), np.float32), np.asarray(phases[:-1])])
     for s in range(steps):
         for episode in range(episodes):
-            action, low_state = policy.low.apply(params["low"], state_obs[s, episode],
-                                                 {"phase": previous_phase[s, episode],
-                                                  "latent": jnp.asarray(expected[s, episode]).repeat(2)})
+            action, low_state = policy.low.apply(
+                params["low"],
+                state_obs[s, episode],
+                {"phase": previous_phase[s, episode], "latent": jnp.asarray(expected[s, episode]).repeat(2)},
+            )
             np.testing.assert_allclose(actions[s, episode], action, atol=1e-5)
             np.testing.assert_allclose(phases[s, episode], low_state["phase"], atol=1e-6)
 
@@ -154,11 +160,14 @@ def test_blind_high_level_sees_a_zeroed_image():
     assert isinstance(seeing, AttentiveHierarchicalPolicy) and not hasattr(blind, "select")
     params = seeing.init(jax.random.PRNGKey(0))
     rng = np.random.default_rng(1)
-    obs = [{"pixels": jnp.asarray(rng.uniform(size=OBS["pixels"]), jnp.float32), "state": jnp.zeros(17)}
-           for _ in range(2)]
+    obs = [
+        {"pixels": jnp.asarray(rng.uniform(size=OBS["pixels"]), jnp.float32), "state": jnp.zeros(17)} for _ in range(2)
+    ]
     state = seeing.initial_state(jax.random.PRNGKey(0))
-    latents = {name: [np.asarray(p.apply(params, o, state)[1].latent) for o in obs]
-               for name, p in (("seeing", seeing), ("blind", blind))}
+    latents = {
+        name: [np.asarray(p.apply(params, o, state)[1].latent) for o in obs]
+        for name, p in (("seeing", seeing), ("blind", blind))
+    }
     assert not np.allclose(*latents["seeing"])
     np.testing.assert_array_equal(*latents["blind"])
     zero = {"pixels": jnp.zeros(OBS["pixels"]), "state": jnp.zeros(17)}
@@ -209,8 +218,11 @@ def test_low_level_from_a_file_with_its_normalisation_folded_in(tmp_path):
     low = PMTGPolicy(17)
     w = rng.normal(size=(low.input_size, low.output_size)).astype(np.float32) * 0.3
     b = rng.normal(size=low.output_size).astype(np.float32) * 0.3
-    stats = ObsStats(count=jnp.array(100.0), mean=jnp.asarray(rng.normal(size=17), jnp.float32),
-                     var=jnp.asarray(rng.uniform(0.5, 2.0, 17), jnp.float32))
+    stats = ObsStats(
+        count=jnp.array(100.0),
+        mean=jnp.asarray(rng.normal(size=17), jnp.float32),
+        var=jnp.asarray(rng.uniform(0.5, 2.0, 17), jnp.float32),
+    )
     raw = stats.mean + jnp.sqrt(stats.var) * jnp.asarray(rng.uniform(-3, 3, 17), jnp.float32)
     state = {"phase": jnp.array(1.0), "latent": jnp.zeros(4)}
     trained = low.outputs({"w": jnp.asarray(w), "b": jnp.asarray(b)}, normalize(stats, raw), state)

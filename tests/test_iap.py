@@ -18,9 +18,16 @@ def random_image(shape, seed=0):
     return jax.random.uniform(jax.random.PRNGKey(seed), shape)
 
 
-@pytest.mark.parametrize("shape,patch,stride", [
-    ((12, 16, 3), 4, 4), ((12, 16, 3), 4, 2), ((9, 9, 2), 3, 1), ((6, 5, 4), 1, 1), ((10, 10, 3), 2, 4),
-])
+@pytest.mark.parametrize(
+    "shape,patch,stride",
+    [
+        ((12, 16, 3), 4, 4),
+        ((12, 16, 3), 4, 2),
+        ((9, 9, 2), 3, 1),
+        ((6, 5, 4), 1, 1),
+        ((10, 10, 3), 2, 4),
+    ],
+)
 def test_patches_equal_direct_slicing(shape, patch, stride):
     image = random_image(shape)
     patches, centres = jax.jit(extract_patches, static_argnums=(1, 2))(image, patch, stride)
@@ -30,7 +37,7 @@ def test_patches_equal_direct_slicing(shape, patch, stride):
     for index in range(rows * cols):
         i, j = divmod(index, cols)
         top, left = i * stride, j * stride
-        np.testing.assert_array_equal(patches[index], img[top:top + patch, left:left + patch].reshape(-1))
+        np.testing.assert_array_equal(patches[index], img[top : top + patch, left : left + patch].reshape(-1))
         expected_centre = [(top + patch / 2) / shape[0], (left + patch / 2) / shape[1]]
         np.testing.assert_allclose(centres[index], expected_centre, rtol=1e-6)
     assert float(centres.min()) >= 0 and float(centres.max()) <= 1
@@ -58,8 +65,9 @@ def test_brute_scores_equal_a_plain_loop():
     plain = np.asarray(brute_scores(jnp.asarray(q), jnp.asarray(k)))
     # Unnormalised scores come scaled by one positive constant (overflow guard): compare ratios.
     np.testing.assert_allclose(plain / plain.sum(), loop / loop.sum(), rtol=1e-5)
-    np.testing.assert_allclose(brute_scores(jnp.asarray(q), jnp.asarray(k), row_normalize=True),
-                               loop_normalised, rtol=1e-5)
+    np.testing.assert_allclose(
+        brute_scores(jnp.asarray(q), jnp.asarray(k), row_normalize=True), loop_normalised, rtol=1e-5
+    )
 
 
 @pytest.mark.parametrize("kind", ft.KINDS)
@@ -82,7 +90,8 @@ def test_factorised_hybrid_scores_equal_the_feature_map():
     for stabilize in (False, True):
         via_features = linear_scores(
             ft.feature_map("hybrid", q, proj, role="query", stabilize=stabilize),
-            ft.feature_map("hybrid", k, proj, role="key", stabilize=stabilize))
+            ft.feature_map("hybrid", k, proj, role="key", stabilize=stabilize),
+        )
         fast = hybrid_scores(q, k, proj, stabilize=stabilize)
         np.testing.assert_allclose(fast, via_features, rtol=2e-4, atol=1e-4 * float(jnp.abs(via_features).max()))
 
@@ -97,9 +106,12 @@ def test_factorised_hybrid_scores_survive_norm_10_and_keep_the_ranking():
     q, k = directions * norms
     proj = ft.draw_projections(keys[2], "hybrid", m=10, d=4, r=5)
     fast = np.asarray(jax.jit(hybrid_scores)(q, k, proj))
-    via_features = np.asarray(linear_scores(
-        ft.feature_map("hybrid", q, proj, role="query", stabilize=True),
-        ft.feature_map("hybrid", k, proj, role="key", stabilize=True)))
+    via_features = np.asarray(
+        linear_scores(
+            ft.feature_map("hybrid", q, proj, role="query", stabilize=True),
+            ft.feature_map("hybrid", k, proj, role="key", stabilize=True),
+        )
+    )
     assert np.all(np.isfinite(fast))
     np.testing.assert_array_equal(np.argsort(-fast)[:10], np.argsort(-via_features)[:10])
 
@@ -110,8 +122,7 @@ def test_top_l_breaks_ties_toward_the_lower_index():
 
 
 def layer_for(kernel, shape=(20, 20, 3), **overrides):
-    cfg = AttentionConfig(kernel=kernel, patch_size=overrides.pop("patch_size", 4), top_l=5,
-                              m=6, r=3, **overrides)
+    cfg = AttentionConfig(kernel=kernel, patch_size=overrides.pop("patch_size", 4), top_l=5, m=6, r=3, **overrides)
     return IAPAttention(cfg, shape)
 
 
@@ -190,8 +201,7 @@ def test_layer_errors_are_clear_and_early():
         AttentionConfig(kernel="hybrid", row_normalize=True)
     layer = layer_for("relu")
     with pytest.raises(ValueError, match=r"image of shape \(10, 10, 3\)"):
-        layer(layer.init(jax.random.PRNGKey(0)), layer.draw_projections(jax.random.PRNGKey(0)),
-              jnp.zeros((10, 10, 3)))
+        layer(layer.init(jax.random.PRNGKey(0)), layer.draw_projections(jax.random.PRNGKey(0)), jnp.zeros((10, 10, 3)))
 
 
 def test_config_is_hashable_for_static_arguments():
@@ -205,15 +215,23 @@ def test_top_l_equals_lax_top_k_with_ties(size):
     """The two-level search returns lax.top_k's indices, ties to the lower index, for sizes
     that are and are not multiples of the block, with many ties and with none."""
     rng = np.random.default_rng(size)
-    rows = np.stack([rng.normal(size=size), rng.integers(0, 4, size=size),  # distinct / heavy ties
-                     np.ones(size), np.arange(size), -np.arange(size)]).astype(np.float32)
+    rows = np.stack(
+        [
+            rng.normal(size=size),
+            rng.integers(0, 4, size=size),  # distinct / heavy ties
+            np.ones(size),
+            np.arange(size),
+            -np.arange(size),
+        ]
+    ).astype(np.float32)
     top = jax.jit(jax.vmap(top_l, in_axes=(0, None)), static_argnums=1)
     for l in (1, 10):
         np.testing.assert_array_equal(top(jnp.asarray(rows), l), jax.lax.top_k(jnp.asarray(rows), l)[1])
 
 
-@pytest.mark.parametrize("scaling,use_bias,stride", [("eq4", False, None), ("eq5", True, None),
-                                                     ("none", False, 2), ("eq4", True, 2)])
+@pytest.mark.parametrize(
+    "scaling,use_bias,stride", [("eq4", False, None), ("eq5", True, None), ("none", False, 2), ("eq4", True, 2)]
+)
 def test_query_key_rows_are_the_transposed_queries_and_keys(scaling, use_bias, stride):
     layer = layer_for("hybrid", patch_size=4, stride=stride, scaling=scaling, use_bias=use_bias)
     params = layer.init(jax.random.PRNGKey(0))
@@ -238,13 +256,14 @@ def test_layer_scores_equal_the_feature_map_path_at_patch_2(kernel):
     image = jnp.asarray(np.stack([np.sin(3 * xx) ** 2, yy, (xx * yy) % 0.3], axis=-1), jnp.float32)
     image = image + 0.05 * random_image((48, 64, 3), seed=13)
     q, k = layer.queries_keys(params, image)
-    expected = linear_scores(ft.feature_map(kernel, q, proj, role="query", stabilize=True),
-                                 ft.feature_map(kernel, k, proj, role="key", stabilize=True))
+    expected = linear_scores(
+        ft.feature_map(kernel, q, proj, role="query", stabilize=True),
+        ft.feature_map(kernel, k, proj, role="key", stabilize=True),
+    )
     scores = jax.jit(layer.scores)(params, proj, image)
     scale = float(jnp.abs(expected).max())
     np.testing.assert_allclose(scores, expected, rtol=1e-4, atol=1e-5 * scale)
-    np.testing.assert_array_equal(jax.jit(layer)(params, proj, image).indices,
-                                  jax.lax.top_k(expected, 10)[1])
+    np.testing.assert_array_equal(jax.jit(layer)(params, proj, image).indices, jax.lax.top_k(expected, 10)[1])
 
 
 @pytest.mark.parametrize("batched_projections", [False, True])
@@ -256,8 +275,7 @@ def test_vmap_in_chunks_equals_one_image_at_a_time(batched_projections):
     params = layer.init(jax.random.PRNGKey(1))
     params = jax.tree.map(lambda x: x + 0.1 * jax.random.normal(jax.random.PRNGKey(2), (5,) + x.shape), params)
     keys = jax.random.split(jax.random.PRNGKey(3), 5)
-    projections = (jax.vmap(layer.draw_projections)(keys) if batched_projections
-                   else layer.draw_projections(keys[0]))
+    projections = jax.vmap(layer.draw_projections)(keys) if batched_projections else layer.draw_projections(keys[0])
     images = jax.random.uniform(jax.random.PRNGKey(4), (5, 20, 20, 3))
     axes = (0, 0 if batched_projections else None, 0)
     batched = jax.jit(jax.vmap(lambda p, r, x: layer(p, r, x), in_axes=axes))(params, projections, images)
@@ -265,8 +283,9 @@ def test_vmap_in_chunks_equals_one_image_at_a_time(batched_projections):
         one = jax.tree.map(lambda x: x[b], params)
         proj = jax.tree.map(lambda x: x[b], projections) if batched_projections else projections
         single = layer(one, proj, images[b])
-        np.testing.assert_allclose(batched.scores[b], single.scores, rtol=1e-5,
-                                   atol=1e-6 * float(jnp.abs(single.scores).max()))
+        np.testing.assert_allclose(
+            batched.scores[b], single.scores, rtol=1e-5, atol=1e-6 * float(jnp.abs(single.scores).max())
+        )
         np.testing.assert_array_equal(batched.indices[b], single.indices)
 
 

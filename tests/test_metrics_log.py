@@ -42,8 +42,8 @@ def test_an_envs_episode_statistics_get_their_columns_and_keep_them_on_resume(tm
 
     columns = metric_columns(("walls_passed", "distance"))
     at = COLUMNS.index("contact_saturated_episodes") + 1
-    assert columns[at:at + 4] == ("walls_passed_mean", "eval_walls_passed", "distance_mean", "eval_distance")
-    assert tuple(c for c in columns if c not in columns[at:at + 4]) == COLUMNS and metric_columns() == COLUMNS
+    assert columns[at : at + 4] == ("walls_passed_mean", "eval_walls_passed", "distance_mean", "eval_distance")
+    assert tuple(c for c in columns if c not in columns[at : at + 4]) == COLUMNS and metric_columns() == COLUMNS
     writer = MetricsWriter(tmp_path, None, tensorboard=False, columns=columns)
     for i in (1, 2):
         writer.write({"iteration": i, "walls_passed_mean": 0.5 * i, "eval_distance": 1.5})

@@ -18,8 +18,9 @@ def test_notebook_budget_is_the_first_run_tests():
     notebook (scheduled last) loads them from the compilation cache instead of compiling."""
     from test_first_run import BUDGET, EPISODE_STEPS
 
-    source = "".join("".join(cell.source) for cell in nbformat.read(NOTEBOOK, as_version=4).cells
-                     if cell.cell_type == "code")
+    source = "".join(
+        "".join(cell.source) for cell in nbformat.read(NOTEBOOK, as_version=4).cells if cell.cell_type == "code"
+    )
     for setting in BUDGET:
         if not setting.startswith(("run.iterations", "run.checkpoint_every")):  # host-side only
             assert f'"{setting}"' in source, setting
@@ -31,11 +32,16 @@ def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     # the kernel inherits this: it compiles into the tests' cache, not the user's
     monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(NOTEBOOK.parent.parent / ".jax_cache"))
     notebook = nbformat.read(NOTEBOOK, as_version=4)
-    NotebookClient(notebook, timeout=1200, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
-    images = [output for cell in notebook.cells if cell.cell_type == "code"
-              for output in cell.get("outputs", []) if "image/png" in output.get("data", {})
-              or "image/gif" in output.get("data", {})]
+    NotebookClient(
+        notebook, timeout=1200, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    ).execute()
+    images = [
+        output
+        for cell in notebook.cells
+        if cell.cell_type == "code"
+        for output in cell.get("outputs", [])
+        if "image/png" in output.get("data", {}) or "image/gif" in output.get("data", {})
+    ]
     assert len(images) == 3  # the reward curve, the episode, distracted first frames
     assert (tmp_path / "runs" / "notebook" / "episode.gif").stat().st_size > 1000
     assert (tmp_path / "runs" / "notebook" / "distracted.png").stat().st_size > 1000

@@ -61,14 +61,18 @@ def test_d_qk_row_waits_for_the_whole_grid_then_runs_at_its_best_cell(tmp_path, 
     assert "not chosen yet" in patch_sweep.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
     _fake_run(tmp_path, (*grid[-1], 4))
     _fake_run(tmp_path, (2, 5, 8))  # d_qk off the best cell: never read
-    markdown = patch_sweep.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False,
-                                          results=tmp_path / "RESULTS.md")
+    markdown = patch_sweep.reproduce_fig7(
+        tmp_path, overrides=ITERATIONS, episodes=3, train=False, results=tmp_path / "RESULTS.md"
+    )
     assert "Best grid cell (patch size, l): (8, 5)" in markdown
     assert "fig7-p2-l5-d8-seed0" not in evaluations
     rows = [line for line in markdown.splitlines() if line.startswith("| ") and line[2].isdigit()]
     assert len(rows) == 10  # nine grid cells and the one d_qk run trained so far
     assert rows[-1].startswith("| 8 | 5 | 2 | 1,200 | 177.0 ± 0.0 (3) |")
-    assert "`iap-mjx train dcs-cartpole-swingup run.iterations=2 policy.patch_size=8 policy.top_l=5 policy.d_qk=2" in rows[-1]
+    assert (
+        "`iap-mjx train dcs-cartpole-swingup run.iterations=2 policy.patch_size=8 policy.top_l=5 policy.d_qk=2"
+        in rows[-1]
+    )
     stored = json.loads((tmp_path / "fig7.json").read_text())
     assert stored["best"] == [8, 5] and (tmp_path / "fig7.png").stat().st_size > 0
     assert "<!-- BEGIN fig7 -->" in (tmp_path / "RESULTS.md").read_text()

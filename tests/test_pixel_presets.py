@@ -20,8 +20,14 @@ def test_every_dm_control_task_has_a_pixel_preset():
     from iap_mjx.envs.registry import _task_classes
 
     dm_control_tasks = {name for name, cls in _task_classes().items() if cls.domain is not None}
-    assert dm_control_tasks >= {"cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch",
-                                "reacher-easy", "finger-spin"}
+    assert dm_control_tasks >= {
+        "cheetah-run",
+        "walker-walk",
+        "cartpole-swingup",
+        "ball_in_cup-catch",
+        "reacher-easy",
+        "finger-spin",
+    }
     assert {f"{task}-pixels" for task in dm_control_tasks} <= set(PIXEL_PRESETS)
 
 
@@ -31,8 +37,7 @@ def test_pixel_preset_builds_env_and_policy(name):
     env = envs.make(config.env.name, **dict(config.env.overrides))
     assert env.observation_shape == (100, 100, 3)
     assert env.config.action_repeat == ACTION_REPEAT[config.env.name]
-    policy = policies.make(config.policy.kind, env.observation_shape, env.action_size,
-                           **dict(config.policy.options))
+    policy = policies.make(config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
     params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
     if config.policy.kind == "iap":
         assert policy.layer.num_patches == 625 and policy.attention.top_l == 10
@@ -60,16 +65,26 @@ def test_the_first_run_preset_is_cheetah_run_pixels_on_a_smaller_budget():
     the CLI) is cheetah-run-pixels' one-iteration test."""
     quick, full = configs.get("cheetah-run-pixels-quick"), configs.get("cheetah-run-pixels")
     assert (quick.env, quick.policy) == (full.env, full.policy)
-    assert dataclasses.replace(quick.es, population_size=full.es.population_size,
-                               learning_rate=full.es.learning_rate) == full.es
+    assert (
+        dataclasses.replace(quick.es, population_size=full.es.population_size, learning_rate=full.es.learning_rate)
+        == full.es
+    )
 
 
 def _shrunk(task: str):
     """The task's preset as named, shrunk only in its budget (2 frames per episode, 4 members,
     one iteration)."""
-    config = configs.apply_overrides(configs.get(f"{task}-pixels"), [
-        "env.episode_length=2", "es.population_size=4", "run.iterations=1",
-        "run.eval_episodes=2", "run.checkpoint_every=0", "run.tensorboard=false"])
+    config = configs.apply_overrides(
+        configs.get(f"{task}-pixels"),
+        [
+            "env.episode_length=2",
+            "es.population_size=4",
+            "run.iterations=1",
+            "run.eval_episodes=2",
+            "run.checkpoint_every=0",
+            "run.tensorboard=false",
+        ],
+    )
     start = configs.get(f"{task}-pixels")
     assert dataclasses.replace(config, env=start.env, es=start.es, run=start.run) == start
     return config

@@ -43,7 +43,7 @@ def test_frame_stack_and_depth_under_vmap(cartpole):
     assert state.obs.shape == (2, SIZE, SIZE, 12) and state.obs.dtype == jnp.float32
     first = np.asarray(state.obs)
     for i in range(3):  # the reset frame fills the whole stack
-        np.testing.assert_array_equal(first[..., 4 * i: 4 * i + 4], first[..., :4])
+        np.testing.assert_array_equal(first[..., 4 * i : 4 * i + 4], first[..., :4])
     actions = jnp.ones((2, cartpole.action_size))
     states = [state]
     for _ in range(3):
@@ -53,7 +53,7 @@ def test_frame_stack_and_depth_under_vmap(cartpole):
         frame = jax.vmap(cartpole.render)(states[1 + back].data)
         # float rounding only: the frame rendered op by op here and fused inside the jitted step
         # differ by up to ~1e-5 on a few pixels (XLA:CPU's loop emitters, as the tests compile)
-        np.testing.assert_allclose(obs[..., 4 * back: 4 * back + 4], np.asarray(frame), atol=1e-4)
+        np.testing.assert_allclose(obs[..., 4 * back : 4 * back + 4], np.asarray(frame), atol=1e-4)
     rgb = obs[..., -4:-1]
     assert 0.0 <= rgb.min() and rgb.max() <= 1.0
     depth, _ = jax.vmap(cartpole.camera.trace)(states[-1].data)
@@ -85,8 +85,16 @@ def test_env_frames_match_mj_ray():
     hit_id = np.zeros(1, np.int32)
     agree = []
     for direction, our_depth, our_id in zip(dirs, depth.reshape(-1), ids.reshape(-1)):
-        dist = mujoco.mj_ray(model, data, data.cam_xpos[cam.config.camera_id], direction,
-                             np.array([1, 1, 1, 0, 0, 0], np.uint8), 1, -1, hit_id)
+        dist = mujoco.mj_ray(
+            model,
+            data,
+            data.cam_xpos[cam.config.camera_id],
+            direction,
+            np.array([1, 1, 1, 0, 0, 0], np.uint8),
+            1,
+            -1,
+            hit_id,
+        )
         ref_id = hit_id[0] if 0 <= dist < cam.zfar else -1
         ok = our_id == ref_id and (ref_id < 0 or abs(our_depth - dist) <= 1e-4 * dist)
         agree.append(ok)

@@ -73,8 +73,13 @@ def test_period_and_stance_split_at_constant_frequency(ratio):
     np.testing.assert_allclose(in_stance / steps, ratio / (ratio + 1), atol=1.0 / steps)
 
 
-PYBULLET_GAITS = {"walk": (0, 0.25, 0.5, 0.75), "trot": (0, 0.5, 0.5, 0), "bound": (0, 0.5, 0, 0.5),
-                  "pace": (0, 0, 0.5, 0.5), "pronk": (0, 0, 0, 0)}
+PYBULLET_GAITS = {
+    "walk": (0, 0.25, 0.5, 0.75),
+    "trot": (0, 0.5, 0.5, 0),
+    "bound": (0, 0.5, 0, 0.5),
+    "pace": (0, 0, 0.5, 0.5),
+    "pronk": (0, 0, 0, 0),
+}
 """The PyBullet code's leg phase offsets as its source states them (``pmtg_wrapper_env.py``,
 ``_GAIT_PHASE_MAP``): fractions of a period for legs FL, RL, FR, RR (``tg_simple.py``'s order)."""
 PYBULLET_LEGS = ("FL", "RL", "FR", "RR")
@@ -98,8 +103,9 @@ def test_gait_offsets_between_legs(gait):
         legs = np.asarray(pmtg.leg_phases(jnp.float32(phase), ratio, pmtg.GAITS[gait]))
         expected = np.array([_reference_advance(phase, 1.0, ratio, offset) for offset in offsets])
         gap = np.abs(legs - expected)
-        np.testing.assert_allclose(np.minimum(gap, 2 * math.pi - gap), 0, atol=1e-4,
-                                   err_msg=f"phase {phase}, ratio {ratio}")
+        np.testing.assert_allclose(
+            np.minimum(gap, 2 * math.pi - gap), 0, atol=1e-4, err_msg=f"phase {phase}, ratio {ratio}"
+        )
     # at k = 1 the warp is the identity: phase differences are 2 pi times the offsets
     legs = np.asarray(pmtg.leg_phases(jnp.float32(0.0), 1.0, offsets))
     np.testing.assert_allclose(legs, 2 * math.pi * offsets, atol=1e-5)
@@ -151,11 +157,13 @@ def _target_extremes(config: pmtg.TGConfig) -> np.ndarray:
         return i_max * max(0.0, peak)
 
     abduction0, thigh0, knee0 = a1.HOME_LEG
-    return np.array([
-        [abduction0 - r, abduction0 + r],
-        [thigh0 - h_high / 2 - r - largest(a, 0.5), thigh0 - h_low / 2 + r + largest(-a, -0.5)],
-        [knee0 + h_low - r - largest(0.0, -1.0), knee0 + h_high + r + largest(0.0, 1.0)],
-    ])
+    return np.array(
+        [
+            [abduction0 - r, abduction0 + r],
+            [thigh0 - h_high / 2 - r - largest(a, 0.5), thigh0 - h_low / 2 + r + largest(-a, -0.5)],
+            [knee0 + h_low - r - largest(0.0, -1.0), knee0 + h_high + r + largest(0.0, 1.0)],
+        ]
+    )
 
 
 def test_joint_targets_stay_in_the_joint_ranges_for_all_bounded_inputs():
@@ -179,8 +187,9 @@ def test_joint_targets_stay_in_the_joint_ranges_for_all_bounded_inputs():
     config = pmtg.TGConfig()
     extremes = _target_extremes(config)
     model = mujoco.MjModel.from_xml_string(a1.world_xml())
-    ranges = np.array([model.jnt_range[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)]
-                       for name in a1.JOINT_NAMES]).reshape(4, 3, 2)
+    ranges = np.array(
+        [model.jnt_range[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)] for name in a1.JOINT_NAMES]
+    ).reshape(4, 3, 2)
     assert np.all(ranges[..., 0] < extremes[:, 0]) and np.all(extremes[:, 1] < ranges[..., 1])
 
     step = jax.jit(jax.vmap(lambda phase, u: pmtg.tg_step(config, phase, u).targets))
@@ -188,8 +197,9 @@ def test_joint_targets_stay_in_the_joint_ranges_for_all_bounded_inputs():
     random_u = rng.uniform(-1, 1, (4096, 16))
     corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * 4)).reshape(4, -1).T  # (16, 4)
     residual_signs = np.array([[1.0] * 12, [-1.0] * 12, [1, -1, 1] * 4, [-1, 1, -1] * 4])
-    corner_u = np.concatenate([np.repeat(residual_signs, len(corners), 0),
-                               np.tile(corners, (len(residual_signs), 1))], axis=1)
+    corner_u = np.concatenate(
+        [np.repeat(residual_signs, len(corners), 0), np.tile(corners, (len(residual_signs), 1))], axis=1
+    )
     u = np.concatenate([random_u, np.repeat(corner_u, 64, 0)])
     phases = rng.uniform(0, 2 * math.pi, len(u)).astype(np.float32)
     targets = np.asarray(step(jnp.asarray(phases), jnp.asarray(u, jnp.float32))).reshape(-1, 4, 3)

@@ -16,12 +16,15 @@ def images(batch, seed=0):
     return jax.random.uniform(jax.random.PRNGKey(seed), (batch, *SHAPE))
 
 
-@pytest.mark.parametrize("options", [
-    {"kernel": "hybrid", "m": 10, "r": 5},
-    {"kernel": "relu"},
-    {"kernel": "brute", "row_normalize": True},
-    {"kernel": "hybrid", "controller": "mlp", "hidden_sizes": [8], "with_patches": True},
-])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"kernel": "hybrid", "m": 10, "r": 5},
+        {"kernel": "relu"},
+        {"kernel": "brute", "row_normalize": True},
+        {"kernel": "hybrid", "controller": "mlp", "hidden_sizes": [8], "with_patches": True},
+    ],
+)
 def test_iap_policy_acts_under_jit_and_vmap(options):
     policy = policies.make("iap", SHAPE, 6, patch_size=4, top_l=5, **options)
     params = policy.init(jax.random.PRNGKey(1))
@@ -60,8 +63,9 @@ def test_lstm_controller_carries_memory_across_steps():
     assert first.shape == (2,) and not np.allclose(first, second)  # same input, different memory
     np.testing.assert_array_equal(np.asarray(start[1][0]), np.zeros(5))
     assert param_count(params["controller"]) == (6 + 5) * 20 + 20 + 5 * 2 + 2
-    np.testing.assert_array_equal(policy.select(params, image, state).indices,
-                                  policy.select(params, image, start).indices)
+    np.testing.assert_array_equal(
+        policy.select(params, image, state).indices, policy.select(params, image, start).indices
+    )
 
 
 def test_projections_are_fixed_unless_redrawn():
@@ -146,7 +150,7 @@ def _conv_same_reference(x, w, b, stride):
     out = np.zeros((*out_shape, w.shape[-1]))
     for i in range(out_shape[0]):
         for j in range(out_shape[1]):
-            window = padded[i * stride:i * stride + f, j * stride:j * stride + f]
+            window = padded[i * stride : i * stride + f, j * stride : j * stride + f]
             out[i, j] = np.tensordot(window, w, axes=3) + b
     return out
 
@@ -155,15 +159,16 @@ def test_convnet_policy_is_convolutions_pool_embedding_and_the_iap_controller():
     """The baseline's features against a numpy convolution, ReLU and max pool; its controller is
     IAP's (the same ``Controller``), its parameter count the sum of its layers."""
     shape = (24, 40, 3)
-    policy = policies.make("convnet", shape, 2, channels=[4, 6], strides=[2, 3], pool=2, embedding_size=5,
-                           hidden_sizes=[7])
+    policy = policies.make(
+        "convnet", shape, 2, channels=[4, 6], strides=[2, 3], pool=2, embedding_size=5, hidden_sizes=[7]
+    )
     params = policy.init(jax.random.PRNGKey(0))
     image = np.asarray(jax.random.uniform(jax.random.PRNGKey(1), shape))
     x = image
     for layer, stride in zip(params["conv"], (2, 3)):
         x = np.maximum(_conv_same_reference(x, np.asarray(layer["w"]), np.asarray(layer["b"]), stride), 0)
     rows, cols = x.shape[0] // 2, x.shape[1] // 2  # 24x40 -> 12x20 -> 4x7 -> pooled 2x3
-    pooled = x[:2 * rows, :2 * cols].reshape(rows, 2, cols, 2, -1).max(axis=(1, 3))
+    pooled = x[: 2 * rows, : 2 * cols].reshape(rows, 2, cols, 2, -1).max(axis=(1, 3))
     np.testing.assert_allclose(policy.body.embed(params["conv"], jnp.asarray(image)), pooled.ravel(), atol=1e-5)
     embed = params["embed"][0]
     features = np.tanh(pooled.ravel() @ np.asarray(embed["w"]) + np.asarray(embed["b"]))

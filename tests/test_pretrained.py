@@ -29,6 +29,7 @@ def test_every_shipped_run_has_one_checkpoint_its_config_and_metrics():
 def test_a_shipped_dcs_policy_loads_and_evaluates_for_a_few_steps():
     run = next(run for run in RUNS if run.parent.name == "dcs")
     # small background frames and 5-step episodes: the trained policy, a quick program
-    returns = es.evaluate_run(run, episodes=2, seed=0, overrides=("env.episode_length=5", "env.background_size=64",
-                                                                    "env.background_frames=4"))
+    returns = es.evaluate_run(
+        run, episodes=2, seed=0, overrides=("env.episode_length=5", "env.background_size=64", "env.background_frames=4")
+    )
     assert returns.shape == (2,) and np.all(np.isfinite(returns)) and np.all(returns >= 0)

@@ -15,10 +15,19 @@ from iap_mjx import cli, configs, envs, policies
 from iap_mjx.es import train
 
 PRESETS = ("quadruped-walls-iap", "quadruped-walls-cnn", "quadruped-walls-blind")
-SHRINK = ["env.episode_length=5", "es.population_size=4", "run.iterations=1", "run.eval_episodes=2",
-          "run.checkpoint_every=0", "run.tensorboard=false"]
-COURSE_COLUMNS = [f"{prefix}{name}{suffix}" for name in ("walls_passed", "fell_off", "wall_contacts", "distance")
-                  for prefix, suffix in (("", "_mean"), ("eval_", ""))]
+SHRINK = [
+    "env.episode_length=5",
+    "es.population_size=4",
+    "run.iterations=1",
+    "run.eval_episodes=2",
+    "run.checkpoint_every=0",
+    "run.tensorboard=false",
+]
+COURSE_COLUMNS = [
+    f"{prefix}{name}{suffix}"
+    for name in ("walls_passed", "fell_off", "wall_contacts", "distance")
+    for prefix, suffix in (("", "_mean"), ("eval_", ""))
+]
 
 
 def test_presets_are_the_hierarchies_they_name():
@@ -27,10 +36,15 @@ def test_presets_are_the_hierarchies_they_name():
         config = configs.get(name)
         env_config = envs.check(config.env.name, **dict(config.env.overrides))
         assert (config.env.name, env_config.obs_mode, env_config.height, env_config.width) == (
-            "quadruped-walls", "pixels+state", 24, 32)
+            "quadruped-walls",
+            "pixels+state",
+            24,
+            32,
+        )
         assert config.policy.kind == "hierarchical" and not config.es.normalize_observations
-        policy = policies.make("hierarchical", {"pixels": (24, 32, 3), "state": (17,)}, 12,
-                               **dict(config.policy.options))
+        policy = policies.make(
+            "hierarchical", {"pixels": (24, 32, 3), "state": (17,)}, 12, **dict(config.policy.options)
+        )
         seen[name] = policy
         assert policy.duration_range == (10, 50) and policy.latent_size == 4 and policy.low_level_init is None
     assert seen["quadruped-walls-iap"].high.attention.kernel == "relu"
@@ -64,7 +78,8 @@ def test_preset_trains_one_iteration(name, tmp_path):
     with open(tmp_path / "metrics.csv") as f:
         (stored,) = list(csv.DictReader(f))
     assert float(stored["eval_distance"]) == pytest.approx(row["eval_distance"]) and stored["parameters"] == str(
-        row["parameters"])
+        row["parameters"]
+    )
 
 
 @pytest.mark.slow

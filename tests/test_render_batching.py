@@ -35,7 +35,7 @@ def test_single_vmap_and_nested_vmap_agree():
 
 
 def test_background_image_replaces_the_sky_and_config_is_validated():
-    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    ((model, data),) = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
     cam = Camera(model, height=24, width=32)
     mx_data = mjx.put_data(model, data)
     _, ids = cam.trace(mx_data)
@@ -82,12 +82,15 @@ def test_a_non_finite_pose_blanks_its_own_image_only():
         np.testing.assert_array_equal(ids[i], want[2])
 
 
-@pytest.mark.parametrize("camera, height, width, match", [
-    ('projection="orthographic" fovy="2"', 48, 64, "only perspective cameras"),
-    ('focal=".01 .01" sensorsize=".02 .015" resolution="64 48"', 48, 48, "width / height equal to the sensor"),
-    ('focal=".01 .012" sensorsize=".02 .015" resolution="64 48"', 48, 64, "equal focal lengths"),
-    ('focal=".01 .01" principal=".001 0" sensorsize=".02 .015" resolution="64 48"', 48, 64, "principal"),
-])
+@pytest.mark.parametrize(
+    "camera, height, width, match",
+    [
+        ('projection="orthographic" fovy="2"', 48, 64, "only perspective cameras"),
+        ('focal=".01 .01" sensorsize=".02 .015" resolution="64 48"', 48, 48, "width / height equal to the sensor"),
+        ('focal=".01 .012" sensorsize=".02 .015" resolution="64 48"', 48, 64, "equal focal lengths"),
+        ('focal=".01 .01" principal=".001 0" sensorsize=".02 .015" resolution="64 48"', 48, 64, "principal"),
+    ],
+)
 def test_cameras_drawn_otherwise_by_mujoco_are_refused(camera, height, width, match):
     """An orthographic camera, or intrinsics whose frustum is not the ``cam_fovy`` one at the
     image's aspect ratio, would be drawn differently from MuJoCo's renderer: a clear error
@@ -103,12 +106,16 @@ def test_cameras_drawn_otherwise_by_mujoco_are_refused(camera, height, width, ma
 
 
 def test_bad_settings_and_inputs_are_refused_with_the_setting_named():
-    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    ((model, data),) = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
     cam = Camera(model, height=24, width=32)
     with pytest.raises(ValueError, match="background must be floats"):
         cam.render(mjx.put_data(model, data), background=jnp.zeros((24, 32, 3), jnp.uint8))
-    for setting, value in (("cull_pairs_per_tile", float("nan")), ("cull_pairs_per_tile", float("inf")),
-                           ("geom_groups", 1), ("background_color", (0.0, 0.5, 255.0))):
+    for setting, value in (
+        ("cull_pairs_per_tile", float("nan")),
+        ("cull_pairs_per_tile", float("inf")),
+        ("geom_groups", 1),
+        ("background_color", (0.0, 0.5, 255.0)),
+    ):
         with pytest.raises(ValueError, match=setting):
             Camera(model, **{setting: value})
 
@@ -118,7 +125,7 @@ def test_a_sky_row_outside_the_stack_is_clamped():
     gather trusts its indices: unclamped, it would read outside the stack)."""
     from iap_mjx.render import sky
 
-    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    ((model, data),) = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
     frames = np.random.default_rng(2).integers(0, 256, (3, 8, 8, 3), dtype=np.uint8)
     stack = sky.pack_rgb(jnp.asarray(frames))
     cam = Camera(model, height=12, width=16)

@@ -47,8 +47,6 @@ PRIMITIVES_XML = """
 """
 
 
-
-
 # One compiled program per distinct camera (cameras hash by config and scene content).
 _trace = jax.jit(Camera.trace, static_argnums=0)
 
@@ -97,7 +95,7 @@ def test_depth_and_geom_match_mj_ray_on_suite_tasks(domain, task):
 
 def test_default_resolution_tracking_camera_after_mjx_forward():
     """The camera posed by MJX's own kinematics (cheetah's camera 0 tracks the body)."""
-    (model, data), = suite_states("cheetah", "run", n_states=1, seed=3)
+    ((model, data),) = suite_states("cheetah", "run", n_states=1, seed=3)
     cam = Camera(model)
     blank = mjx.put_data(model, mujoco.MjData(model))
     mx_data = jax.jit(mjx.forward)(mjx.put_model(model), blank.replace(qpos=jax.numpy.asarray(data.qpos)))
@@ -133,8 +131,7 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
     model = states[0][0]
     batch = jax.tree.map(lambda *x: np.stack(x), *[mjx.put_data(m, d) for m, d in states])
     dense = Camera(model, height=48, width=40, cull_pairs_per_tile=0)
-    culled = Camera(model, height=48, width=40, cull_pairs_per_tile=cull_pairs_per_tile,
-                    batch_chunk=2, tile=8)
+    culled = Camera(model, height=48, width=40, cull_pairs_per_tile=cull_pairs_per_tile, batch_chunk=2, tile=8)
     assert culled.tracer.culled_groups, "walker's capsules should be culled"
     frames = jax.vmap(culled.tracer.geom_frames)(jax.vmap(culled._poses)(batch))
     _, overflow = jax.jit(jax.vmap(culled.tracer.culled_keys))(frames)
@@ -202,7 +199,9 @@ def test_lights_are_placed_as_mj_camlight_places_them():
         quat = rng.normal(size=4)
         data.qpos[:] = np.concatenate([quat / np.linalg.norm(quat), rng.uniform(-1, 1, 1)])
         mujoco.mj_forward(model, data)
-        position, direction = (np.asarray(a) for a in cam.shader.lights_in_camera_frame(cam._poses(mjx.put_data(model, data))))
+        position, direction = (
+            np.asarray(a) for a in cam.shader.lights_in_camera_frame(cam._poses(mjx.put_data(model, data)))
+        )
         rot = data.cam_xmat[0].reshape(3, 3)
         np.testing.assert_allclose(position, (data.light_xpos - data.cam_xpos[0]) @ rot, atol=1e-5)
         np.testing.assert_allclose(direction, data.light_xdir @ rot, atol=1e-5)

@@ -39,7 +39,7 @@ def _look(direction):
 
 def test_skybox_texels_match_mujoco_by_direction():
     rng = np.random.default_rng(0)
-    (model, data), = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
+    ((model, data),) = render_compare.suite_states("cartpole", "swingup", n_states=1, seed=0)
     mats, faces = [], []
     for face, axis in enumerate(AXES):
         for _ in range(6):
@@ -51,8 +51,12 @@ def test_skybox_texels_match_mujoco_by_direction():
     texture = np.stack([col * 16 + 8, row * 16 + 8, np.full_like(col, 128)], -1).astype(np.uint8)
     rgba = np.array(model.mat_rgba)
     rgba[:, 3] = 0.0  # every material invisible: more sky
-    edits = {"mat_rgba": np.stack([rgba] * n), "sky": np.stack([texture] * n),
-             "cam_xpos": np.tile(np.asarray(data.cam_xpos[0], np.float64), (n, 1)), "cam_xmat": mats}
+    edits = {
+        "mat_rgba": np.stack([rgba] * n),
+        "sky": np.stack([texture] * n),
+        "cam_xpos": np.tile(np.asarray(data.cam_xpos[0], np.float64), (n, 1)),
+        "cam_xmat": mats,
+    }
     ref = render_compare.reference_frames("cartpole", [(model, data)] * n, [0], HEIGHT, WIDTH, distractions=edits)
     rays = Camera(model, height=HEIGHT, width=WIDTH).ray_directions()  # (H, W, 3), camera frame
     world = np.einsum("nij,hwj->nhwi", mats, rays).astype(np.float32)
@@ -65,7 +69,10 @@ def test_skybox_texels_match_mujoco_by_direction():
         assert mask.sum() > 500, (face, mask.sum())
         error = np.concatenate([np.abs(decoded_col - texel % SIZE)[mask], np.abs(decoded_row - texel // SIZE)[mask]])
         assert np.median(error) <= 0.5 and np.percentile(error, 90) <= 1.0, (
-            AXES[face], np.median(error), np.percentile(error, 90))
+            AXES[face],
+            np.median(error),
+            np.percentile(error, 90),
+        )
 
 
 def test_a_sky_stack_and_row_draw_the_same_frame_as_the_frame_itself():

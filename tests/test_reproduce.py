@@ -14,16 +14,33 @@ def test_unknown_figure_and_bad_override_fail_fast(capsys):
 
 
 def test_table_reports_mean_and_std_over_seeds():
-    rows = [{"variant": "IAP", "preset": "cheetah-run-pixels", "inference_s": 0.0021,
-             "returns": [10.0, 20.0, 30.0], "train_wall_s": 12.0, "iterations": 5}]
+    rows = [
+        {
+            "variant": "IAP",
+            "preset": "cheetah-run-pixels",
+            "inference_s": 0.0021,
+            "returns": [10.0, 20.0, 30.0],
+            "train_wall_s": 12.0,
+            "iterations": 5,
+        }
+    ]
     line = reproduce.table(rows).splitlines()[-1]
     assert "| 2.100 |" in line and "20.0 ± 8.2" in line and "| 3 | 5 |" in line
 
 
 def test_figure_has_bars_crosses_and_one_curve_per_variant(tmp_path):
-    rows = [{"variant": name, "preset": name, "inference_s": seconds, "returns": [5.0, 7.0],
-             "curves": [[1.0, 3.0, 5.0], [2.0, 7.0]], "train_wall_s": 1.0, "iterations": 2}
-            for name, seconds in (("IAP", 0.002), ("Brute", 0.01))]
+    rows = [
+        {
+            "variant": name,
+            "preset": name,
+            "inference_s": seconds,
+            "returns": [5.0, 7.0],
+            "curves": [[1.0, 3.0, 5.0], [2.0, 7.0]],
+            "train_wall_s": 1.0,
+            "iterations": 2,
+        }
+        for name, seconds in (("IAP", 0.002), ("Brute", 0.01))
+    ]
     bars, curves, crosses = reproduce.figure(rows, title="t").axes  # the bars' twin axis (made last) holds the crosses
     assert [patch.get_height() for patch in bars.patches] == [0.002, 0.01]
     np.testing.assert_allclose(np.asarray(crosses.lines[0].get_ydata(), dtype=float), [6.0, 6.0])

@@ -80,6 +80,7 @@ def test_jax_writes_its_entries_through_the_atomic_writer(tmp_path):
         print(json.dumps({{"atomic": getattr(type(cache), "writes_atomically", False),
                            "value": float(out.sum())}}))
     """)
+
     def run() -> str:
         done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
         assert '"atomic": true' in done.stdout.splitlines()[-1], done.stdout + done.stderr

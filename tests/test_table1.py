@@ -33,7 +33,10 @@ def test_every_condition_is_a_valid_env_of_every_task():
     assert list(checked) == list(table1.TASKS)
     for task, config in checked.items():
         none = configs.overrides.apply_condition(config, table1.CONDITIONS["none"])
-        assert "distraction" not in dict(none.env.overrides) or dict(none.env.overrides)["distraction"] in (None, "none")
+        assert "distraction" not in dict(none.env.overrides) or dict(none.env.overrides)["distraction"] in (
+            None,
+            "none",
+        )
         held = dict(configs.overrides.apply_condition(config, table1.CONDITIONS["held-out"]).env.overrides)
         assert held["background_videos"] == "val" and held["distraction"] == "medium"
 
@@ -51,8 +54,9 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     from iap_mjx import es
 
     monkeypatch.setattr(es, "evaluate_run", evaluate_run)
-    markdown = table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4,
-                                       train=False, tasks=("cartpole-swingup",))
+    markdown = table1.reproduce_table1(
+        tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
+    )
     assert sorted(call[1] for call in calls) == sorted(table1.CONDITIONS.values())
     assert {call[0] for call in calls} == {"dcs-cartpole-swingup-seed0"}  # the finished run only
     assert all(call[2] == 4 and call[3] == table1.EVAL_SEED for call in calls)
@@ -61,23 +65,34 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
     stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE).read_text())
     assert len(stored) == 4
-    table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
-                            tasks=("cartpole-swingup",))
+    table1.reproduce_table1(
+        tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
+    )
     assert len(calls) == 4  # read back, not evaluated again
     eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE
     short = json.loads(eval_path.read_text())
     key = next(k for k in short if k.startswith("none@"))
     short[key] = short[key][:2]  # as an evaluate_run that returned one device's share stored it
     eval_path.write_text(json.dumps(short))
-    table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
-                            tasks=("cartpole-swingup",))
+    table1.reproduce_table1(
+        tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
+    )
     assert len(calls) == 5 and calls[-1][1] == table1.CONDITIONS["none"]
     assert len(json.loads(eval_path.read_text())[key]) == 4
     assert (tmp_path / "table1.png").stat().st_size > 0
     results = tmp_path / "RESULTS.md"
-    results.write_text("# Results\n\n<!-- BEGIN table1 -->\nold\n<!-- END table1 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n")
-    table1.reproduce_table1(tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False,
-                            tasks=("cartpole-swingup",), results=results)
+    results.write_text(
+        "# Results\n\n<!-- BEGIN table1 -->\nold\n<!-- END table1 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n"
+    )
+    table1.reproduce_table1(
+        tmp_path,
+        seeds=2,
+        overrides=("run.iterations=3",),
+        episodes=4,
+        train=False,
+        tasks=("cartpole-swingup",),
+        results=results,
+    )
     text = results.read_text()
     assert "old" not in text and "kept" in text and row in text and "![table1](table1.png)" in text
     assert "`iap-mjx reproduce table1 run.iterations=3 --seeds 2 --episodes 4" in text
@@ -86,11 +101,24 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
 
 def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
     def rows(task, value):
-        return [{"task": task, "parameters": 1, "seed": s, "curve": [value], "seconds": 1.0, "iterations": 1, "env_steps": 10,
-                 "finished": True, "conditions": {name: [value] for name in table1.CONDITIONS}} for s in range(3)]
+        return [
+            {
+                "task": task,
+                "parameters": 1,
+                "seed": s,
+                "curve": [value],
+                "seconds": 1.0,
+                "iterations": 1,
+                "env_steps": 10,
+                "finished": True,
+                "conditions": {name: [value] for name in table1.CONDITIONS},
+            }
+            for s in range(3)
+        ]
 
-    markdown = table1.table(rows("cartpole-swingup", 196.0) + rows("walker-walk", 110.0)
-                            + rows("reacher-easy", 109.0), seeds=3)
+    markdown = table1.table(
+        rows("cartpole-swingup", 196.0) + rows("walker-walk", 110.0) + rows("reacher-easy", 109.0), seeds=3
+    )
     assert "2 of 3 finished tasks" in markdown  # walker's 110 is below QT-Opt's 111
     six = [r for task in table1.TASKS for r in rows(task, 170.0)]
     assert "Six-task mean: 170.0" in table1.table(six, seeds=3)
@@ -102,8 +130,14 @@ def test_export_copies_the_newest_checkpoint_and_the_run_files(tmp_path, monkeyp
     fake_run(run, config, 2, [1.0, 2.0])
     checkpoint.save(run, 1, {"x": np.ones(2)}, config.to_dict())  # an older step: not exported
     export = tmp_path / "pretrained"
-    table1.reproduce_table1(tmp_path / "out", seeds=1, overrides=("run.iterations=3",), train=False,
-                            tasks=("cartpole-swingup",), export=export)
+    table1.reproduce_table1(
+        tmp_path / "out",
+        seeds=1,
+        overrides=("run.iterations=3",),
+        train=False,
+        tasks=("cartpole-swingup",),
+        export=export,
+    )
     copied = export / "cartpole-swingup-seed0"
     assert sorted(p.name for p in (copied / checkpoint.CHECKPOINT_DIR).iterdir()) == ["2"]
     assert checkpoint.latest_step(copied) == 2
@@ -136,14 +170,24 @@ def test_cnn_baseline_is_reported_beside_the_iap_runs_with_both_parameter_counts
 
     monkeypatch.setattr(es, "evaluate_run", evaluate_run)
     results = tmp_path / "RESULTS.md"
-    markdown = table1.reproduce_table1(tmp_path, seeds=1, overrides=overrides, episodes=2, train=False,
-                                       tasks=("cartpole-swingup",), results=results, policy="cnn",
-                                       export=tmp_path / "pretrained")
+    markdown = table1.reproduce_table1(
+        tmp_path,
+        seeds=1,
+        overrides=overrides,
+        episodes=2,
+        train=False,
+        tasks=("cartpole-swingup",),
+        results=results,
+        policy="cnn",
+        export=tmp_path / "pretrained",
+    )
     iap_count = 2 * 12 * 4 + (20 + 16) * 64 + 64 + 16 + 1  # W_Q, W_K (12 -> 4); LSTM(16) on 10 centres
     cnn_count = (27 * 8 + 8) + (72 * 16 + 16) + (144 * 16 + 16) + (320 * 16 + 16) + (16 + 16) * 64 + 64 + 16 + 1
     row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
-    assert row == (f"| cartpole-swingup | {iap_count:,} | 160.0 ± 0.0 | 170.0 ± 0.0 | {cnn_count:,} | 100.0 ± 0.0 | "
-                   "110.0 ± 0.0 | 110.0 ± 0.0 | 110.0 ± 0.0 | 1 and 1 of 1 | 2 |")
+    assert row == (
+        f"| cartpole-swingup | {iap_count:,} | 160.0 ± 0.0 | 170.0 ± 0.0 | {cnn_count:,} | 100.0 ± 0.0 | "
+        "110.0 ± 0.0 | 110.0 ± 0.0 | 110.0 ± 0.0 | 1 and 1 of 1 | 2 |"
+    )
     assert (tmp_path / "table1-cnn.png").stat().st_size > 0 and not (tmp_path / "table1.png").exists()
     assert [r["policy"] for r in json.loads((tmp_path / "table1-cnn.json").read_text())] == ["cnn"]
     text = results.read_text()

@@ -14,14 +14,17 @@ from fake_runs import fake_run
 from iap_mjx import cli, configs, reproduce, table2
 
 ITERATIONS = ("run.iterations=3",)
-VALID = ("(1, 1), (2, 1), (2, 2), (3, 1), (4, 1), (4, 2), (4, 4), (5, 1), (6, 1), (6, 2), (7, 1), (8, 1), (8, 2), "
-         "(8, 4), (8, 8)")
+VALID = (
+    "(1, 1), (2, 1), (2, 2), (3, 1), (4, 1), (4, 2), (4, 4), (5, 1), (6, 1), (6, 2), (7, 1), (8, 1), (8, 2), "
+    "(8, 4), (8, 8)"
+)
 
 
 def _run(out, setting, population_max, iterations=3):
     own = setting == (4, 4)
-    config = configs.apply_overrides(configs.get(table2.PRESET),
-                                     ITERATIONS + (() if own else table2.setting_overrides(*setting)))
+    config = configs.apply_overrides(
+        configs.get(table2.PRESET), ITERATIONS + (() if own else table2.setting_overrides(*setting))
+    )
     name = "quadruped-walls-iap-seed0" if own else f"table2-p{setting[0]}-s{setting[1]}-seed0"
     fake_run(out / name, config, iterations, [float(i) for i in range(1, iterations + 1)], population_max)
 
@@ -32,7 +35,8 @@ def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
     assert str(error.value) == (
         "table2 setting (patch size 3, stride 3): patches of size 3 with stride 3 do not tile the image: (width 32 - "
         "patch_size) is not a multiple of the stride; choose sizes with (size - patch_size) % stride == 0. Valid "
-        f"(patch size, stride) on the 24x32 camera with top_l = 10, stride <= patch size <= 8: {VALID}")
+        f"(patch size, stride) on the 24x32 camera with top_l = 10, stride <= patch size <= 8: {VALID}"
+    )
     with pytest.raises(ValueError, match=r"setting \(patch size 8, stride 8\): L = 12 patches, fewer than top_l = 20"):
         table2.reproduce_table2(tmp_path, settings=((8, 8),), overrides=("policy.top_l=20",))
     with pytest.raises(ValueError, match="remove policy.stride=2"):
@@ -62,8 +66,12 @@ def test_each_setting_trains_with_its_overrides_and_the_same_budget(tmp_path, mo
 
     monkeypatch.setattr(reproduce, "trained_curve", trained_curve)
     table2.reproduce_table2(tmp_path, seed=1, overrides=("run.iterations=2",))
-    assert trained == [("table2-p1-s1-seed1", 1, 1, 2, 1), ("table2-p2-s2-seed1", 2, 2, 2, 1),
-                       ("quadruped-walls-iap-seed1", 4, None, 2, 1), ("table2-p4-s2-seed1", 4, 2, 2, 1)]
+    assert trained == [
+        ("table2-p1-s1-seed1", 1, 1, 2, 1),
+        ("table2-p2-s2-seed1", 2, 2, 2, 1),
+        ("quadruped-walls-iap-seed1", 4, None, 2, 1),
+        ("table2-p4-s2-seed1", 4, 2, 2, 1),
+    ]
 
 
 def test_table_reports_maximum_returns_patches_and_commands(tmp_path, capsys):
@@ -78,18 +86,35 @@ def test_table_reports_maximum_returns_patches_and_commands(tmp_path, capsys):
         f"| 2 | 2 | 192 | 585 | 6.0 | 2.0 | 2 (running) | 34 | `iap-mjx train quadruped-walls-iap run.iterations=3 "
         f"policy.patch_size=2 policy.stride=2 run.seed=0 --run-dir {tmp_path}/table2-p2-s2-seed0` |",
         f"| 4 | 4 | 48 | 873 | 9.0 | 3.0 | 3 | 36 | `iap-mjx train quadruped-walls-iap run.iterations=3 run.seed=0 "
-        f"--run-dir {tmp_path}/quadruped-walls-iap-seed0` |"]
+        f"--run-dir {tmp_path}/quadruped-walls-iap-seed0` |",
+    ]
     assert lines[-1] == "Best setting: not decided yet (2 of 4 settings finished)."
     _run(tmp_path, (2, 2), [3.0, 6.0, 1.0])
     _run(tmp_path, (4, 2), [1.0, 20.0, 3.0])
     results = tmp_path / "RESULTS.md"
-    assert cli.main(["reproduce", "table2", *ITERATIONS, "--settings", "1x1,2x2,4x4,4x2", "--report-only",
-                     "--out", str(tmp_path), "--results", str(results)]) == 0
+    assert (
+        cli.main(
+            [
+                "reproduce",
+                "table2",
+                *ITERATIONS,
+                "--settings",
+                "1x1,2x2,4x4,4x2",
+                "--report-only",
+                "--out",
+                str(tmp_path),
+                "--results",
+                str(results),
+            ]
+        )
+        == 0
+    )
     markdown = capsys.readouterr().out.rstrip("\n")
     assert markdown.splitlines()[5].startswith("| 4 | 2 | 165 | 873 | 20.0 | 3.0 | 3 | 36 |")
     assert markdown.splitlines()[-1] == (
         "Best setting: patch size 4, stride 2 (L = 165, max return 20.0); the paper's best had the most patches, here "
-        "patch size 1, stride 1 (L = 768, max return 12.0).")
+        "patch size 1, stride 1 (L = 768, max return 12.0)."
+    )
     text = results.read_text()
     assert "<!-- BEGIN table2 -->" in text and markdown in text and "![table2](table2.png)" in text
     assert f"`iap-mjx reproduce table2 run.iterations=3 --settings 1x1,2x2,4x4,4x2 --seed 0 --out {tmp_path}" in text

@@ -34,26 +34,38 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
         assert tuple(frame[top, left]) == video.RED  # the outline's corner
 
     # MP4, the run's artifact (a GIF merges identical frames: a still cartpole is one).
-    path, episode_return = video.episode_video(env, policy, params, tmp_path / "episode.mp4",
-                                               key=jax.random.PRNGKey(1), steps=4, program=program)
+    path, episode_return = video.episode_video(
+        env, policy, params, tmp_path / "episode.mp4", key=jax.random.PRNGKey(1), steps=4, program=program
+    )
     frames = iio.imread(path, plugin="pyav")
     assert frames.shape == (4, 88, 72, 3)
     np.testing.assert_allclose(episode_return, record["rewards"].sum(), rtol=1e-5)
 
     # A strip: frames 0, 2 and 3 of the same episode (evenly spaced, rounded), 2 to a row,
     # each tile the frame annotated as the video's, white gaps between them.
-    path, strip_return = video.episode_strip(env, policy, params, tmp_path / "strip.png", key=jax.random.PRNGKey(1),
-                                             steps=4, frames=3, columns=2, program=program, scale=3)
+    path, strip_return = video.episode_strip(
+        env,
+        policy,
+        params,
+        tmp_path / "strip.png",
+        key=jax.random.PRNGKey(1),
+        steps=4,
+        frames=3,
+        columns=2,
+        program=program,
+        scale=3,
+    )
     strip = np.asarray(imageio.imread(path))
     tile_h, tile_w = 24 * 3 + 16, 24 * 3
     assert strip.shape == (2 * tile_h + 4, 2 * tile_w + 4, 3)
     returns = np.cumsum(record["rewards"])
     for (row, col), t in zip([(0, 0), (0, 1), (1, 0)], [0, 2, 3]):
-        tile = strip[row * (tile_h + 4): row * (tile_h + 4) + tile_h, col * (tile_w + 4): col * (tile_w + 4) + tile_w]
-        expected = video.annotate(record["frames"][t], record["indices"][t], policy.layer, float(returns[t]),
-                                  scale=3, step=t)
+        tile = strip[row * (tile_h + 4) : row * (tile_h + 4) + tile_h, col * (tile_w + 4) : col * (tile_w + 4) + tile_w]
+        expected = video.annotate(
+            record["frames"][t], record["indices"][t], policy.layer, float(returns[t]), scale=3, step=t
+        )
         np.testing.assert_array_equal(tile, expected)
-    assert np.all(strip[tile_h: tile_h + 4] == 255) and np.all(strip[tile_h + 4:, tile_w + 4:] == 0)  # rule, blank
+    assert np.all(strip[tile_h : tile_h + 4] == 255) and np.all(strip[tile_h + 4 :, tile_w + 4 :] == 0)  # rule, blank
     np.testing.assert_allclose(strip_return, episode_return, rtol=1e-6)
 
 
@@ -73,8 +85,9 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
     gap = np.abs(record["frames"][0] - np.asarray(expected))
     assert gap.max() < 0.01 and np.mean(gap > 1e-4) < 1e-3
     assert record["frames"][0].std() > 0.05  # a picture, not a blank
-    path, _ = video.episode_video(env, policy, params, tmp_path / "state.gif",
-                                  key=jax.random.PRNGKey(1), steps=3, program=program)
+    path, _ = video.episode_video(
+        env, policy, params, tmp_path / "state.gif", key=jax.random.PRNGKey(1), steps=3, program=program
+    )
     frames = imageio.mimread(path)
     assert len(frames) == 3 and frames[0].shape[:2] == (video.STATE_VIDEO_SIZE[0] + 16, video.STATE_VIDEO_SIZE[1])
 
@@ -91,17 +104,37 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
     run_dir, out = tmp_path / "run", tmp_path / "dcs.mp4"
     size = ("env.height=48", "env.width=64")
-    assert cli.main(["train", "dcs-cartpole-swingup-quick", *size, "run.iterations=1",
-                     "--run-dir", str(run_dir), "--no-progress"]) == 0
+    assert (
+        cli.main(
+            [
+                "train",
+                "dcs-cartpole-swingup-quick",
+                *size,
+                "run.iterations=1",
+                "--run-dir",
+                str(run_dir),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     # the whole 10-step episode: the program the run compiled for its own video, from the cache
     assert cli.main(["video", str(run_dir), "--out", str(out), "--seed", "3"]) == 0
 
     # the env as the issue specifies it, built here rather than from the run's config
-    env = envs.make("cartpole-swingup", obs_mode="pixels", height=48, width=64, action_repeat=8,
-                    distraction="medium", dynamic=False, episode_length=10, background_size=64,
-                    background_frames=4)
-    plain = envs.make("cartpole-swingup", obs_mode="pixels", height=48, width=64, action_repeat=8,
-                      episode_length=10)
+    env = envs.make(
+        "cartpole-swingup",
+        obs_mode="pixels",
+        height=48,
+        width=64,
+        action_repeat=8,
+        distraction="medium",
+        dynamic=False,
+        episode_length=10,
+        background_size=64,
+        background_frames=4,
+    )
+    plain = envs.make("cartpole-swingup", obs_mode="pixels", height=48, width=64, action_repeat=8, episode_length=10)
     reset_key = jax.random.split(jax.random.PRNGKey(3))[0]  # the episode program's reset key
     first = jax.jit(env.reset)(reset_key)
     plain_view = jax.jit(plain.render)(first.data)
@@ -109,13 +142,15 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
 
     result = es.load_run(run_dir)
     _, policy = artifacts.env_and_policy(result.config)
-    record = video.record_episode(env, policy, result.params, jax.random.PRNGKey(3), steps=10,
-                               obs_stats=result.obs_stats)
+    record = video.record_episode(
+        env, policy, result.params, jax.random.PRNGKey(3), steps=10, obs_stats=result.obs_stats
+    )
     # the same picture (fused inside the episode's scan, a few pixels round differently)
     np.testing.assert_allclose(record["frames"][0], first.obs, atol=2e-3)
     returns = np.cumsum(record["rewards"])
-    annotated = np.stack([video.annotate(f, i, policy.layer, float(r))
-                          for f, i, r in zip(record["frames"], record["indices"], returns)])
+    annotated = np.stack(
+        [video.annotate(f, i, policy.layer, float(r)) for f, i, r in zip(record["frames"], record["indices"], returns)]
+    )
     bare = np.stack([video.annotate(f, None, None, float(r)) for f, r in zip(record["frames"], returns)])
     decoded = iio.imread(out, plugin="pyav").astype(float)
     assert decoded.shape == annotated.shape == (10, 48 * 3 + 16, 64 * 3, 3)
@@ -133,8 +168,7 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     # H.264 halves chroma resolution, which blurs 1-pixel red lines: the outlines are there
     # when the video is closer to the outlined frames than to the bare ones (without outlines
     # it is within the codec's loss of the bare frames, and far from the outlined ones)
-    assert (np.abs(decoded - annotated)[outline].mean()
-            < np.abs(decoded - bare.astype(float))[outline].mean())
+    assert np.abs(decoded - annotated)[outline].mean() < np.abs(decoded - bare.astype(float))[outline].mean()
 
 
 def test_small_patches_get_a_ring_that_can_be_seen():

@@ -17,7 +17,9 @@ ITERATIONS = ("run.iterations=3",)
 
 
 def _fake_run(out, kernel, patch, returns):
-    config = configs.apply_overrides(configs.get(wallclock.PRESET), (*ITERATIONS, *wallclock.variant_overrides(kernel, patch)))
+    config = configs.apply_overrides(
+        configs.get(wallclock.PRESET), (*ITERATIONS, *wallclock.variant_overrides(kernel, patch))
+    )
     run_dir = out / f"{wallclock.name(kernel, patch)}-seed0"
     writer = MetricsWriter(run_dir, None, tensorboard=False)
     for i, value in enumerate(returns, start=1):
@@ -26,11 +28,21 @@ def _fake_run(out, kernel, patch, returns):
 
 
 def _timings():
-    variants = {wallclock.name(k, p): {"iteration_s": 2.0 * p + (k == "brute"), "compile_s": 30.0, "iterations_timed": 2}
-                for k, p in wallclock.VARIANTS}
-    return {"variants": variants, "machine": "test", "started": "now",
-            "brute_p2": {"forward_pass_s": 2.0, "hybrid_forward_pass_s": 0.001, "frames_per_iteration": 8500,
-                         "projected_iteration_s": 4.0 + 8500 * 1.999}}
+    variants = {
+        wallclock.name(k, p): {"iteration_s": 2.0 * p + (k == "brute"), "compile_s": 30.0, "iterations_timed": 2}
+        for k, p in wallclock.VARIANTS
+    }
+    return {
+        "variants": variants,
+        "machine": "test",
+        "started": "now",
+        "brute_p2": {
+            "forward_pass_s": 2.0,
+            "hybrid_forward_pass_s": 0.001,
+            "frames_per_iteration": 8500,
+            "projected_iteration_s": 4.0 + 8500 * 1.999,
+        },
+    }
 
 
 def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
@@ -58,7 +70,11 @@ def test_curves_use_the_measured_seconds_per_iteration_not_the_runs_own(tmp_path
     _fake_run(tmp_path, "brute", 8, [1.0, 2.0, 3.0])
     _fake_run(tmp_path, "hybrid", 2, [5.0, 7.0])  # unfinished: reported as far as it got
     markdown = wallclock.reproduce_fig8(tmp_path, overrides=ITERATIONS, train=False, results=tmp_path / "RESULTS.md")
-    rows = {line.split(" | ")[0]: line for line in markdown.splitlines() if line.startswith("| IAP") or line.startswith("| brute")}
+    rows = {
+        line.split(" | ")[0]: line
+        for line in markdown.splitlines()
+        if line.startswith("| IAP") or line.startswith("| brute")
+    }
     assert rows["| brute-force softmax"].endswith("| 8 | 1,200 | 17.0 | 30 | 3 | 3.0 | 3.0 | 81 |")
     assert rows["| IAP hybrid (10,5)"].endswith("| 2 | 19,200 | 4.0 | 30 | 2 | 7.0 | 7.0 | 38 |")
     assert len(rows) == 2

@@ -16,8 +16,22 @@ from iap_mjx.attention.scores import brute_scores, hybrid_scores, linear_scores
 from iap_mjx.attention.selection import top_l
 
 __all__ = [
-    "KINDS", "ROLES", "KERNELS", "Projections", "closed_form_mse", "draw_projections",
-    "feature_count", "feature_map", "AttentionConfig", "AttentionParams", "IAPAttention",
-    "Selection", "brute_scores", "extract_patches", "hybrid_scores", "linear_scores",
-    "patch_centres", "top_l",
+    "KINDS",
+    "ROLES",
+    "KERNELS",
+    "Projections",
+    "closed_form_mse",
+    "draw_projections",
+    "feature_count",
+    "feature_map",
+    "AttentionConfig",
+    "AttentionParams",
+    "IAPAttention",
+    "Selection",
+    "brute_scores",
+    "extract_patches",
+    "hybrid_scores",
+    "linear_scores",
+    "patch_centres",
+    "top_l",
 ]

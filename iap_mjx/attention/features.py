@@ -78,8 +78,7 @@ def _check_count(name: str, value: int | None) -> int:
     return value
 
 
-def feature_count(kind: str, *, m: int | None = None, d: int | None = None,
-                  r: int | None = None) -> int:
+def feature_count(kind: str, *, m: int | None = None, d: int | None = None, r: int | None = None) -> int:
     """The feature dimension ``M`` of ``kind`` (see the module table)."""
     check_kind(kind)
     if kind == "relu":
@@ -127,8 +126,9 @@ def _orthonormal_rows(gaussian: jax.Array) -> jax.Array:
     return jnp.stack(rows)
 
 
-def draw_projections(key: jax.Array, kind: str, *, m: int, d: int, r: int | None = None,
-                     orthogonal: bool = True) -> Projections:
+def draw_projections(
+    key: jax.Array, kind: str, *, m: int, d: int, r: int | None = None, orthogonal: bool = True
+) -> Projections:
     """Draws the random matrices that ``kind`` needs.
 
     Args:
@@ -198,10 +198,17 @@ def sincos(x: jax.Array) -> tuple[jax.Array, jax.Array]:
     n = jnp.round(x * (1.0 / math.pi))
     r = ((x - n * _PI_HI) - n * _PI_MID) - n * _PI_LO
     z = r * r
-    sin = r + r * z * (-1.6666666666e-1 + z * (8.3333333333e-3 + z * (-1.9841269841e-4 + z * (
-        2.7557319223e-6 + z * -2.5052108385e-8))))
-    cos = 1.0 + z * (-0.5 + z * (4.1666666666e-2 + z * (-1.3888888888e-3 + z * (
-        2.4801587301e-5 + z * (-2.7557319223e-7 + z * 2.0876756987e-9)))))
+    sin = r + r * z * (
+        -1.6666666666e-1 + z * (8.3333333333e-3 + z * (-1.9841269841e-4 + z * (2.7557319223e-6 + z * -2.5052108385e-8)))
+    )
+    cos = 1.0 + z * (
+        -0.5
+        + z
+        * (
+            4.1666666666e-2
+            + z * (-1.3888888888e-3 + z * (2.4801587301e-5 + z * (-2.7557319223e-7 + z * 2.0876756987e-9)))
+        )
+    )
     width = jnp.finfo(x.dtype).bits
     int_dtype = jnp.dtype(f"int{width}")
     sign_bit = jax.lax.shift_left(n.astype(int_dtype), jnp.asarray(width - 1, int_dtype))  # (-1)^n
@@ -247,8 +254,7 @@ def stabilizing_shift(comps: Components, kind: str, stabilize: bool) -> jax.Arra
     return jax.lax.stop_gradient(functools.reduce(jnp.maximum, parts))
 
 
-def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
-                stabilize: bool = False) -> jax.Array:
+def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str, stabilize: bool = False) -> jax.Array:
     """Features of queries or keys ``x (..., d)`` -> ``(..., M)`` (``M`` from :func:`feature_count`).
 
     ``feature_map(k, x, p, role="query") @ feature_map(k, y, p, role="key")`` is an unbiased
@@ -277,8 +283,10 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
         signs = signs_of(x, projections.xi)
         return signs / math.sqrt(signs.shape[-1])
     if projections.omega is None or (kind == "hybrid" and projections.xi is None):
-        raise ValueError(f"projections lack the matrices that kind {kind!r} needs; "
-                         f"draw them with draw_projections(key, {kind!r}, ...)")
+        raise ValueError(
+            f"projections lack the matrices that kind {kind!r} needs; "
+            f"draw them with draw_projections(key, {kind!r}, ...)"
+        )
     comps = components(x, projections)
     shift = stabilizing_shift(comps, kind, stabilize)
     m = comps.exp_log.shape[-1]
@@ -294,8 +302,7 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
     # alpha: (..., 2m, r) -> (..., 2mr); beta: (..., m, r) -> (..., mr).
     alpha = (trig[..., :, None] * signs[..., None, :]).reshape(*x.shape[:-1], 2 * m * r)
     beta = beta_sign * (positive[..., :, None] * signs[..., None, :]).reshape(*x.shape[:-1], m * r)
-    blocks = [trig / math.sqrt(m), positive / math.sqrt(m),
-              alpha / math.sqrt(m * r), beta / math.sqrt(m * r)]
+    blocks = [trig / math.sqrt(m), positive / math.sqrt(m), alpha / math.sqrt(m * r), beta / math.sqrt(m * r)]
     return jnp.concatenate(blocks, axis=-1) / math.sqrt(2.0)
 
 
@@ -312,8 +319,9 @@ def angle_between(x: jax.Array, y: jax.Array) -> jax.Array:
     """
     norm_x = jnp.linalg.norm(x, axis=-1, keepdims=True)
     norm_y = jnp.linalg.norm(y, axis=-1, keepdims=True)
-    return 2.0 * jnp.arctan2(jnp.linalg.norm(norm_x * y - norm_y * x, axis=-1),
-                             jnp.linalg.norm(norm_x * y + norm_y * x, axis=-1))
+    return 2.0 * jnp.arctan2(
+        jnp.linalg.norm(norm_x * y - norm_y * x, axis=-1), jnp.linalg.norm(norm_x * y + norm_y * x, axis=-1)
+    )
 
 
 def angular_kernel(x: jax.Array, y: jax.Array) -> jax.Array:
@@ -321,8 +329,7 @@ def angular_kernel(x: jax.Array, y: jax.Array) -> jax.Array:
     return 1.0 - 2.0 * angle_between(x, y) / jnp.pi
 
 
-def closed_form_mse(kind: str, x: jax.Array, y: jax.Array, *, m: int,
-                    r: int | None = None) -> jax.Array:
+def closed_form_mse(kind: str, x: jax.Array, y: jax.Array, *, m: int, r: int | None = None) -> jax.Array:
     """Mean squared error of the ``exp(x.y)`` estimators with iid draws (iap-math.md section 5).
 
     Args:
@@ -350,5 +357,4 @@ def closed_form_mse(kind: str, x: jax.Array, y: jax.Array, *, m: int,
     p = angle_between(x, y) / jnp.pi
     norm_gap = jnp.sum(x * x, axis=-1) - jnp.sum(y * y, axis=-1)
     cross = (2.0 / m) * sm**2 * (1.0 - jnp.cos(norm_gap))
-    return (p * mse_exp + (1 - p) * mse_trig
-            - p * (1 - p) * (1 - 1 / r) * (mse_exp + mse_trig + cross))
+    return p * mse_exp + (1 - p) * mse_trig - p * (1 - p) * (1 - 1 / r) * (mse_exp + mse_trig + cross)

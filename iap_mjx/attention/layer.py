@@ -81,14 +81,19 @@ class AttentionConfig:
                 raise ValueError(f"AttentionConfig.{name} must be a positive integer, got {value!r}")
         if self.stride is not None and (not isinstance(self.stride, int) or self.stride <= 0):
             raise ValueError(f"AttentionConfig.stride must be a positive integer or None, got {self.stride!r}")
-        if self.batch_chunk is not None and (not isinstance(self.batch_chunk, int)
-                                             or isinstance(self.batch_chunk, bool) or self.batch_chunk <= 0):
-            raise ValueError(f"AttentionConfig.batch_chunk must be a positive integer or None, got {self.batch_chunk!r}")
+        if self.batch_chunk is not None and (
+            not isinstance(self.batch_chunk, int) or isinstance(self.batch_chunk, bool) or self.batch_chunk <= 0
+        ):
+            raise ValueError(
+                f"AttentionConfig.batch_chunk must be a positive integer or None, got {self.batch_chunk!r}"
+            )
         if not self.eq5_scale > 0:
             raise ValueError(f"AttentionConfig.eq5_scale must be positive, got {self.eq5_scale!r}")
         if self.row_normalize and self.kernel != "brute":
-            raise ValueError("row_normalize applies to kernel='brute' only "
-                             "(IAP scores are column sums of an unnormalised attention matrix)")
+            raise ValueError(
+                "row_normalize applies to kernel='brute' only "
+                "(IAP scores are column sums of an unnormalised attention matrix)"
+            )
 
     @property
     def effective_stride(self) -> int:
@@ -147,7 +152,8 @@ class IAPAttention:
         if self.config.top_l > self.num_patches:
             raise ValueError(
                 f"top_l = {self.config.top_l} exceeds the number of patches L = {self.num_patches} "
-                f"({height}x{width} image, patch_size {self.config.patch_size}, stride {stride})")
+                f"({height}x{width} image, patch_size {self.config.patch_size}, stride {stride})"
+            )
 
     @property
     def grid(self) -> tuple[int, int]:
@@ -172,16 +178,16 @@ class IAPAttention:
         shape = (self.patch_dim, self.config.d_qk)
         scale = 1.0 / math.sqrt(self.patch_dim)
         bias = jnp.zeros((self.config.d_qk,)) if self.config.use_bias else None
-        return AttentionParams(w_q=scale * jax.random.normal(q_key, shape),
-                               w_k=scale * jax.random.normal(k_key, shape), b_q=bias, b_k=bias)
+        return AttentionParams(
+            w_q=scale * jax.random.normal(q_key, shape), w_k=scale * jax.random.normal(k_key, shape), b_q=bias, b_k=bias
+        )
 
     def draw_projections(self, key: jax.Array) -> ft.Projections:
         """The kernel's random projections (empty for ``brute`` and ``relu``)."""
         cfg = self.config
         if cfg.kernel == "brute":
             return ft.Projections()
-        return ft.draw_projections(key, cfg.kernel, m=cfg.m, d=cfg.d_qk, r=cfg.r,
-                                   orthogonal=cfg.orthogonal)
+        return ft.draw_projections(key, cfg.kernel, m=cfg.m, d=cfg.d_qk, r=cfg.r, orthogonal=cfg.orthogonal)
 
     def queries_keys(self, params: AttentionParams, image: jax.Array) -> tuple[jax.Array, jax.Array]:
         """``image (H, W, C)`` -> queries, keys ``(L, d)``, scaled: the inputs of brute force
@@ -206,11 +212,14 @@ class IAPAttention:
             projected = patches @ weights
         else:
             projected = jax.lax.conv_general_dilated(
-                image[None].astype(weights.dtype), weights.reshape(p, p, channels, -1),
-                window_strides=(stride, stride), padding="VALID",
-                dimension_numbers=("NHWC", "HWIO", "NHWC"))
+                image[None].astype(weights.dtype),
+                weights.reshape(p, p, channels, -1),
+                window_strides=(stride, stride),
+                padding="VALID",
+                dimension_numbers=("NHWC", "HWIO", "NHWC"),
+            )
             projected = projected.reshape(self.num_patches, 2 * cfg.d_qk)
-        queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk:]
+        queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk :]
         if params.b_q is not None:
             queries, keys = queries + params.b_q, keys + params.b_k
         return self.scale_inputs(queries, axis=-1), self.scale_inputs(keys, axis=-1)
@@ -236,14 +245,16 @@ class IAPAttention:
             projected = jax.lax.dot_general(weights.T, patches, (((1,), (1,)), ((), ())))  # (2d, L)
         else:
             projected = jax.lax.conv_general_dilated(
-                image[None], weights.reshape(p, p, channels, 2 * d),
-                window_strides=(stride, stride), padding="VALID",
-                dimension_numbers=("NHWC", "HWIO", "NCHW"))[0]
+                image[None],
+                weights.reshape(p, p, channels, 2 * d),
+                window_strides=(stride, stride),
+                padding="VALID",
+                dimension_numbers=("NHWC", "HWIO", "NCHW"),
+            )[0]
         projected = projected.reshape(2 * d, self.num_patches)
         if params.b_q is not None:
             projected = projected + jnp.concatenate([params.b_q, params.b_k])[:, None]
-        return jnp.concatenate([self.scale_inputs(projected[:d], axis=0),
-                                self.scale_inputs(projected[d:], axis=0)])
+        return jnp.concatenate([self.scale_inputs(projected[:d], axis=0), self.scale_inputs(projected[d:], axis=0)])
 
     def scale_inputs(self, u: jax.Array, *, axis: int) -> jax.Array:
         """Paper eq. 4 (``d^{-1/4} u``), eq. 5 (``c u / |u|``) or identity, of queries or keys
@@ -251,7 +262,7 @@ class IAPAttention:
         ``(d, L)`` with ``axis=0``; same shape out."""
         cfg = self.config
         if cfg.scaling == "eq4":
-            return u * cfg.d_qk ** -0.25
+            return u * cfg.d_qk**-0.25
         if cfg.scaling == "eq5":
             norm = jnp.linalg.norm(u, axis=axis, keepdims=True)
             return cfg.eq5_scale * u / jnp.maximum(norm, 1e-12)
@@ -265,8 +276,7 @@ class IAPAttention:
             return self.config.batch_chunk
         return max(1, CHUNK_TOKENS // self.num_patches)
 
-    def _row_scores(self, params: AttentionParams, projections: ft.Projections,
-                    image: jax.Array) -> jax.Array:
+    def _row_scores(self, params: AttentionParams, projections: ft.Projections, image: jax.Array) -> jax.Array:
         """ReLU or hybrid scores ``(L,)`` of one image from its token rows."""
         d = self.config.d_qk
         rows = self.query_key_rows(params, image)
@@ -287,8 +297,9 @@ class IAPAttention:
             shared = jax.tree.map(lambda x, b: None if b else x, args, in_batched)
 
             def one_chunk(part):
-                merged = jax.tree.map(lambda c, x, b: c if b else x, part, shared, in_batched,
-                                      is_leaf=lambda x: x is None)
+                merged = jax.tree.map(
+                    lambda c, x, b: c if b else x, part, shared, in_batched, is_leaf=lambda x: x is None
+                )
                 axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
                 return jax.vmap(self._row_scores, in_axes=axes)(*merged)
 
@@ -300,8 +311,7 @@ class IAPAttention:
 
         return batched
 
-    def scores(self, params: AttentionParams, projections: ft.Projections,
-               image: jax.Array) -> jax.Array:
+    def scores(self, params: AttentionParams, projections: ft.Projections, image: jax.Array) -> jax.Array:
         """Every patch's score ``(L,)`` for one image ``(H, W, C)``."""
         cfg = self.config
         if cfg.kernel in ROW_KERNELS:
@@ -313,15 +323,17 @@ class IAPAttention:
         k_features = ft.feature_map(cfg.kernel, keys, projections, role="key", stabilize=True)
         return linear_scores(q_features, k_features)
 
-    def __call__(self, params: AttentionParams, projections: ft.Projections, image: jax.Array,
-                 *, with_patches: bool = False) -> Selection:
+    def __call__(
+        self, params: AttentionParams, projections: ft.Projections, image: jax.Array, *, with_patches: bool = False
+    ) -> Selection:
         """Scores all patches of ``image (H, W, C)`` and selects the top ``l``."""
         if image.shape != tuple(self.image_shape):
             raise ValueError(f"image of shape {image.shape} given to a layer built for {self.image_shape}")
         scores = self.scores(params, projections, image)
         indices = top_l(scores, self.config.top_l)
-        centres = jnp.asarray(patch_centres(*self.image_shape[:2], self.config.patch_size,
-                                            self.config.effective_stride))[indices]
+        centres = jnp.asarray(
+            patch_centres(*self.image_shape[:2], self.config.patch_size, self.config.effective_stride)
+        )[indices]
         patches = self.selected_patches(image, indices) if with_patches else None
         return Selection(indices=indices, centres=centres, scores=scores, patches=patches)
 

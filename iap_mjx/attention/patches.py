@@ -22,13 +22,13 @@ def patch_grid(height: int, width: int, patch_size: int, stride: int) -> tuple[i
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if patch_size > height or patch_size > width:
         raise ValueError(f"patch_size {patch_size} is larger than the image ({height} x {width})")
-    bad = [f"{name} {size}" for name, size in (("height", height), ("width", width))
-           if (size - patch_size) % stride]
+    bad = [f"{name} {size}" for name, size in (("height", height), ("width", width)) if (size - patch_size) % stride]
     if bad:
         raise ValueError(
             f"patches of size {patch_size} with stride {stride} do not tile the image: "
             f"({', '.join(bad)} - patch_size) is not a multiple of the stride; "
-            f"choose sizes with (size - patch_size) % stride == 0")
+            f"choose sizes with (size - patch_size) % stride == 0"
+        )
     return (height - patch_size) // stride + 1, (width - patch_size) // stride + 1
 
 
@@ -45,8 +45,7 @@ def patch_centres(height: int, width: int, patch_size: int, stride: int) -> np.n
     return grid.reshape(rows * cols, 2).astype(np.float32)
 
 
-def extract_patches(image: jax.Array, patch_size: int,
-                    stride: int | None = None) -> tuple[jax.Array, jax.Array]:
+def extract_patches(image: jax.Array, patch_size: int, stride: int | None = None) -> tuple[jax.Array, jax.Array]:
     """Cuts ``image (H, W, C)`` into flattened patches.
 
     Returns:

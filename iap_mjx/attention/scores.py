@@ -51,7 +51,7 @@ def _rows(matrix: jax.Array, x: jax.Array) -> jax.Array:
     dimension ``d = 4`` would be its own kernel and a materialised buffer)."""
     out = matrix[:, 0, None] * x[..., 0:1, :]
     for e in range(1, x.shape[-2]):
-        out = out + matrix[:, e, None] * x[..., e:e + 1, :]
+        out = out + matrix[:, e, None] * x[..., e : e + 1, :]
     return out
 
 
@@ -59,7 +59,7 @@ def _half_sq_norm(x: jax.Array) -> jax.Array:
     """``|x|^2 / 2`` of token rows ``x (..., d, L)`` -> ``(..., 1, L)``."""
     out = x[..., 0:1, :] * x[..., 0:1, :]
     for e in range(1, x.shape[-2]):
-        out = out + x[..., e:e + 1, :] * x[..., e:e + 1, :]
+        out = out + x[..., e : e + 1, :] * x[..., e : e + 1, :]
     return 0.5 * out
 
 
@@ -79,7 +79,7 @@ def _row_max(x: jax.Array) -> jax.Array:
     """Maximum over the rows of ``x (..., n, L)`` -> ``(..., 1, L)``, as one elementwise loop."""
     out = x[..., 0:1, :]
     for i in range(1, x.shape[-2]):
-        out = _larger(x[..., i:i + 1, :], out)
+        out = _larger(x[..., i : i + 1, :], out)
     return out
 
 
@@ -101,7 +101,7 @@ def _hybrid_shift(half_sq_norm: jax.Array, projected: jax.Array, stabilize: bool
 
 def _sign_rows(x: jax.Array, xi: jax.Array) -> list[jax.Array]:
     """``sgn(xi_s x)`` of token rows ``x (..., d, L)``: ``r`` rows ``(..., 1, L)`` in ``{-1, +1}`` (0 maps to +1)."""
-    return [jnp.where(_rows(xi[s:s + 1], x) >= 0, 1.0, -1.0).astype(x.dtype) for s in range(xi.shape[0])]
+    return [jnp.where(_rows(xi[s : s + 1], x) >= 0, 1.0, -1.0).astype(x.dtype) for s in range(xi.shape[0])]
 
 
 def _query_moments(queries: jax.Array, projections: ft.Projections, stabilize: bool) -> jax.Array:
@@ -114,14 +114,14 @@ def _query_moments(queries: jax.Array, projections: ft.Projections, stabilize: b
     shift = _hybrid_shift(half_sq_norm, projected, stabilize)
     sin, cos = ft.sincos(projected)
     trig_scale = jnp.exp(half_sq_norm - shift)
-    features = jnp.concatenate([trig_scale * sin, trig_scale * cos,
-                                jnp.exp(projected - (half_sq_norm + shift))], axis=-2)
+    features = jnp.concatenate(
+        [trig_scale * sin, trig_scale * cos, jnp.exp(projected - (half_sq_norm + shift))], axis=-2
+    )
     basis = jnp.concatenate([jnp.ones_like(half_sq_norm)] + _sign_rows(queries, xi), axis=-2)
     return jnp.einsum("...fl,...sl->...fs", features, basis)
 
 
-def _key_scores(keys: jax.Array, weights: jax.Array, projections: ft.Projections,
-                stabilize: bool) -> jax.Array:
+def _key_scores(keys: jax.Array, weights: jax.Array, projections: ft.Projections, stabilize: bool) -> jax.Array:
     """``sum_f F_k,f sum_s weights_fs [1, S_k]_s`` for token rows ``keys (..., d, L)`` and
     ``weights (..., 3m, 1 + r)`` -> ``(..., L)``.
 
@@ -143,15 +143,16 @@ def _key_scores(keys: jax.Array, weights: jax.Array, projections: ft.Projections
 
     trig, positive = 0.0, 0.0
     for j in range(m):
-        projected = _rows(omega[j:j + 1], keys)
+        projected = _rows(omega[j : j + 1], keys)
         sin, cos = ft.sincos(projected)
         trig = trig + sin * signed_weight(j) + cos * signed_weight(m + j)
         positive = positive + jnp.exp(projected - (half_sq_norm + shift)) * signed_weight(2 * m + j)
     return (jnp.exp(half_sq_norm - shift) * trig + positive)[..., 0, :]
 
 
-def hybrid_scores_rows(queries: jax.Array, keys: jax.Array, projections: ft.Projections, *,
-                       stabilize: bool = True) -> jax.Array:
+def hybrid_scores_rows(
+    queries: jax.Array, keys: jax.Array, projections: ft.Projections, *, stabilize: bool = True
+) -> jax.Array:
     """:func:`hybrid_scores` for token rows: ``queries, keys (..., d, L)`` -> ``(..., L)``.
 
     With ``F = [T, E]`` a token's ``2m`` trigonometric and ``m`` positive features and ``S``
@@ -170,12 +171,13 @@ def hybrid_scores_rows(queries: jax.Array, keys: jax.Array, projections: ft.Proj
     sign_weights = jnp.concatenate([jnp.ones(1), jnp.full(r, 1.0 / r)]).astype(moments.dtype)
     positive_sign = jnp.concatenate([jnp.ones(1), -jnp.ones(r)]).astype(moments.dtype)
     weights = moments * sign_weights
-    weights = jnp.concatenate([weights[..., :2 * m, :], weights[..., 2 * m:, :] * positive_sign], axis=-2)
+    weights = jnp.concatenate([weights[..., : 2 * m, :], weights[..., 2 * m :, :] * positive_sign], axis=-2)
     return _key_scores(keys, weights, projections, stabilize) / (2.0 * m)
 
 
-def hybrid_scores(queries: jax.Array, keys: jax.Array, projections: ft.Projections, *,
-                  stabilize: bool = True) -> jax.Array:
+def hybrid_scores(
+    queries: jax.Array, keys: jax.Array, projections: ft.Projections, *, stabilize: bool = True
+) -> jax.Array:
     """The hybrid kernel's linear scores without building the ``3m(r+1)`` features.
 
     Equal to ``linear_scores(feature_map("hybrid", Q, query), feature_map("hybrid", K, key))``

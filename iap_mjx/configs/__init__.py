@@ -26,6 +26,18 @@ from iap_mjx.configs.presets import Preset, describe, get, lookup, names, regist
 from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 
 __all__ = [
-    "ESConfig", "EnvConfig", "EnvSpec", "PolicySpec", "Preset", "RunConfig", "TrainConfig",
-    "apply_overrides", "describe", "get", "lookup", "names", "parse_value", "register",
+    "ESConfig",
+    "EnvConfig",
+    "EnvSpec",
+    "PolicySpec",
+    "Preset",
+    "RunConfig",
+    "TrainConfig",
+    "apply_overrides",
+    "describe",
+    "get",
+    "lookup",
+    "names",
+    "parse_value",
+    "register",
 ]

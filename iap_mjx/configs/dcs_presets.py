@@ -20,10 +20,23 @@ from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, register
 from iap_mjx.configs.training import RunConfig
 
-IAP_NATIVE: Options = (("patch_size", 2), ("top_l", 10), ("d_qk", 4), ("kernel", "hybrid"), ("m", 10),
-                       ("r", 5), ("controller", "lstm"), ("hidden_sizes", (16,)))
-CONVNET: Options = (("channels", (8, 16, 16)), ("strides", (4, 4, 2)), ("embedding_size", 16),
-                    ("controller", "lstm"), ("hidden_sizes", (16,)))
+IAP_NATIVE: Options = (
+    ("patch_size", 2),
+    ("top_l", 10),
+    ("d_qk", 4),
+    ("kernel", "hybrid"),
+    ("m", 10),
+    ("r", 5),
+    ("controller", "lstm"),
+    ("hidden_sizes", (16,)),
+)
+CONVNET: Options = (
+    ("channels", (8, 16, 16)),
+    ("strides", (4, 4, 2)),
+    ("embedding_size", 16),
+    ("controller", "lstm"),
+    ("hidden_sizes", (16,)),
+)
 """The convolutional baseline (``ConvNetPolicy``): the same controller as IAP's, fed by three
 3x3 convolutions (strides 4, 4, 2), a 2x2 max pool and a 16-unit embedding."""
 
@@ -33,28 +46,68 @@ DCS_ES = dataclasses.replace(PIXEL_ES, learning_rate=0.1, sigma=0.1)
 
 def native(task: str, *, quick: bool = False) -> Options:
     """Env options: 240x320 RGB, static medium distractions, ``ACTION_REPEAT[task]``."""
-    options = (("obs_mode", "pixels"), ("height", 240), ("width", 320),
-               ("action_repeat", ACTION_REPEAT[task]), ("distraction", "medium"), ("dynamic", False))
+    options = (
+        ("obs_mode", "pixels"),
+        ("height", 240),
+        ("width", 320),
+        ("action_repeat", ACTION_REPEAT[task]),
+        ("distraction", "medium"),
+        ("dynamic", False),
+    )
     if quick:
         options += (("episode_length", 10), ("background_size", 64), ("background_frames", 4))
     return options
 
 
 for _task in TASKS:
-    register(Preset(f"dcs-{_task}",
-                    f"{_task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
-                    f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[_task]}; "
-                    "OpenES 64, Adam 0.1, sigma 0.1",
-                    _task, "iap", native(_task), IAP_NATIVE, DCS_ES, PIXEL_RUN))
-    register(Preset(f"dcs-{_task}-quick", f"dcs-{_task} on 10-step episodes, population 8, 2 iterations (smoke)",
-                    _task, "iap", native(_task, quick=True), IAP_NATIVE,
-                    dataclasses.replace(DCS_ES, population_size=8),
-                    RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8)))
-    register(Preset(f"dcs-{_task}-cnn",
-                    f"dcs-{_task} with the convolutional baseline in place of attention (3 conv 3x3, "
-                    "strides 4, 4, 2, 2x2 max pool, dense 16 -> LSTM(16)); the same frames and ES",
-                    _task, "convnet", native(_task), CONVNET, DCS_ES, PIXEL_RUN))
-    register(Preset(f"dcs-{_task}-cnn-quick", f"dcs-{_task}-cnn on 10-step episodes, population 8, 2 iterations "
-                    "(smoke)", _task, "convnet", native(_task, quick=True), CONVNET,
-                    dataclasses.replace(DCS_ES, population_size=8),
-                    RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8)))
+    register(
+        Preset(
+            f"dcs-{_task}",
+            f"{_task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
+            f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[_task]}; "
+            "OpenES 64, Adam 0.1, sigma 0.1",
+            _task,
+            "iap",
+            native(_task),
+            IAP_NATIVE,
+            DCS_ES,
+            PIXEL_RUN,
+        )
+    )
+    register(
+        Preset(
+            f"dcs-{_task}-quick",
+            f"dcs-{_task} on 10-step episodes, population 8, 2 iterations (smoke)",
+            _task,
+            "iap",
+            native(_task, quick=True),
+            IAP_NATIVE,
+            dataclasses.replace(DCS_ES, population_size=8),
+            RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8),
+        )
+    )
+    register(
+        Preset(
+            f"dcs-{_task}-cnn",
+            f"dcs-{_task} with the convolutional baseline in place of attention (3 conv 3x3, "
+            "strides 4, 4, 2, 2x2 max pool, dense 16 -> LSTM(16)); the same frames and ES",
+            _task,
+            "convnet",
+            native(_task),
+            CONVNET,
+            DCS_ES,
+            PIXEL_RUN,
+        )
+    )
+    register(
+        Preset(
+            f"dcs-{_task}-cnn-quick",
+            f"dcs-{_task}-cnn on 10-step episodes, population 8, 2 iterations (smoke)",
+            _task,
+            "convnet",
+            native(_task, quick=True),
+            CONVNET,
+            dataclasses.replace(DCS_ES, population_size=8),
+            RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8),
+        )
+    )

@@ -41,27 +41,100 @@ FRAME_EXTENSIONS = (".jpg", ".jpeg", ".png")
 # distracting_control/background.py: DAVIS17_TRAINING_VIDEOS, in the reference's order
 # (a level uses the first N).
 DAVIS17_TRAINING_VIDEOS = (
-    "bear", "bmx-bumps", "boat", "boxing-fisheye", "breakdance-flare", "bus",
-    "car-turn", "cat-girl", "classic-car", "color-run", "crossing",
-    "dance-jump", "dancing", "disc-jockey", "dog-agility", "dog-gooses",
-    "dogs-scale", "drift-turn", "drone", "elephant", "flamingo", "hike",
-    "hockey", "horsejump-low", "kid-football", "kite-walk", "koala",
-    "lady-running", "lindy-hop", "longboard", "lucia", "mallard-fly",
-    "mallard-water", "miami-surf", "motocross-bumps", "motorbike", "night-race",
-    "paragliding", "planes-water", "rallye", "rhino", "rollerblade",
-    "schoolgirls", "scooter-board", "scooter-gray", "sheep", "skate-park",
-    "snowboard", "soccerball", "stroller", "stunt", "surf", "swing", "tennis",
-    "tractor-sand", "train", "tuk-tuk", "upside-down", "varanus-cage", "walking",
+    "bear",
+    "bmx-bumps",
+    "boat",
+    "boxing-fisheye",
+    "breakdance-flare",
+    "bus",
+    "car-turn",
+    "cat-girl",
+    "classic-car",
+    "color-run",
+    "crossing",
+    "dance-jump",
+    "dancing",
+    "disc-jockey",
+    "dog-agility",
+    "dog-gooses",
+    "dogs-scale",
+    "drift-turn",
+    "drone",
+    "elephant",
+    "flamingo",
+    "hike",
+    "hockey",
+    "horsejump-low",
+    "kid-football",
+    "kite-walk",
+    "koala",
+    "lady-running",
+    "lindy-hop",
+    "longboard",
+    "lucia",
+    "mallard-fly",
+    "mallard-water",
+    "miami-surf",
+    "motocross-bumps",
+    "motorbike",
+    "night-race",
+    "paragliding",
+    "planes-water",
+    "rallye",
+    "rhino",
+    "rollerblade",
+    "schoolgirls",
+    "scooter-board",
+    "scooter-gray",
+    "sheep",
+    "skate-park",
+    "snowboard",
+    "soccerball",
+    "stroller",
+    "stunt",
+    "surf",
+    "swing",
+    "tennis",
+    "tractor-sand",
+    "train",
+    "tuk-tuk",
+    "upside-down",
+    "varanus-cage",
+    "walking",
 )
 # distracting_control/background.py: DAVIS17_VALIDATION_VIDEOS, in the reference's order
 # (``background_dataset_videos="val"``).
 DAVIS17_VALIDATION_VIDEOS = (
-    "bike-packing", "blackswan", "bmx-trees", "breakdance", "camel",
-    "car-roundabout", "car-shadow", "cows", "dance-twirl", "dog", "dogs-jump",
-    "drift-chicane", "drift-straight", "goat", "gold-fish", "horsejump-high",
-    "india", "judo", "kite-surf", "lab-coat", "libby", "loading", "mbike-trick",
-    "motocross-jump", "paragliding-launch", "parkour", "pigs", "scooter-black",
-    "shooting", "soapbox",
+    "bike-packing",
+    "blackswan",
+    "bmx-trees",
+    "breakdance",
+    "camel",
+    "car-roundabout",
+    "car-shadow",
+    "cows",
+    "dance-twirl",
+    "dog",
+    "dogs-jump",
+    "drift-chicane",
+    "drift-straight",
+    "goat",
+    "gold-fish",
+    "horsejump-high",
+    "india",
+    "judo",
+    "kite-surf",
+    "lab-coat",
+    "libby",
+    "loading",
+    "mbike-trick",
+    "motocross-jump",
+    "paragliding-launch",
+    "parkour",
+    "pigs",
+    "scooter-black",
+    "shooting",
+    "soapbox",
 )
 _DAVIS_SUBDIR = Path("JPEGImages") / "480p"
 _LAYOUTS = "<root>/JPEGImages/480p/<video>/<frame>.jpg or <root>/<video>/<frame>.jpg"
@@ -97,18 +170,27 @@ PACKAGE_DATA = {"skimage": ("data",), "matplotlib": ("mpl-data", "sample_data")}
 # Colour photographs first, so that easy and medium draw from them; all ten ship in the
 # scikit-image 0.26.0 wheel (listed in its RECORD), none is fetched on demand.
 PHOTOGRAPHS = (
-    Photograph("astronaut", "astronaut.png", "Eileen Collins, NASA Great Images database",
-               "public domain (NASA)"),
-    Photograph("coffee", "coffee.png", "coffee cup, Rachel Michetti, courtesy of Pikolo Espresso Bar",
-               "CC0"),
+    Photograph("astronaut", "astronaut.png", "Eileen Collins, NASA Great Images database", "public domain (NASA)"),
+    Photograph("coffee", "coffee.png", "coffee cup, Rachel Michetti, courtesy of Pikolo Espresso Bar", "CC0"),
     Photograph("chelsea", "chelsea.png", "Chelsea the cat, Stefan van der Walt", "CC0"),
-    Photograph("rocket", "rocket.jpg", "DSCOVR launch on Falcon 9, SpaceX Photos",
-               "public domain (released by SpaceX)"),
-    Photograph("hubble_deep_field", "hubble_deep_field.jpg", "Hubble eXtreme Deep Field, NASA/HubbleSite",
-               "public domain (NASA)"),
+    Photograph(
+        "rocket", "rocket.jpg", "DSCOVR launch on Falcon 9, SpaceX Photos", "public domain (released by SpaceX)"
+    ),
+    Photograph(
+        "hubble_deep_field",
+        "hubble_deep_field.jpg",
+        "Hubble eXtreme Deep Field, NASA/HubbleSite",
+        "public domain (NASA)",
+    ),
     # A fundus photograph is a bright disc on black: stay near its centre.
-    Photograph("retina", "retina.jpg", "fundus photograph, Mikael Haggstrom, Wikimedia Commons",
-               "CC0", zoom=(2.0, 2.5), pan=0.3),
+    Photograph(
+        "retina",
+        "retina.jpg",
+        "fundus photograph, Mikael Haggstrom, Wikimedia Commons",
+        "CC0",
+        zoom=(2.0, 2.5),
+        pan=0.3,
+    ),
     Photograph("camera", "camera.png", "photographer with a camera, Lav Varshney (greyscale)", "CC0"),
     Photograph("brick", "brick.png", "brick wall, CC0Textures Bricks25 (greyscale)", "CC0"),
     Photograph("grass", "grass.png", "grass, linolafett on DeviantArt (greyscale)", "CC0"),
@@ -118,28 +200,43 @@ PHOTOGRAPHS = (
 # Held out: none of these is in PHOTOGRAPHS. Colour first, as above; the set has fewer colour
 # photographs (3 of 10, against 6), so it also moves the colour statistics away from training.
 VALIDATION_PHOTOGRAPHS = (
-    Photograph("motorcycle_left", "motorcycle_left.png",
-               "Middlebury 2014 stereo benchmark (Nesic, Westling, Wang, Kitajima, Krathwohl, "
-               "Scharstein), left view", "not stated by scikit-image (Middlebury's research data)"),
-    Photograph("immunohistochemistry", "ihc.png",
-               "colonic glands, IHC staining, Center for Microscopy And Molecular Imaging",
-               "no known copyright restrictions"),
-    Photograph("grace_hopper", "grace_hopper.jpg", "Rear Admiral Grace Hopper, U.S. Navy photograph",
-               "public domain (U.S. Navy)", package="matplotlib"),
-    Photograph("coins", "coins.png", "Greek coins from Pompeii, Brooklyn Museum (greyscale)",
-               "no known copyright restrictions"),
-    Photograph("clock", "clock_motion.png", "motion-blurred wall clock, Stefan van der Walt (greyscale)",
-               "public domain"),
-    Photograph("cell", "cell.png", "cell in saline, quantitative phase image, Paul Mueller (greyscale)",
-               "CC0"),
-    Photograph("text", "text.png", "text for corner detection, Wikipedia File:Corner.png (greyscale)",
-               "public domain"),
+    Photograph(
+        "motorcycle_left",
+        "motorcycle_left.png",
+        "Middlebury 2014 stereo benchmark (Nesic, Westling, Wang, Kitajima, Krathwohl, Scharstein), left view",
+        "not stated by scikit-image (Middlebury's research data)",
+    ),
+    Photograph(
+        "immunohistochemistry",
+        "ihc.png",
+        "colonic glands, IHC staining, Center for Microscopy And Molecular Imaging",
+        "no known copyright restrictions",
+    ),
+    Photograph(
+        "grace_hopper",
+        "grace_hopper.jpg",
+        "Rear Admiral Grace Hopper, U.S. Navy photograph",
+        "public domain (U.S. Navy)",
+        package="matplotlib",
+    ),
+    Photograph(
+        "coins", "coins.png", "Greek coins from Pompeii, Brooklyn Museum (greyscale)", "no known copyright restrictions"
+    ),
+    Photograph(
+        "clock", "clock_motion.png", "motion-blurred wall clock, Stefan van der Walt (greyscale)", "public domain"
+    ),
+    Photograph("cell", "cell.png", "cell in saline, quantitative phase image, Paul Mueller (greyscale)", "CC0"),
+    Photograph("text", "text.png", "text for corner detection, Wikipedia File:Corner.png (greyscale)", "public domain"),
     Photograph("moon", "moon.png", "surface of the moon (greyscale)", "not stated by scikit-image"),
-    Photograph("page", "page.png", "scanned page of printed text (greyscale)",
-               "not stated by scikit-image"),
-    Photograph("microaneurysms", "microaneurysms.png",
-               "retina detail, HRF fundus image database, Andreas Maier (greyscale)", "CC0",
-               zoom=(1.1, 1.3), pan=0.5),
+    Photograph("page", "page.png", "scanned page of printed text (greyscale)", "not stated by scikit-image"),
+    Photograph(
+        "microaneurysms",
+        "microaneurysms.png",
+        "retina detail, HRF fundus image database, Andreas Maier (greyscale)",
+        "CC0",
+        zoom=(1.1, 1.3),
+        pan=0.5,
+    ),
 )
 
 
@@ -149,8 +246,7 @@ VALIDATION_PHOTOGRAPHS = (
 def check_task(name: str) -> None:
     """Raises ``ValueError`` unless ``name`` is one of the suite's :data:`TASKS`."""
     if name not in TASKS:
-        raise ValueError(f"distraction: {name!r} is not a Distracting Control Suite task; valid: "
-                         f"{', '.join(TASKS)}.")
+        raise ValueError(f"distraction: {name!r} is not a Distracting Control Suite task; valid: {', '.join(TASKS)}.")
 
 
 def parse_kinds(kinds: Any) -> tuple[str, ...]:
@@ -159,8 +255,7 @@ def parse_kinds(kinds: Any) -> tuple[str, ...]:
     items = tuple(k.strip() for k in kinds.split(",")) if isinstance(kinds, str) else tuple(kinds)
     unknown = [k for k in items if k not in KINDS]
     if unknown or not items or len(set(items)) != len(items):
-        raise ValueError(f"distraction_kinds {kinds!r}: give one or more of {', '.join(KINDS)}, "
-                         "each at most once.")
+        raise ValueError(f"distraction_kinds {kinds!r}: give one or more of {', '.join(KINDS)}, each at most once.")
     return tuple(k for k in KINDS if k in items)
 
 
@@ -181,8 +276,9 @@ def _check_count(name: str, value: int) -> None:
 
 def _check_video_set(videos: str) -> None:
     if videos not in VIDEO_SETS:
-        raise ValueError(f"background_videos = {videos!r}: valid {', '.join(VIDEO_SETS)} (training or "
-                         "held-out backgrounds)")
+        raise ValueError(
+            f"background_videos = {videos!r}: valid {', '.join(VIDEO_SETS)} (training or held-out backgrounds)"
+        )
 
 
 def _first(sequence: tuple, difficulty: str) -> tuple:
@@ -197,8 +293,9 @@ def level_photographs(difficulty: str, videos: str = "train") -> tuple[Photograp
     return _first(PHOTOGRAPHS if videos == "train" else VALIDATION_PHOTOGRAPHS, difficulty)
 
 
-def davis_frame_paths(root: str | os.PathLike, difficulty: str = "medium",
-                      videos: str = "train") -> dict[str, list[Path]]:
+def davis_frame_paths(
+    root: str | os.PathLike, difficulty: str = "medium", videos: str = "train"
+) -> dict[str, list[Path]]:
     """The frame files of the level's DAVIS-2017 training videos (``videos="val"``: validation
     videos) under ``root``, each video's sorted by file name; checks everything that can be
     checked without decoding.
@@ -212,31 +309,41 @@ def davis_frame_paths(root: str | os.PathLike, difficulty: str = "medium",
     videos = _first(DAVIS17_TRAINING_VIDEOS if videos == "train" else DAVIS17_VALIDATION_VIDEOS, difficulty)
     root = Path(root).expanduser()
     if not root.is_dir():
-        raise ValueError(f"background_dir {str(root)!r} does not exist or is not a directory; give a DAVIS-2017 "
-                         f"directory ({_LAYOUTS}) or None for the built-in photographs.")
+        raise ValueError(
+            f"background_dir {str(root)!r} does not exist or is not a directory; give a DAVIS-2017 "
+            f"directory ({_LAYOUTS}) or None for the built-in photographs."
+        )
     video_root = root / _DAVIS_SUBDIR if (root / _DAVIS_SUBDIR).is_dir() else root
     missing = [name for name in videos if not (video_root / name).is_dir()]
     if missing:
         raise ValueError(
             f"background_dir {str(video_root)!r} lacks {len(missing)} of the {len(videos)} DAVIS-2017 {kind} "
             f"videos that difficulty {difficulty!r} uses: missing {missing}; expected {_LAYOUTS} with the videos "
-            f"{list(videos)}.")
+            f"{list(videos)}."
+        )
     paths = {}
     for name in videos:
         frames = sorted(
-            path for path in (video_root / name).iterdir()
+            path
+            for path in (video_root / name).iterdir()
             if path.is_file() and not path.name.startswith(".") and path.suffix.lower() in FRAME_EXTENSIONS
         )
         if not frames:
-            raise ValueError(f"background_dir: video {name!r} ({str(video_root / name)!r}) holds no frames "
-                             f"(files ending in {', '.join(FRAME_EXTENSIONS)}).")
+            raise ValueError(
+                f"background_dir: video {name!r} ({str(video_root / name)!r}) holds no frames "
+                f"(files ending in {', '.join(FRAME_EXTENSIONS)})."
+            )
         paths[name] = frames
     return paths
 
 
-def check_backgrounds(difficulty: str, background_dir: str | os.PathLike | None = None,
-                      size: int = DEFAULT_SIZE, num_frames: int = DEFAULT_NUM_FRAMES,
-                      videos: str = "train") -> None:
+def check_backgrounds(
+    difficulty: str,
+    background_dir: str | os.PathLike | None = None,
+    size: int = DEFAULT_SIZE,
+    num_frames: int = DEFAULT_NUM_FRAMES,
+    videos: str = "train",
+) -> None:
     """Validates ``iap_mjx.envs.backgrounds.load``'s arguments without decoding any image
     (run it before compiling).
 
@@ -281,8 +388,10 @@ class DistractionConfig:
 
     def __post_init__(self):
         if not isinstance(self.difficulty, str) or self.difficulty not in DIFFICULTY_SCALE:
-            raise ValueError(f"distraction = {self.difficulty!r} is not a difficulty; valid: "
-                             f"{', '.join(DIFFICULTIES)} (or None for no distraction).")
+            raise ValueError(
+                f"distraction = {self.difficulty!r} is not a difficulty; valid: "
+                f"{', '.join(DIFFICULTIES)} (or None for no distraction)."
+            )
         if not isinstance(self.dynamic, bool):
             raise ValueError(f"distraction dynamic = {self.dynamic!r} must be True or False.")
         kinds = parse_kinds(self.kinds)
@@ -296,17 +405,22 @@ class DistractionConfig:
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}.")
         if self.background_size > MAX_BACKGROUND_SIZE:
-            raise ValueError(f"background_size = {self.background_size} texels: valid 1 to "
-                             f"{MAX_BACKGROUND_SIZE} (the reference's sky is 800).")
+            raise ValueError(
+                f"background_size = {self.background_size} texels: valid 1 to "
+                f"{MAX_BACKGROUND_SIZE} (the reference's sky is 800)."
+            )
         if "background" not in kinds:
             for name, unset in (("background_dir", None), ("background_videos", "train")):
                 if getattr(self, name) != unset:
-                    raise ValueError(f"{name} = {getattr(self, name)!r} is set but the background "
-                                     f"distraction is off (distraction_kinds = {','.join(kinds)}); add "
-                                     f"'background' to distraction_kinds or drop {name}.")
+                    raise ValueError(
+                        f"{name} = {getattr(self, name)!r} is set but the background "
+                        f"distraction is off (distraction_kinds = {','.join(kinds)}); add "
+                        f"'background' to distraction_kinds or drop {name}."
+                    )
             return
-        check_backgrounds(self.difficulty, self.background_dir, self.background_size,
-                          self.background_frames, self.background_videos)
+        check_backgrounds(
+            self.difficulty, self.background_dir, self.background_size, self.background_frames, self.background_videos
+        )
         self._check_background_bytes()
 
     def _check_background_bytes(self) -> None:
@@ -317,11 +431,13 @@ class DistractionConfig:
         else:
             paths = davis_frame_paths(self.background_dir, self.difficulty, self.background_videos)
             frames = len(paths) * max(len(p) for p in paths.values())
-        nbytes = frames * self.background_size ** 2 * 4
+        nbytes = frames * self.background_size**2 * 4
         if nbytes > MAX_BACKGROUND_BYTES:
-            raise ValueError(f"background_size = {self.background_size}: {frames} background frames "
-                             f"would take {nbytes / 2**30:.1f} GiB (limit {MAX_BACKGROUND_BYTES / 2**30:.0f} "
-                             "GiB); lower background_size (or background_frames, or the difficulty).")
+            raise ValueError(
+                f"background_size = {self.background_size}: {frames} background frames "
+                f"would take {nbytes / 2**30:.1f} GiB (limit {MAX_BACKGROUND_BYTES / 2**30:.0f} "
+                "GiB); lower background_size (or background_frames, or the difficulty)."
+            )
 
     @property
     def scale(self) -> float:

@@ -17,9 +17,15 @@ PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state")
 OBS_MODES = ("state",) + PIXEL_MODES
 SOLVERS = ("newton", "cg")  # QuadrupedConfig.solver: MuJoCo's mjSOL_NEWTON, mjSOL_CG
 
-DISTRACTION_FIELDS = {"distraction": "difficulty", "dynamic": "dynamic", "distraction_kinds": "kinds",
-                      "background_dir": "background_dir", "background_size": "background_size",
-                      "background_frames": "background_frames", "background_videos": "background_videos"}
+DISTRACTION_FIELDS = {
+    "distraction": "difficulty",
+    "dynamic": "dynamic",
+    "distraction_kinds": "kinds",
+    "background_dir": "background_dir",
+    "background_size": "background_size",
+    "background_frames": "background_frames",
+    "background_videos": "background_videos",
+}
 """The ``EnvConfig`` fields of the distraction and the ``DistractionConfig`` field each sets
 (the names stay those typed on a command line: ``env.distraction=medium``)."""
 DISTRACTION_SETTINGS = tuple(name for name in DISTRACTION_FIELDS if name != "distraction")
@@ -88,27 +94,17 @@ class EnvConfig:
     background_videos: str | None = None
 
     def __post_init__(self):
-        positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height",
-                         "width", "frame_stack")
+        positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height", "width", "frame_stack")
         for name in positive_ints:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"EnvConfig.{name} must be an int >= 1, got {value!r}.")
         if self.max_contacts not in ("task", "all") and (
-            not isinstance(self.max_contacts, int)
-            or isinstance(self.max_contacts, bool)
-            or self.max_contacts < 1
+            not isinstance(self.max_contacts, int) or isinstance(self.max_contacts, bool) or self.max_contacts < 1
         ):
-            raise ValueError(
-                'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got '
-                f"{self.max_contacts!r}."
-            )
-        if self.episode_length is not None and (
-            not isinstance(self.episode_length, int) or self.episode_length < 1
-        ):
-            raise ValueError(
-                f"EnvConfig.episode_length must be None or an int >= 1, got {self.episode_length!r}."
-            )
+            raise ValueError(f'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got {self.max_contacts!r}.')
+        if self.episode_length is not None and (not isinstance(self.episode_length, int) or self.episode_length < 1):
+            raise ValueError(f"EnvConfig.episode_length must be None or an int >= 1, got {self.episode_length!r}.")
         if not self.max_abs_state > 0:
             raise ValueError(f"EnvConfig.max_abs_state must be > 0, got {self.max_abs_state!r}.")
         if self.obs_mode not in OBS_MODES:
@@ -126,27 +122,32 @@ class EnvConfig:
         if self.distraction is None:
             given = [f"{name}={value!r}" for name, value in self._distraction_settings().items()]
             if given:
-                raise ValueError(f"EnvConfig: {', '.join(given)} set without a distraction; set "
-                                 f"distraction to one of {', '.join(DIFFICULTIES)}.")
+                raise ValueError(
+                    f"EnvConfig: {', '.join(given)} set without a distraction; set "
+                    f"distraction to one of {', '.join(DIFFICULTIES)}."
+                )
             return
         if self.obs_mode == "state":
-            raise ValueError(f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
-                             f"(one of {PIXEL_MODES}), got obs_mode='state'.")
+            raise ValueError(
+                f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
+                f"(one of {PIXEL_MODES}), got obs_mode='state'."
+            )
         config = self.distraction_config()
         for name in ("distraction_kinds", "background_dir"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, getattr(config, DISTRACTION_FIELDS[name]))
         if "camera" in config.kinds and self.camera_id != 0:
-            raise ValueError(f"EnvConfig.camera_id = {self.camera_id}: the camera distraction perturbs the "
-                             "suite's camera 0 (valid camera_id: 0), or leave 'camera' out of "
-                             "distraction_kinds.")
+            raise ValueError(
+                f"EnvConfig.camera_id = {self.camera_id}: the camera distraction perturbs the "
+                "suite's camera 0 (valid camera_id: 0), or leave 'camera' out of "
+                "distraction_kinds."
+            )
 
     def _distraction_settings(self) -> dict[str, Any]:
         """The :data:`DISTRACTION_SETTINGS` set away from their defaults (``None``, and
         ``False`` for ``dynamic``: compared by identity, so ``0`` is not ``False``)."""
         defaults = {field.name: field.default for field in dataclasses.fields(EnvConfig)}
-        return {name: getattr(self, name) for name in DISTRACTION_SETTINGS
-                if getattr(self, name) is not defaults[name]}
+        return {name: getattr(self, name) for name in DISTRACTION_SETTINGS if getattr(self, name) is not defaults[name]}
 
     def distraction_config(self) -> DistractionConfig | None:
         """The ``DistractionConfig`` of these settings (``None`` without one); building it
@@ -198,10 +199,11 @@ class QuadrupedConfig(EnvConfig):
         if not isinstance(self.joint_noise, (int, float)) or not 0 <= self.joint_noise <= 0.5:
             raise ValueError(f"QuadrupedConfig.joint_noise must be in [0, 0.5] rad, got {self.joint_noise!r}.")
         if self.max_geom_pairs not in ("task", "all") and (
-                not isinstance(self.max_geom_pairs, int) or isinstance(self.max_geom_pairs, bool)
-                or self.max_geom_pairs < 1):
-            raise ValueError('QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got '
-                             f"{self.max_geom_pairs!r}.")
+            not isinstance(self.max_geom_pairs, int) or isinstance(self.max_geom_pairs, bool) or self.max_geom_pairs < 1
+        ):
+            raise ValueError(
+                f'QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got {self.max_geom_pairs!r}.'
+            )
         if self.solver not in SOLVERS:
             raise ValueError(f"QuadrupedConfig.solver must be one of {SOLVERS}, got {self.solver!r}.")
 

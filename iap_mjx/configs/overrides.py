@@ -54,11 +54,9 @@ def _split(path: str, config: TrainConfig) -> tuple[str, str]:
         if section not in sections:
             raise ValueError(f"override {path!r}: unknown section {section!r}; valid: {sections}")
         return section, name
-    owners = [s for s in sections
-              if path in {f.name for f in dataclasses.fields(getattr(config, s))}]
+    owners = [s for s in sections if path in {f.name for f in dataclasses.fields(getattr(config, s))}]
     if len(owners) != 1:
-        valid = sorted(f"{s}.{f.name}" for s in sections
-                       for f in dataclasses.fields(getattr(config, s)))
+        valid = sorted(f"{s}.{f.name}" for s in sections for f in dataclasses.fields(getattr(config, s)))
         why = "is ambiguous" if owners else "is not a config field"
         raise ValueError(f"override {path!r} {why}; valid keys: {valid}")
     return owners[0], path
@@ -82,10 +80,7 @@ def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfi
             pairs[name] = value
             section = dataclasses.replace(section, **{bag: tuple(sorted(pairs.items()))})
         else:
-            raise ValueError(
-                f"override {path!r}: {section_name} has no field {name!r}; "
-                f"valid: {sorted(fields)}"
-            )
+            raise ValueError(f"override {path!r}: {section_name} has no field {name!r}; valid: {sorted(fields)}")
         config = dataclasses.replace(config, **{section_name: section})
     return config
 

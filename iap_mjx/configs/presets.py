@@ -23,8 +23,14 @@ from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, T
 
 Options = tuple[tuple[str, Any], ...]
 
-ACTION_REPEAT = {"cheetah-run": 4, "walker-walk": 2, "cartpole-swingup": 8,
-                 "ball_in_cup-catch": 4, "reacher-easy": 4, "finger-spin": 2}
+ACTION_REPEAT = {
+    "cheetah-run": 4,
+    "walker-walk": 2,
+    "cartpole-swingup": 8,
+    "ball_in_cup-catch": 4,
+    "reacher-easy": 4,
+    "finger-spin": 2,
+}
 """Control steps per frame from pixels, per task (PlaNet/DrQ's settings): one entry for each
 of the suite's tasks (``configs.distraction.TASKS``; ``tests/test_dcs_presets.py`` holds them
 equal)."""
@@ -63,9 +69,12 @@ class Preset:
 
     def config(self) -> TrainConfig:
         """The validated ``TrainConfig`` this row stands for."""
-        return TrainConfig(env=EnvSpec(self.env, self.env_options),
-                           policy=PolicySpec(self.policy, self.policy_options),
-                           es=self.es, run=self.run)
+        return TrainConfig(
+            env=EnvSpec(self.env, self.env_options),
+            policy=PolicySpec(self.policy, self.policy_options),
+            es=self.es,
+            run=self.run,
+        )
 
 
 def pixels(task: str, *, episode_steps: int | None = None, size: int = 100) -> Options:
@@ -81,45 +90,92 @@ def pixels(task: str, *, episode_steps: int | None = None, size: int = 100) -> O
 def iap(kernel: str = "hybrid-10-5") -> Options:
     """Policy options of the IAP policy: 4x4 patches, top 10, ``kernel`` (a key of
     :data:`KERNELS`), a 16-unit LSTM controller."""
-    return (("patch_size", 4), ("top_l", 10), ("d_qk", 4)) + KERNELS[kernel] + (
-        ("controller", "lstm"), ("hidden_sizes", (16,)))
+    return (
+        (("patch_size", 4), ("top_l", 10), ("d_qk", 4))
+        + KERNELS[kernel]
+        + (("controller", "lstm"), ("hidden_sizes", (16,)))
+    )
 
 
 STATE_ES = ESConfig(population_size=64, sigma=0.03, learning_rate=0.02, weight_decay=0.005)
-PIXEL_ES = ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005,
-                    normalize_observations=False)
+PIXEL_ES = ESConfig(
+    population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005, normalize_observations=False
+)
 PIXEL_RUN = RunConfig(iterations=100, eval_episodes=4, checkpoint_every=5)
 
 PRESETS: tuple[Preset, ...] = (
-    Preset("cheetah-run-state",
-           "cheetah-run from the 17-d state, linear policy, OpenES (the sanity bar: >= 400 in 15 min)",
-           "cheetah-run", "linear", es=STATE_ES,
-           run=RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)),
-    Preset("cheetah-run-state-mlp", "cheetah-run from the 17-d state, MLP (32, 32) policy, OpenES",
-           "cheetah-run", "mlp", policy_options=(("hidden_sizes", (32, 32)),),
-           es=dataclasses.replace(STATE_ES, population_size=256, sigma=0.02, learning_rate=0.01),
-           run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10)),
-    Preset("cheetah-run-state-cmaes",
-           "cheetah-run from the state, linear policy, CMA-ES through the evosax adapter",
-           "cheetah-run", "linear",
-           es=ESConfig(strategy="CMA_ES", population_size=64, sigma=0.1, antithetic=False),
-           run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10)),
-    *(Preset(f"{task}-pixels",
-             f"{task} from 100x100 RGB: IAP hybrid (10, 5), 4x4 patches, top 10 -> LSTM(16), "
-             f"action repeat {ACTION_REPEAT[task]}",
-             task, "iap", pixels(task), iap(), PIXEL_ES, PIXEL_RUN)
-      for task in ACTION_REPEAT),
-    *(Preset(f"cheetah-run-pixels-{kernel}",
-             f"cheetah-run-pixels with the {kernel} attention kernel (Figure 6 ablation)",
-             "cheetah-run", "iap", pixels("cheetah-run"), iap(kernel), PIXEL_ES, PIXEL_RUN)
-      for kernel in KERNELS if kernel != "hybrid-10-5"),
-    Preset("cheetah-run-pixels-cnn", "cheetah-run from 100x100 RGB with a small CNN policy (baseline)",
-           "cheetah-run", "cnn", pixels("cheetah-run"), es=PIXEL_ES, run=PIXEL_RUN),
-    Preset("cheetah-run-pixels-quick",
-           "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (~3 min cold)",
-           "cheetah-run", "iap", pixels("cheetah-run"), iap(),
-           dataclasses.replace(PIXEL_ES, population_size=30, learning_rate=0.08),
-           RunConfig(iterations=40, eval_episodes=2, checkpoint_every=5)),
+    Preset(
+        "cheetah-run-state",
+        "cheetah-run from the 17-d state, linear policy, OpenES (the sanity bar: >= 400 in 15 min)",
+        "cheetah-run",
+        "linear",
+        es=STATE_ES,
+        run=RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10),
+    ),
+    Preset(
+        "cheetah-run-state-mlp",
+        "cheetah-run from the 17-d state, MLP (32, 32) policy, OpenES",
+        "cheetah-run",
+        "mlp",
+        policy_options=(("hidden_sizes", (32, 32)),),
+        es=dataclasses.replace(STATE_ES, population_size=256, sigma=0.02, learning_rate=0.01),
+        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
+    ),
+    Preset(
+        "cheetah-run-state-cmaes",
+        "cheetah-run from the state, linear policy, CMA-ES through the evosax adapter",
+        "cheetah-run",
+        "linear",
+        es=ESConfig(strategy="CMA_ES", population_size=64, sigma=0.1, antithetic=False),
+        run=RunConfig(iterations=400, eval_episodes=8, checkpoint_every=10),
+    ),
+    *(
+        Preset(
+            f"{task}-pixels",
+            f"{task} from 100x100 RGB: IAP hybrid (10, 5), 4x4 patches, top 10 -> LSTM(16), "
+            f"action repeat {ACTION_REPEAT[task]}",
+            task,
+            "iap",
+            pixels(task),
+            iap(),
+            PIXEL_ES,
+            PIXEL_RUN,
+        )
+        for task in ACTION_REPEAT
+    ),
+    *(
+        Preset(
+            f"cheetah-run-pixels-{kernel}",
+            f"cheetah-run-pixels with the {kernel} attention kernel (Figure 6 ablation)",
+            "cheetah-run",
+            "iap",
+            pixels("cheetah-run"),
+            iap(kernel),
+            PIXEL_ES,
+            PIXEL_RUN,
+        )
+        for kernel in KERNELS
+        if kernel != "hybrid-10-5"
+    ),
+    Preset(
+        "cheetah-run-pixels-cnn",
+        "cheetah-run from 100x100 RGB with a small CNN policy (baseline)",
+        "cheetah-run",
+        "cnn",
+        pixels("cheetah-run"),
+        es=PIXEL_ES,
+        run=PIXEL_RUN,
+    ),
+    Preset(
+        "cheetah-run-pixels-quick",
+        "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (~3 min cold)",
+        "cheetah-run",
+        "iap",
+        pixels("cheetah-run"),
+        iap(),
+        dataclasses.replace(PIXEL_ES, population_size=30, learning_rate=0.08),
+        RunConfig(iterations=40, eval_episodes=2, checkpoint_every=5),
+    ),
 )
 
 _REGISTRY: dict[str, Preset] = {}

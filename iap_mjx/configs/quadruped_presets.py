@@ -30,7 +30,8 @@ FLAT_PMTG = Preset(
     "quadruped-flat-pmtg",
     "quadruped-flat from the state: linear PMTG low level (trot TG + residuals), OpenES; "
     "return = metres walked in 10 s",
-    "quadruped-flat", "pmtg",
+    "quadruped-flat",
+    "pmtg",
     es=ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005),
     run=RunConfig(iterations=100, eval_episodes=8, checkpoint_every=10),
 )
@@ -41,18 +42,35 @@ COURSE_ENV: Options = (("obs_mode", "pixels+state"),)
 """The course seen through the first-person camera (24x32 RGB, its default size), the state
 beside it for the low level."""
 HIERARCHY: Options = (("latent_size", 4), ("duration_range", (10, 50)))
-IAP_HIGH: Options = (("high_level", "iap"), ("kernel", "relu"), ("patch_size", 4), ("top_l", 10), ("d_qk", 4),
-                     ("controller", "linear"))
+IAP_HIGH: Options = (
+    ("high_level", "iap"),
+    ("kernel", "relu"),
+    ("patch_size", 4),
+    ("top_l", 10),
+    ("d_qk", 4),
+    ("controller", "linear"),
+)
 CNN_HIGH: Options = (("high_level", "cnn"),)
-COURSE_ES = ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005,
-                     normalize_observations=False)
+COURSE_ES = ESConfig(
+    population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005, normalize_observations=False
+)
 COURSE_RUN = RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)
 
 for _name, _high, _what in (
-        ("iap", IAP_HIGH, "IAP high level (ReLU features, 4x4 patches, top 10 -> linear)"),
-        ("cnn", CNN_HIGH, "CNN high level (3 conv 3x3, 2x2 max pool, dense tanh 16)"),
-        ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed image: the control)")):
-    register(Preset(f"quadruped-walls-{_name}",
-                    f"quadruped-walls, hierarchical: {_what} -> latent (4) held 10-50 steps -> linear PMTG "
-                    "low level; return = metres along the course in 20 s",
-                    "quadruped-walls", "hierarchical", COURSE_ENV, _high + HIERARCHY, COURSE_ES, COURSE_RUN))
+    ("iap", IAP_HIGH, "IAP high level (ReLU features, 4x4 patches, top 10 -> linear)"),
+    ("cnn", CNN_HIGH, "CNN high level (3 conv 3x3, 2x2 max pool, dense tanh 16)"),
+    ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed image: the control)"),
+):
+    register(
+        Preset(
+            f"quadruped-walls-{_name}",
+            f"quadruped-walls, hierarchical: {_what} -> latent (4) held 10-50 steps -> linear PMTG "
+            "low level; return = metres along the course in 20 s",
+            "quadruped-walls",
+            "hierarchical",
+            COURSE_ENV,
+            _high + HIERARCHY,
+            COURSE_ES,
+            COURSE_RUN,
+        )
+    )

@@ -44,9 +44,7 @@ def _choice(owner: str, field: str, value: Any, valid: Any) -> None:
 
 
 def _pairs(owner: str, field: str, value: Any) -> None:
-    ok = isinstance(value, tuple) and all(
-        isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) for p in value
-    )
+    ok = isinstance(value, tuple) and all(isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], str) for p in value)
     if not ok:
         _fail(owner, field, value, "must be a tuple of (name, value) pairs")
     try:
@@ -132,8 +130,7 @@ class ESConfig:
         if self.population_size < 2:
             _fail("es", "population_size", self.population_size, "must be >= 2")
         if self.strategy == OPEN_ES and self.antithetic and self.population_size % 2:
-            _fail("es", "population_size", self.population_size,
-                  "must be even with antithetic sampling")
+            _fail("es", "population_size", self.population_size, "must be even with antithetic sampling")
         _positive_float("es", "sigma", self.sigma)
         _choice("es", "sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
         _positive_float("es", "sigma_final", self.sigma_final)
@@ -145,8 +142,7 @@ class ESConfig:
             _fail("es", "antithetic", self.antithetic, "must be true or false")
         _positive_int("es", "n_episodes", self.n_episodes)
         if not isinstance(self.normalize_observations, bool):
-            _fail("es", "normalize_observations", self.normalize_observations,
-                  "must be true or false")
+            _fail("es", "normalize_observations", self.normalize_observations, "must be true or false")
         _pairs("es", "evosax_options", self.evosax_options)
 
 
@@ -189,8 +185,12 @@ class RunConfig:
         _positive_int("run", "chunk_size", self.chunk_size)
         _positive_int("run", "num_devices", self.num_devices, allow_zero=True)
         if self.checkpoint_every % self.iterations_per_call:
-            _fail("run", "checkpoint_every", self.checkpoint_every,
-                  f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}")
+            _fail(
+                "run",
+                "checkpoint_every",
+                self.checkpoint_every,
+                f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}",
+            )
         _positive_float("run", "max_minutes", self.max_minutes, allow_zero=True)
         if not isinstance(self.tensorboard, bool):
             _fail("run", "tensorboard", self.tensorboard, "must be true or false")
@@ -206,8 +206,7 @@ class TrainConfig:
     run: RunConfig = RunConfig()
 
     def __post_init__(self):
-        for name, cls in (("env", EnvSpec), ("policy", PolicySpec), ("es", ESConfig),
-                          ("run", RunConfig)):
+        for name, cls in (("env", EnvSpec), ("policy", PolicySpec), ("es", ESConfig), ("run", RunConfig)):
             if not isinstance(getattr(self, name), cls):
                 _fail("config", name, getattr(self, name), f"must be a {cls.__name__}")
 
@@ -233,10 +232,12 @@ class TrainConfig:
                 stored = list(stored.items())
             return _tuplify(stored)
 
-        return cls(**{
-            name: section(**{k: value(name, k, v) for k, v in data.get(name, {}).items()})
-            for name, section in sections.items()
-        })
+        return cls(
+            **{
+                name: section(**{k: value(name, k, v) for k, v in data.get(name, {}).items()})
+                for name, section in sections.items()
+            }
+        )
 
 
 _PAIR_FIELDS = (("env", "overrides"), ("policy", "options"), ("es", "evosax_options"))

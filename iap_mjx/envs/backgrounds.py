@@ -66,6 +66,7 @@ from iap_mjx.configs.distraction import (
 
 logger = logging.getLogger(__name__)
 
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class BackgroundVideos:
     """A set of background videos, every frame ``size x size``.
@@ -87,10 +88,13 @@ class BackgroundVideos:
     def __post_init__(self):
         frames, lengths = self.frames, self.lengths
         if frames.dtype != np.uint8 or frames.ndim != 5 or frames.shape[-1] != 3 or frames.shape[2] != frames.shape[3]:
-            raise ValueError(f"BackgroundVideos.frames must be uint8 (V, F, S, S, 3), got {frames.dtype} {frames.shape}.")
+            raise ValueError(
+                f"BackgroundVideos.frames must be uint8 (V, F, S, S, 3), got {frames.dtype} {frames.shape}."
+            )
         if lengths.dtype != np.int32 or lengths.shape != frames.shape[:1]:
-            raise ValueError(f"BackgroundVideos.lengths must be int32 ({frames.shape[0]},), got {lengths.dtype} "
-                             f"{lengths.shape}.")
+            raise ValueError(
+                f"BackgroundVideos.lengths must be int32 ({frames.shape[0]},), got {lengths.dtype} {lengths.shape}."
+            )
         if np.any(lengths < 1) or np.any(lengths > frames.shape[1]):
             raise ValueError(f"BackgroundVideos.lengths must be in [1, {frames.shape[1]}], got {lengths}.")
         if len(self.names) != frames.shape[0]:
@@ -171,12 +175,19 @@ def _stack(videos: Sequence[np.ndarray], names: Sequence[str], source: str) -> B
     """Pads each ``(F_v, S, S, 3)`` video to the longest by repeating its last frame."""
     lengths = np.array([len(video) for video in videos], np.int32)
     longest = int(lengths.max())
-    frames = np.stack([
-        np.concatenate([video, np.repeat(video[-1:], longest - len(video), axis=0)]) for video in videos
-    ])
+    frames = np.stack(
+        [np.concatenate([video, np.repeat(video[-1:], longest - len(video), axis=0)]) for video in videos]
+    )
     result = BackgroundVideos(frames=frames, lengths=lengths, names=tuple(names), source=source)
-    logger.info("background videos from %s: %d videos, %d frames (padded), %dx%d, %.1f MB",
-                source, result.num_videos, result.num_frames, result.size, result.size, result.nbytes / 1e6)
+    logger.info(
+        "background videos from %s: %d videos, %d frames (padded), %dx%d, %.1f MB",
+        source,
+        result.num_videos,
+        result.num_frames,
+        result.size,
+        result.size,
+        result.nbytes / 1e6,
+    )
     return result
 
 
@@ -207,8 +218,9 @@ def pan_zoom_windows(height: int, width: int, num_frames: int, zoom: tuple[float
     return np.stack([centre_y - side / 2, centre_x - side / 2, side], axis=1)
 
 
-def builtin_videos(difficulty: str = "medium", size: int = DEFAULT_SIZE,
-                   num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> BackgroundVideos:
+def builtin_videos(
+    difficulty: str = "medium", size: int = DEFAULT_SIZE, num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train"
+) -> BackgroundVideos:
     """The offline default: the level's first photographs of ``PHOTOGRAPHS`` (``videos="val"``:
     of ``VALIDATION_PHOTOGRAPHS``) as pan/zoom videos of ``num_frames`` frames each,
     ``(V, num_frames, size, size, 3)``."""
@@ -219,9 +231,9 @@ def builtin_videos(difficulty: str = "medium", size: int = DEFAULT_SIZE,
     for photo in photos:
         pixels = _photograph_pixels(photo).astype(np.float32)
         windows = pan_zoom_windows(pixels.shape[0], pixels.shape[1], num_frames, photo.zoom, photo.pan)
-        clips.append(np.stack([
-            _to_uint8(_sample_window(pixels, top, left, side, side, size)) for top, left, side in windows
-        ]))
+        clips.append(
+            np.stack([_to_uint8(_sample_window(pixels, top, left, side, side, size)) for top, left, side in windows])
+        )
     return _stack(clips, [photo.name for photo in photos], source)
 
 
@@ -239,8 +251,9 @@ def _decode(path: Path, what: str) -> np.ndarray:
         raise ValueError(f"{what}: cannot decode frame {str(path)!r}: {error}") from error
 
 
-def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = DEFAULT_SIZE,
-               videos: str = "train") -> BackgroundVideos:
+def load_davis(
+    root: str | os.PathLike, difficulty: str = "medium", size: int = DEFAULT_SIZE, videos: str = "train"
+) -> BackgroundVideos:
     """The level's DAVIS-2017 training (``videos="val"``: validation) videos under ``root``,
     ``(V, F, size, size, 3)``.
 
@@ -254,8 +267,7 @@ def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = 
     check_backgrounds(difficulty, size=size, videos=videos)
     paths = davis_frame_paths(root, difficulty, videos)
     clips = [
-        np.stack([resize_frame(_decode(path, "background_dir"), size) for path in frames])
-        for frames in paths.values()
+        np.stack([resize_frame(_decode(path, "background_dir"), size) for path in frames]) for frames in paths.values()
     ]
     suffix = "" if videos == "train" else ":val"
     return _stack(clips, list(paths), f"davis:{Path(root).expanduser()}{suffix}")
@@ -264,8 +276,13 @@ def load_davis(root: str | os.PathLike, difficulty: str = "medium", size: int = 
 # ---- entry points ------------------------------------------------------------------------
 
 
-def load(difficulty: str = "medium", background_dir: str | os.PathLike | None = None, size: int = DEFAULT_SIZE,
-         num_frames: int = DEFAULT_NUM_FRAMES, videos: str = "train") -> BackgroundVideos:
+def load(
+    difficulty: str = "medium",
+    background_dir: str | os.PathLike | None = None,
+    size: int = DEFAULT_SIZE,
+    num_frames: int = DEFAULT_NUM_FRAMES,
+    videos: str = "train",
+) -> BackgroundVideos:
     """The level's background videos: DAVIS-2017 under ``background_dir``, or (``None``) the
     built-in photographs as ``num_frames``-frame pan/zoom videos. ``size``: the square
     frame's side (see the module docstring for the memory it implies); ``videos``: the
@@ -274,4 +291,3 @@ def load(difficulty: str = "medium", background_dir: str | os.PathLike | None = 
     if background_dir is None:
         return builtin_videos(difficulty, size, num_frames, videos)
     return load_davis(background_dir, difficulty, size, videos)
-

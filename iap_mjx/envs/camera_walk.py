@@ -70,10 +70,16 @@ class WalkSettings:
     @classmethod
     def make(cls, scale: float, dynamic: bool, upper_quadrant: bool) -> WalkSettings:
         on = 1.0 if dynamic else 0.0
-        return cls(delta=math.pi / 2 * scale, zoom_in=0.5 * scale, zoom_out=1.5 * scale,
-                   vel_std=0.1 * scale * on, max_vel=0.4 * scale * on,
-                   roll_std=math.pi / 300 * scale * on, max_roll_vel=math.pi / 50 * scale * on,
-                   upper_quadrant=upper_quadrant)
+        return cls(
+            delta=math.pi / 2 * scale,
+            zoom_in=0.5 * scale,
+            zoom_out=1.5 * scale,
+            vel_std=0.1 * scale * on,
+            max_vel=0.4 * scale * on,
+            roll_std=math.pi / 300 * scale * on,
+            max_roll_vel=math.pi / 50 * scale * on,
+            upper_quadrant=upper_quadrant,
+        )
 
 
 # ---- geometry -----------------------------------------------------------------------------
@@ -81,8 +87,7 @@ class WalkSettings:
 
 def to_sphere(p: jax.Array) -> jax.Array:
     """``(3,)`` Cartesian -> ``(r, h, v)``: radius, azimuth from +x, polar angle from +z."""
-    return jnp.stack([jnp.linalg.norm(p), jnp.arctan2(p[1], p[0]),
-                      jnp.arctan2(jnp.linalg.norm(p[:2]), p[2])])
+    return jnp.stack([jnp.linalg.norm(p), jnp.arctan2(p[1], p[0]), jnp.arctan2(jnp.linalg.norm(p[:2]), p[2])])
 
 
 def to_cartesian(s: jax.Array) -> jax.Array:
@@ -140,8 +145,9 @@ def lookat_point(cam_pos: jax.Array, cam_mat: jax.Array, com: jax.Array) -> jax.
 # ---- the walk -----------------------------------------------------------------------------
 
 
-def start(key: jax.Array, settings: WalkSettings, cam_pos: jax.Array, cam_mat: jax.Array,
-          com: jax.Array, tracking: bool) -> CameraWalk:
+def start(
+    key: jax.Array, settings: WalkSettings, cam_pos: jax.Array, cam_mat: jax.Array, com: jax.Array, tracking: bool
+) -> CameraWalk:
     """A reset's draw (the reference's ``setup_camera``), before the first :func:`walk`.
 
     ``cam_pos`` ``(3,)``, ``cam_mat`` ``(3, 3)``: the unperturbed camera of the reset state;
@@ -161,11 +167,17 @@ def start(key: jax.Array, settings: WalkSettings, cam_pos: jax.Array, cam_mat: j
     direction = jax.random.normal(k_dir, (3,))
     direction = direction / jnp.linalg.norm(direction)
     velocity = direction * jax.random.uniform(k_speed, (), maxval=settings.max_vel)
-    roll_velocity = jax.random.uniform(k_roll_vel, (), minval=-settings.max_roll_vel,
-                                       maxval=settings.max_roll_vel)
-    return CameraWalk(sphere=sphere, roll=roll, velocity=velocity, roll_velocity=roll_velocity,
-                      low=low, high=high, velocity_scale=r0 / 4.0,
-                      lookat=lookat_point(cam_pos, cam_mat, com))
+    roll_velocity = jax.random.uniform(k_roll_vel, (), minval=-settings.max_roll_vel, maxval=settings.max_roll_vel)
+    return CameraWalk(
+        sphere=sphere,
+        roll=roll,
+        velocity=velocity,
+        roll_velocity=roll_velocity,
+        low=low,
+        high=high,
+        velocity_scale=r0 / 4.0,
+        lookat=lookat_point(cam_pos, cam_mat, com),
+    )
 
 
 def walk(state: CameraWalk, settings: WalkSettings, noise: jax.Array, roll_noise: jax.Array) -> CameraWalk:
@@ -180,17 +192,20 @@ def walk(state: CameraWalk, settings: WalkSettings, noise: jax.Array, roll_noise
     cap = settings.max_vel * scale
     norm = jnp.linalg.norm(velocity)
     velocity = jnp.where(norm > cap, velocity * (cap / jnp.maximum(norm, 1e-30)), velocity)
-    roll_velocity = jnp.clip(state.roll_velocity + roll_noise * settings.roll_std,
-                             -settings.max_roll_vel, settings.max_roll_vel)
+    roll_velocity = jnp.clip(
+        state.roll_velocity + roll_noise * settings.roll_std, -settings.max_roll_vel, settings.max_roll_vel
+    )
     position = to_cartesian(state.sphere)
     sphere = jnp.clip(to_sphere(position + velocity), state.low, state.high)
     roll = jnp.clip(state.roll + roll_velocity, -settings.delta, settings.delta)
-    return state.replace(sphere=sphere, velocity=to_cartesian(sphere) - position,
-                         roll=roll, roll_velocity=roll - state.roll)
+    return state.replace(
+        sphere=sphere, velocity=to_cartesian(sphere) - position, roll=roll, roll_velocity=roll - state.roll
+    )
 
 
-def pose(state: CameraWalk, settings: WalkSettings, cam_pos: jax.Array, cam_mat: jax.Array,
-         com: jax.Array, tracking: bool) -> tuple[jax.Array, jax.Array]:
+def pose(
+    state: CameraWalk, settings: WalkSettings, cam_pos: jax.Array, cam_mat: jax.Array, com: jax.Array, tracking: bool
+) -> tuple[jax.Array, jax.Array]:
     """The perturbed ``cam_xpos`` ``(3,)`` and ``cam_xmat`` ``(3, 3)`` for the current state
     (``cam_pos``, ``cam_mat``: the unperturbed camera now; ``com``: body 1's subtree centre
     of mass now). A fixed camera looks at its reset-time look-at point; a ``trackcom``

@@ -117,8 +117,9 @@ class Distraction:
         kind is on.
     """
 
-    def __init__(self, env: Any, camera: Any, config: DistractionConfig,
-                 videos: backgrounds_lib.BackgroundVideos | None = None):
+    def __init__(
+        self, env: Any, camera: Any, config: DistractionConfig, videos: backgrounds_lib.BackgroundVideos | None = None
+    ):
         self.config = config
         self.domain = domain_name(env)
         model = env.mj_model
@@ -128,11 +129,14 @@ class Distraction:
         if "camera" in self.kinds:
             mode = int(model.cam_mode[self.camera_id])
             if mode not in (_FIXED, _TRACKCOM):
-                raise ValueError(f"{self.domain}: camera {self.camera_id} has mode {mode}; the camera "
-                                 "distraction supports fixed and trackcom cameras (as the reference).")
+                raise ValueError(
+                    f"{self.domain}: camera {self.camera_id} has mode {mode}; the camera "
+                    "distraction supports fixed and trackcom cameras (as the reference)."
+                )
             self.tracking = mode == _TRACKCOM
             self.walk_settings = camera_walk.WalkSettings.make(
-                config.scale, config.dynamic, upper_quadrant=self.domain != "reacher")
+                config.scale, config.dynamic, upper_quadrant=self.domain != "reacher"
+            )
         if "colour" in self.kinds:
             original = np.asarray(model.mat_rgba[:, :3], np.float32)
             # distracting_control/suite_utils.get_color_kwargs: max_delta, step_std
@@ -152,7 +156,9 @@ class Distraction:
                 logger.warning(
                     "the background videos (%.0f MB) will be embedded in every compiled program "
                     "(slow to compile); call iap_mjx.runtime.hoist_large_constants() before "
-                    "importing jax", videos.nbytes / 1e6)
+                    "importing jax",
+                    videos.nbytes / 1e6,
+                )
             # packed once (``sky.pack_rgb``): a frame is then one gather per pixel, no repacking
             self.frames = sky_lib.pack_rgb(jnp.asarray(videos.frames))  # (V, F, S * S) int32
             self.lengths = jnp.asarray(videos.lengths)
@@ -172,13 +178,17 @@ class Distraction:
             fields["camera"] = self._walk_camera(start, k_walk)
         if "colour" in self.kinds:
             fields["colour"] = jax.random.uniform(
-                k_colour, self.colour_low.shape, minval=self.colour_low, maxval=self.colour_high)
+                k_colour, self.colour_low.shape, minval=self.colour_low, maxval=self.colour_high
+            )
         if "background" in self.kinds:
             video = jax.random.randint(k_video, (), 0, self.num_videos)
             fields["video"] = video
             fields["frame"] = jax.random.randint(k_frame, (), 0, self.lengths[video])
-            fields["direction"] = (jnp.where(jax.random.bernoulli(k_direction), 1, -1).astype(jnp.int32)
-                                   if self.config.dynamic else jnp.zeros((), jnp.int32))
+            fields["direction"] = (
+                jnp.where(jax.random.bernoulli(k_direction), 1, -1).astype(jnp.int32)
+                if self.config.dynamic
+                else jnp.zeros((), jnp.int32)
+            )
         return Perturbation(key=key, **fields)
 
     def advance(self, perturbation: Perturbation, control_steps: int | None = None) -> Perturbation:
@@ -216,15 +226,18 @@ class Distraction:
         inputs = {}
         if "camera" in self.kinds:
             cam_pos, cam_mat, com = self._camera_now(data)
-            position, rotation = camera_walk.pose(perturbation.camera, self.walk_settings, cam_pos,
-                                                  cam_mat, com, self.tracking)
+            position, rotation = camera_walk.pose(
+                perturbation.camera, self.walk_settings, cam_pos, cam_mat, com, self.tracking
+            )
             cam = self.camera_id
-            data = data.replace(cam_xpos=data.cam_xpos.at[cam].set(position),
-                                cam_xmat=data.cam_xmat.at[cam].set(rotation))
+            data = data.replace(
+                cam_xpos=data.cam_xpos.at[cam].set(position), cam_xmat=data.cam_xmat.at[cam].set(rotation)
+            )
         if "colour" in self.kinds:
             picked = perturbation.colour[jnp.asarray(np.maximum(self.geom_material, 0))]
-            inputs["geom_rgb"] = jnp.where(jnp.asarray(self.geom_material >= 0)[:, None], picked,
-                                           jnp.asarray(self.geom_rgb))
+            inputs["geom_rgb"] = jnp.where(
+                jnp.asarray(self.geom_material >= 0)[:, None], picked, jnp.asarray(self.geom_rgb)
+            )
         if "background" in self.kinds:
             # the whole stack and the frame's row: the camera reads the frame in place
             stack = self.frames.reshape(-1, self.frames.shape[-1])
@@ -239,5 +252,6 @@ class Distraction:
 
     def _walk_camera(self, state: camera_walk.CameraWalk, key: jax.Array) -> camera_walk.CameraWalk:
         k_move, k_roll = jax.random.split(key)
-        return camera_walk.walk(state, self.walk_settings, jax.random.normal(k_move, (3,)),
-                                jax.random.normal(k_roll, ()))
+        return camera_walk.walk(
+            state, self.walk_settings, jax.random.normal(k_move, (3,)), jax.random.normal(k_roll, ())
+        )

@@ -149,8 +149,10 @@ class DmControlEnv:
             # MJX reads numeric_data[id] (not numeric_adr[id]): the same cell while every numeric
             # before ours has size 1, as in every suite model (they define none).
             if mj_model.numeric_adr[slot] != slot:
-                raise ValueError(f"{self.name}: a model numeric of size > 1 precedes max_contact_points, "
-                                 "where MJX would read the wrong cell; use max_contacts='all'")
+                raise ValueError(
+                    f"{self.name}: a model numeric of size > 1 precedes max_contact_points, "
+                    "where MJX would read the wrong cell; use max_contacts='all'"
+                )
             mj_model.numeric_data[slot] = self.max_contacts
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
@@ -162,9 +164,7 @@ class DmControlEnv:
         # The contact slots of each condim group that lost candidates to the limit.
         kept = collision_driver.make_condim(mj_model)
         self._limited_slots = tuple(
-            np.flatnonzero(kept == c)
-            for c in np.unique(all_condims)
-            if np.sum(kept == c) < np.sum(all_condims == c)
+            np.flatnonzero(kept == c) for c in np.unique(all_condims) if np.sum(kept == c) < np.sum(all_condims == c)
         )
 
     # ---- the Env protocol -------------------------------------------------------------
@@ -245,9 +245,7 @@ class DmControlEnv:
         steps = state.info["steps"] + jnp.where(ended, 0, 1).astype(jnp.int32)
         done = frozen | self._terminated(data) | (steps >= self.episode_length)
         metrics = dict(state.metrics)
-        metrics["nan_terminations"] = jnp.maximum(
-            state.metrics["nan_terminations"], jnp.where(bad & ~ended, 1.0, 0.0)
-        )
+        metrics["nan_terminations"] = jnp.maximum(state.metrics["nan_terminations"], jnp.where(bad & ~ended, 1.0, 0.0))
         metrics["contact_saturated"] = jnp.maximum(
             state.metrics["contact_saturated"], jnp.where(saturated & ~ended, 1.0, 0.0)
         )
@@ -384,9 +382,7 @@ class DmControlEnv:
         return int(index)
 
 
-def randomize_limited_and_rotational_joints(
-    mj_model: mujoco.MjModel, key: jax.Array, qpos: jax.Array
-) -> jax.Array:
+def randomize_limited_and_rotational_joints(mj_model: mujoco.MjModel, key: jax.Array, qpos: jax.Array) -> jax.Array:
     """dm_control's ``randomizers.randomize_limited_and_rotational_joints`` for hinges/slides.
 
     Limited hinges and slides uniform in their range, unlimited hinges uniform in
@@ -407,7 +403,5 @@ def randomize_limited_and_rotational_joints(
         lows.append(low)
         highs.append(high)
         addresses.append(mj_model.jnt_qposadr[joint])
-    values = jax.random.uniform(
-        key, (len(addresses),), minval=np.asarray(lows), maxval=np.asarray(highs)
-    )
+    values = jax.random.uniform(key, (len(addresses),), minval=np.asarray(lows), maxval=np.asarray(highs))
     return qpos.at[np.asarray(addresses, np.int32)].set(values)

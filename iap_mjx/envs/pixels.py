@@ -44,10 +44,18 @@ class PixelEnv:
       obs_mode, frame_stack: as given.
     """
 
-    def __init__(self, env: Any, obs_mode: str = "pixels", camera_id: int = 0,
-                 height: int = 100, width: int = 100, frame_stack: int = 1,
-                 distraction: DistractionConfig | None = None,
-                 videos: Any = None, **camera_config: Any):
+    def __init__(
+        self,
+        env: Any,
+        obs_mode: str = "pixels",
+        camera_id: int = 0,
+        height: int = 100,
+        width: int = 100,
+        frame_stack: int = 1,
+        distraction: DistractionConfig | None = None,
+        videos: Any = None,
+        **camera_config: Any,
+    ):
         if obs_mode not in PIXEL_MODES:
             raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
         if not isinstance(frame_stack, int) or isinstance(frame_stack, bool) or frame_stack < 1:
@@ -57,8 +65,9 @@ class PixelEnv:
         self.frame_stack = frame_stack
         model = env.mj_model if distraction is None else distraction_lib.camera_model(env, distraction)
         self.camera = Camera(model, camera_id=camera_id, height=height, width=width, **camera_config)
-        self.distraction = (None if distraction is None
-                            else distraction_lib.Distraction(env, self.camera, distraction, videos))
+        self.distraction = (
+            None if distraction is None else distraction_lib.Distraction(env, self.camera, distraction, videos)
+        )
 
     def __getattr__(self, name: str) -> Any:
         if name == "env":  # not set yet (e.g. during unpickling): avoid recursion
@@ -83,8 +92,10 @@ class PixelEnv:
         if self.distraction is None:
             return data, {}
         if perturbation is None:
-            raise ValueError("a distracted env renders with the episode's perturbation: "
-                             "render(state.data, state.info['distraction'])")
+            raise ValueError(
+                "a distracted env renders with the episode's perturbation: "
+                "render(state.data, state.info['distraction'])"
+            )
         return self.distraction.scene(data, perturbation)
 
     def render(self, data: Any, perturbation: Any = None) -> jax.Array:
@@ -122,11 +133,14 @@ class PixelEnv:
             before = state.info["distraction"]
             after = self.distraction.advance(before)
             # an ended episode's frame holds still, as its physics does (done is sticky)
-            perturbation = after if after is before else jax.tree.map(
-                lambda old, new: jnp.where(state.done > 0, old, new), before, after)
+            perturbation = (
+                after
+                if after is before
+                else jax.tree.map(lambda old, new: jnp.where(state.done > 0, old, new), before, after)
+            )
             next_state = next_state.replace(info={**next_state.info, "distraction": perturbation})
         frame = self.render(next_state.data, perturbation)
-        stack = jnp.concatenate([stack[..., self.channels:], frame], axis=-1)
+        stack = jnp.concatenate([stack[..., self.channels :], frame], axis=-1)
         return next_state.replace(obs=self._observation(stack, next_state.obs))
 
     def _first(self, state: State, key: jax.Array) -> State:
@@ -147,10 +161,17 @@ class PixelEnv:
         return obs["pixels"] if self.obs_mode == "pixels+state" else obs
 
 
-def with_pixels(env: Any, obs_mode: str = "pixels", camera_id: int = 0, height: int = 100,
-                width: int = 100, frame_stack: int = 1,
-                distraction: DistractionConfig | None = None,
-                videos: Any = None, **camera_config: Any) -> PixelEnv:
+def with_pixels(
+    env: Any,
+    obs_mode: str = "pixels",
+    camera_id: int = 0,
+    height: int = 100,
+    width: int = 100,
+    frame_stack: int = 1,
+    distraction: DistractionConfig | None = None,
+    videos: Any = None,
+    **camera_config: Any,
+) -> PixelEnv:
     """Wraps ``env`` (which must expose ``mj_model``) so its observations are camera images.
 
     Args:
@@ -163,5 +184,14 @@ def with_pixels(env: Any, obs_mode: str = "pixels", camera_id: int = 0, height: 
         the background videos they need (``iap_mjx.envs.backgrounds.load``).
       camera_config: further ``iap_mjx.render.CameraConfig`` fields (shading, sky, ...).
     """
-    return PixelEnv(env, obs_mode=obs_mode, camera_id=camera_id, height=height, width=width,
-                    frame_stack=frame_stack, distraction=distraction, videos=videos, **camera_config)
+    return PixelEnv(
+        env,
+        obs_mode=obs_mode,
+        camera_id=camera_id,
+        height=height,
+        width=width,
+        frame_stack=frame_stack,
+        distraction=distraction,
+        videos=videos,
+        **camera_config,
+    )

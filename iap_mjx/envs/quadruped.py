@@ -52,8 +52,6 @@ def roll_pitch(quat: jax.Array) -> tuple[jax.Array, jax.Array]:
     return roll, pitch
 
 
-
-
 class QuadrupedFlat(DmControlEnv):
     """Walk forward (+x) on a flat floor. See the module docstring."""
 
@@ -88,8 +86,8 @@ class QuadrupedFlat(DmControlEnv):
             self._culled_pairs = tuple(
                 np.asarray([(g1, g2) for g1, g2, _ in pairs], np.int32)
                 for key, pairs in groups.items()
-                if not set(key.types) & collision_driver._GEOM_NO_BROADPHASE
-                and len(pairs) > self.max_geom_pairs)
+                if not set(key.types) & collision_driver._GEOM_NO_BROADPHASE and len(pairs) > self.max_geom_pairs
+            )
 
     @property
     def max_geom_pairs(self) -> int | None:
@@ -103,8 +101,9 @@ class QuadrupedFlat(DmControlEnv):
         return a1.world_xml()
 
     def _edit_model(self, mj_model: mujoco.MjModel) -> None:
-        mj_model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON,
-                               "cg": mujoco.mjtSolver.mjSOL_CG}[self.config.solver]
+        mj_model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[
+            self.config.solver
+        ]
 
     def _model_spec(self) -> mujoco.MjSpec:
         spec = mujoco.MjSpec.from_string(self._world_xml())
@@ -119,8 +118,11 @@ class QuadrupedFlat(DmControlEnv):
         saturated = super()._contacts_saturated(data)
         rbound = jnp.asarray(self.mj_model.geom_rbound, jnp.float32)
         for pairs in self._culled_pairs:
-            gap = (jnp.linalg.norm(data.geom_xpos[pairs[:, 1]] - data.geom_xpos[pairs[:, 0]], axis=1)
-                   - rbound[pairs[:, 0]] - rbound[pairs[:, 1]])
+            gap = (
+                jnp.linalg.norm(data.geom_xpos[pairs[:, 1]] - data.geom_xpos[pairs[:, 0]], axis=1)
+                - rbound[pairs[:, 0]]
+                - rbound[pairs[:, 1]]
+            )
             saturated = saturated | (jnp.sum(gap <= 0.0) > self.max_geom_pairs)
         return saturated
 
@@ -145,9 +147,10 @@ class QuadrupedFlat(DmControlEnv):
 
     def state_observation(self, data: mjx.Data) -> jax.Array:
         s = data.sensordata
-        roll, pitch = roll_pitch(s[self._quat: self._quat + 4])
-        return jnp.concatenate([jnp.stack([roll, pitch]), s[self._gyro: self._gyro + 3],
-                                s[self._joint_pos: self._joint_pos + 12]])
+        roll, pitch = roll_pitch(s[self._quat : self._quat + 4])
+        return jnp.concatenate(
+            [jnp.stack([roll, pitch]), s[self._gyro : self._gyro + 3], s[self._joint_pos : self._joint_pos + 12]]
+        )
 
     def forward_velocity(self, data: mjx.Data) -> jax.Array:
         """The trunk's velocity along world x (m/s), ``()``."""
@@ -192,15 +195,17 @@ class QuadrupedWalls(QuadrupedFlat):
     episode_metrics = ("walls_passed", "fell_off", "wall_contacts", "distance")
 
     def _world_xml(self) -> str:
-        return a1.world_xml(platform=self.PLATFORM, n_walls=self.config.n_walls,
-                            wall_half_size=self.WALL_HALF_SIZE)
+        return a1.world_xml(platform=self.PLATFORM, n_walls=self.config.n_walls, wall_half_size=self.WALL_HALF_SIZE)
 
     def _place_world(self, data: mjx.Data, key: jax.Array) -> mjx.Data:
         n = self.config.n_walls
         side_key, x_key, gap_key = jax.random.split(key, 3)
         side = jnp.where(jax.random.bernoulli(side_key, 0.5, (n,)), 1.0, -1.0)
-        x = self.WALL_START + self.WALL_SPACING * jnp.arange(n) + jax.random.uniform(
-            x_key, (n,), minval=-self.WALL_JITTER, maxval=self.WALL_JITTER)
+        x = (
+            self.WALL_START
+            + self.WALL_SPACING * jnp.arange(n)
+            + jax.random.uniform(x_key, (n,), minval=-self.WALL_JITTER, maxval=self.WALL_JITTER)
+        )
         gap = jax.random.uniform(gap_key, (n,), minval=self.GAP_RANGE[0], maxval=self.GAP_RANGE[1])
         half_width, half_length = self.PLATFORM[2], self.WALL_HALF_SIZE[1]
         # the wall spans y +- half_length; `gap` metres remain between its end and the edge
@@ -286,8 +291,7 @@ class QuadrupedWalls(QuadrupedFlat):
         counts = lambda flag: jnp.where(live & flag, 1.0, 0.0)  # noqa: E731
         finished = data.qpos[0] > self.PLATFORM[1]
         return {
-            "walls_passed": jnp.where(live & on, jnp.maximum(metrics["walls_passed"], passed),
-                                      metrics["walls_passed"]),
+            "walls_passed": jnp.where(live & on, jnp.maximum(metrics["walls_passed"], passed), metrics["walls_passed"]),
             "fell_off": jnp.maximum(metrics["fell_off"], counts(~on & ~finished)),
             "wall_contacts": metrics["wall_contacts"] + counts(self.touches_wall(data)),
             "distance": jnp.where(live, data.qpos[0], metrics["distance"]),

@@ -24,8 +24,16 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
     from iap_mjx.envs.reacher import ReacherEasy
     from iap_mjx.envs.walker import WalkerWalk
 
-    classes = [BallInCupCatch, CartpoleSwingup, CheetahRun, FingerSpin, QuadrupedFlat, QuadrupedWalls,
-               ReacherEasy, WalkerWalk]
+    classes = [
+        BallInCupCatch,
+        CartpoleSwingup,
+        CheetahRun,
+        FingerSpin,
+        QuadrupedFlat,
+        QuadrupedWalls,
+        ReacherEasy,
+        WalkerWalk,
+    ]
     return {cls.name: cls for cls in classes}
 
 
@@ -85,9 +93,13 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
     if distraction is not None and "background" in distraction.kinds:
         from iap_mjx.envs import backgrounds
 
-        videos = backgrounds.load(distraction.difficulty, distraction.background_dir,
-                                  distraction.background_size, distraction.background_frames,
-                                  distraction.background_videos)
+        videos = backgrounds.load(
+            distraction.difficulty,
+            distraction.background_dir,
+            distraction.background_size,
+            distraction.background_frames,
+            distraction.background_videos,
+        )
     return with_pixels(
         env,
         obs_mode=cfg.obs_mode,

@@ -27,14 +27,10 @@ def _sigmoid(x: jnp.ndarray, value_at_1: float, sigmoid: str) -> jnp.ndarray:
     """1 at ``x == 0``, ``value_at_1`` at ``|x| == 1``, in ``[0, 1]`` elsewhere; shape of ``x``."""
     if sigmoid in ("cosine", "linear", "quadratic"):
         if not 0 <= value_at_1 < 1:
-            raise ValueError(
-                f"value_at_margin must be in [0, 1) for sigmoid={sigmoid!r}, got {value_at_1}."
-            )
+            raise ValueError(f"value_at_margin must be in [0, 1) for sigmoid={sigmoid!r}, got {value_at_1}.")
     elif sigmoid in SIGMOIDS:
         if not 0 < value_at_1 < 1:
-            raise ValueError(
-                f"value_at_margin must be in (0, 1) for sigmoid={sigmoid!r}, got {value_at_1}."
-            )
+            raise ValueError(f"value_at_margin must be in (0, 1) for sigmoid={sigmoid!r}, got {value_at_1}.")
     else:
         raise ValueError(f"sigmoid must be one of {SIGMOIDS}, got {sigmoid!r}.")
 

@@ -53,9 +53,7 @@ class WalkerWalk(DmControlEnv):
         return jnp.concatenate([orientations, self.torso_height(data)[None], data.qvel])
 
     def reward(self, data: mjx.Data) -> jax.Array:
-        standing = tolerance(
-            self.torso_height(data), bounds=(_STAND_HEIGHT, float("inf")), margin=_STAND_HEIGHT / 2
-        )
+        standing = tolerance(self.torso_height(data), bounds=(_STAND_HEIGHT, float("inf")), margin=_STAND_HEIGHT / 2)
         upright = (1 + self.torso_upright(data)) / 2
         stand_reward = (3 * standing + upright) / 4
         move_reward = tolerance(

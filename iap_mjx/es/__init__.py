@@ -9,6 +9,16 @@ from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
 from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, evaluate_run_episodes, load_run, train
 
 __all__ = [
-    "EvosaxStrategy", "OpenES", "SHAPINGS", "TrainResult", "TrainState", "build",
-    "centred_ranks", "estimate_gradient", "evaluate_run", "evaluate_run_episodes", "load_run", "train",
+    "EvosaxStrategy",
+    "OpenES",
+    "SHAPINGS",
+    "TrainResult",
+    "TrainState",
+    "build",
+    "centred_ranks",
+    "estimate_gradient",
+    "evaluate_run",
+    "evaluate_run_episodes",
+    "load_run",
+    "train",
 ]

@@ -21,9 +21,7 @@ CHECKPOINT_DIR = "checkpoints"
 
 
 def _manager(run_dir: str | Path, max_to_keep: int = 3, *, create: bool = True) -> ocp.CheckpointManager:
-    options = ocp.CheckpointManagerOptions(
-        max_to_keep=max_to_keep, create=create, enable_async_checkpointing=False
-    )
+    options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=create, enable_async_checkpointing=False)
     return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options)
 
 
@@ -37,8 +35,9 @@ def _reader(run_dir: str | Path) -> ocp.CheckpointManager:
 
 def to_host(tree: Any) -> Any:
     """Numpy copies of a pytree of (possibly replicated, multi-process) arrays."""
-    return jax.tree_util.tree_map(lambda x: np.asarray(x.addressable_data(0))
-                                  if isinstance(x, jax.Array) else np.asarray(x), tree)
+    return jax.tree_util.tree_map(
+        lambda x: np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else np.asarray(x), tree
+    )
 
 
 def latest_step(run_dir: str | Path) -> int | None:
@@ -81,9 +80,7 @@ def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[in
         if step is None:
             raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
         abstract = jax.tree_util.tree_map(np.asarray, to_host(like))
-        restored = manager.restore(
-            step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))
-        )
+        restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
         return step, restored["state"]
 
 

@@ -34,14 +34,17 @@ def initialize(coordinator_address: str, num_processes: int, process_id: int) ->
     import jax
 
     if not 0 <= process_id < num_processes:
-        raise ValueError(
-            f"process_id = {process_id} must be in [0, num_processes = {num_processes})"
-        )
+        raise ValueError(f"process_id = {process_id} must be in [0, num_processes = {num_processes})")
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(
         coordinator_address=coordinator_address,
         num_processes=num_processes,
         process_id=process_id,
     )
-    logger.info("process %d of %d joined %s; %d devices in all", process_id, num_processes,
-                coordinator_address, len(jax.devices()))
+    logger.info(
+        "process %d of %d joined %s; %d devices in all",
+        process_id,
+        num_processes,
+        coordinator_address,
+        len(jax.devices()),
+    )

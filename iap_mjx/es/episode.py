@@ -75,8 +75,7 @@ class Step:
     next_state: Any
 
 
-jax.tree_util.register_dataclass(Step, data_fields=["state", "seen", "policy_state", "next_state"],
-                                 meta_fields=[])
+jax.tree_util.register_dataclass(Step, data_fields=["state", "seen", "policy_state", "next_state"], meta_fields=[])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,8 +121,7 @@ class Tally:
         return Tally(ret, alive, bad, obs_sum, obs_sq_sum), steps_alive
 
 
-jax.tree_util.register_dataclass(Tally, data_fields=["ret", "alive", "bad", "obs_sum", "obs_sq_sum"],
-                                 meta_fields=[])
+jax.tree_util.register_dataclass(Tally, data_fields=["ret", "alive", "bad", "obs_sum", "obs_sq_sum"], meta_fields=[])
 
 
 def episode_metric_names(env: Any) -> tuple[str, ...]:
@@ -137,8 +135,9 @@ def observe(obs_stats: ObsStats | None, obs: Any) -> Any:
     return obs if obs_stats is None else normalize(obs_stats, obs)
 
 
-def episode_step(env: Any, policy: Policy, params: Any, obs_stats: ObsStats | None, state: Any,
-                 policy_state: Any) -> tuple[Step, Any]:
+def episode_step(
+    env: Any, policy: Policy, params: Any, obs_stats: ObsStats | None, state: Any, policy_state: Any
+) -> tuple[Step, Any]:
     """One control step from env ``state``: the :class:`Step` taken and the policy's next state."""
     seen = observe(obs_stats, state.obs)
     action, next_policy_state = policy.apply(params, seen, policy_state)
@@ -190,8 +189,10 @@ def run_episode(
     length = env.episode_length if steps is None else steps
     carry, (steps_alive, records) = jax.lax.scan(step, carry, None, length=length)
     final, _, tally = carry
-    saturated = (final.metrics["contact_saturated"] > 0).astype(jnp.float32) \
-        if "contact_saturated" in final.metrics else zero
+    saturated = (
+        (final.metrics["contact_saturated"] > 0).astype(jnp.float32) if "contact_saturated" in final.metrics else zero
+    )
     metrics = {name: final.metrics[name] for name in episode_metric_names(env)}
-    return EpisodeResult(tally.ret, jnp.sum(steps_alive), tally.bad, saturated, tally.obs_sum,
-                         tally.obs_sq_sum, metrics, records)
+    return EpisodeResult(
+        tally.ret, jnp.sum(steps_alive), tally.bad, saturated, tally.obs_sum, tally.obs_sq_sum, metrics, records
+    )

@@ -103,8 +103,9 @@ def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str
 class MetricsWriter:
     """Appends rows to the run's metrics files; on resume, drops rows past the checkpoint."""
 
-    def __init__(self, run_dir: str | Path, resume_from: int | None, tensorboard: bool,
-                 columns: tuple[str, ...] = COLUMNS):
+    def __init__(
+        self, run_dir: str | Path, resume_from: int | None, tensorboard: bool, columns: tuple[str, ...] = COLUMNS
+    ):
         self.columns = tuple(columns)
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -115,8 +116,9 @@ class MetricsWriter:
         if tensorboard:
             from tensorboardX import SummaryWriter
 
-            self._tb = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=(
-                resume_from + 1 if resume_from is not None else None))
+            self._tb = SummaryWriter(
+                str(self.run_dir / "tensorboard"), purge_step=(resume_from + 1 if resume_from is not None else None)
+            )
 
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         """Both files anew, each written aside and renamed over the old one: a kill mid-write

@@ -27,9 +27,7 @@ def init_stats(obs_size: int) -> ObsStats:
     )
 
 
-def update_stats(
-    stats: ObsStats, count: jax.Array, total: jax.Array, total_sq: jax.Array
-) -> ObsStats:
+def update_stats(stats: ObsStats, count: jax.Array, total: jax.Array, total_sq: jax.Array) -> ObsStats:
     """Merges a batch given as ``count`` ``()``, sum ``(obs,)`` and sum of squares ``(obs,)``.
 
     Chan et al.'s parallel update of mean and variance; a batch with ``count = 0`` is a no-op.

@@ -30,9 +30,7 @@ def make_mesh(num_devices: int = 0, devices: Any = None) -> Mesh:
     devices = list(jax.devices() if devices is None else devices)
     if num_devices:
         if num_devices > len(devices):
-            raise ValueError(
-                f"run.num_devices = {num_devices} but only {len(devices)} devices exist"
-            )
+            raise ValueError(f"run.num_devices = {num_devices} but only {len(devices)} devices exist")
         devices = devices[:num_devices]
     return Mesh(np.array(devices), (POP_AXIS,))
 

@@ -32,9 +32,7 @@ class Strategy(Protocol):
 
     def ask(self, key: jax.Array, state: Any) -> tuple[jax.Array, Any]: ...
 
-    def tell(
-        self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: Any
-    ) -> Any: ...
+    def tell(self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: Any) -> Any: ...
 
     def mean(self, state: Any) -> jax.Array: ...
 
@@ -54,9 +52,7 @@ def antithetic_noise(key: jax.Array, population_size: int, num_dims: int) -> jax
     return jnp.concatenate([half, -half], axis=0)
 
 
-def estimate_gradient(
-    noise: jax.Array, weights: jax.Array, sigma: jax.Array | float
-) -> jax.Array:
+def estimate_gradient(noise: jax.Array, weights: jax.Array, sigma: jax.Array | float) -> jax.Array:
     """The ES gradient estimate ``sum_i w_i eps_i / (P sigma)``.
 
     ``noise`` ``(P, D)`` are the standard-normal ``eps_i`` (population = mean + sigma eps),
@@ -81,18 +77,14 @@ class OpenES:
 
     population_size: int
     sigma: float | Callable[[jax.Array], jax.Array] = 0.02
-    optimizer: optax.GradientTransformation = dataclasses.field(
-        default_factory=lambda: optax.adam(0.01)
-    )
+    optimizer: optax.GradientTransformation = dataclasses.field(default_factory=lambda: optax.adam(0.01))
     shaping: ShapingFn = centred_ranks
     weight_decay: float = 0.0
     antithetic: bool = True
 
     def __post_init__(self):
         if self.antithetic and self.population_size % 2:
-            raise ValueError(
-                f"population_size = {self.population_size} must be even with antithetic sampling"
-            )
+            raise ValueError(f"population_size = {self.population_size} must be even with antithetic sampling")
 
     def sigma_at(self, iteration: jax.Array) -> jax.Array:
         """The perturbation std at ``iteration``."""
@@ -119,9 +111,7 @@ class OpenES:
         eps = self.noise(key, state.mean.shape[0])
         return state.mean + self.sigma_at(state.iteration) * eps, state
 
-    def tell(
-        self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: OpenESState
-    ) -> OpenESState:
+    def tell(self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: OpenESState) -> OpenESState:
         del key
         sigma = self.sigma_at(state.iteration)
         eps = (population - state.mean) / sigma
@@ -160,9 +150,7 @@ class EvosaxStrategy:
         from evosax.algorithms import algorithms
 
         if self.name not in algorithms:
-            raise ValueError(
-                f"unknown evosax strategy {self.name!r}; choose one of {sorted(algorithms)}"
-            )
+            raise ValueError(f"unknown evosax strategy {self.name!r}; choose one of {sorted(algorithms)}")
         return algorithms[self.name](
             population_size=self.population_size,
             solution=jnp.zeros((self.num_dims,), jnp.float32),
@@ -188,9 +176,7 @@ class EvosaxStrategy:
     def ask(self, key: jax.Array, state: Any) -> tuple[jax.Array, Any]:
         return self._algo.ask(key, state, self._params)
 
-    def tell(
-        self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: Any
-    ) -> Any:
+    def tell(self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: Any) -> Any:
         # A NaN fitness becomes the worst; evosax minimises, so negate.
         finite = jnp.isfinite(fitness)
         worst = jnp.min(jnp.where(finite, fitness, jnp.inf))

@@ -122,9 +122,9 @@ def make_sigma(es: ESConfig, iterations: int) -> float | Callable[[jax.Array], j
     return es.sigma
 
 
-_OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = dict(zip(
-    OPTIMIZERS, (optax.adam, optax.sgd, lambda learning_rate: optax.sgd(learning_rate, momentum=0.9)),
-    strict=True))
+_OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = dict(
+    zip(OPTIMIZERS, (optax.adam, optax.sgd, lambda learning_rate: optax.sgd(learning_rate, momentum=0.9)), strict=True)
+)
 """The optax optimizer of each ``ESConfig.optimizer`` name given its learning rate, listed in
 the order of ``configs.training.OPTIMIZERS`` (the names' one home): a name without an optimizer
 fails at import."""
@@ -155,9 +155,7 @@ def make_strategy(es: ESConfig, num_dims: int, iterations: int) -> Strategy:
     )
 
 
-def build(
-    config: TrainConfig, *, env: Any = None, policy: Any = None, devices: Any = None
-) -> Components:
+def build(config: TrainConfig, *, env: Any = None, policy: Any = None, devices: Any = None) -> Components:
     """Builds env, policy, strategy and the compiled-to-be evaluators for ``config``.
 
     ``env``/``policy`` override the ones the config names (tests, notebooks); ``devices``
@@ -171,7 +169,9 @@ def build(
         env = envs.make(config.env.name, **dict(config.env.overrides))
     if policy is None:
         policy = policies.make(
-            config.policy.kind, env.observation_shape, env.action_size,
+            config.policy.kind,
+            env.observation_shape,
+            env.action_size,
             **dict(config.policy.options),
         )
     if config.es.normalize_observations and not (
@@ -188,8 +188,7 @@ def build(
     track = config.es.normalize_observations
     evaluate = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, track)
     strategy = make_strategy(config.es, flat.shape[0], config.run.iterations)
-    return Components(config, env, policy, strategy, template, unravel, flat.shape[0],
-                      mesh, evaluate)
+    return Components(config, env, policy, strategy, template, unravel, flat.shape[0], mesh, evaluate)
 
 
 def describe_parameters(parts: Components) -> str:
@@ -211,7 +210,8 @@ def check_chunk_size(chunk_size: int, env: Any, num_devices: int) -> None:
             f"run.chunk_size = {chunk_size} is too large for this env on {num_devices} devices: "
             f"valid values are 1..{limit}. With jaxlib 0.10 a larger vmapped batch splits MJX's "
             "batched Cholesky over XLA's thread pool and deadlocks XLA:CPU "
-            "(see iap_mjx.envs.dmc.serial_lapack_batch).")
+            "(see iap_mjx.envs.dmc.serial_lapack_batch)."
+        )
 
 
 def init_state(parts: Components) -> TrainState:
@@ -253,12 +253,13 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         ask_key, episode_key, tell_key = jax.random.split(key, 3)
         centre = parts.strategy.mean(state.strategy_state)
         population, strategy_state = parts.strategy.ask(ask_key, state.strategy_state)
-        flat = jnp.concatenate([
-            jnp.repeat(population, n_episodes, axis=0),
-            jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
-        ])
-        keys = jnp.concatenate(
-            [jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
+        flat = jnp.concatenate(
+            [
+                jnp.repeat(population, n_episodes, axis=0),
+                jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
+            ]
+        )
+        keys = jnp.concatenate([jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
         everything = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
         result = jax.tree_util.tree_map(lambda x: x[:members], everything)
         eval_returns = everything.ret[members:]
@@ -268,8 +269,9 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         strategy_state = parts.strategy.tell(tell_key, population, fitness, strategy_state)
         obs_stats = state.obs_stats
         if es.normalize_observations:
-            obs_stats = update_stats(obs_stats, jnp.sum(result.steps),
-                                     jnp.sum(result.obs_sum, 0), jnp.sum(result.obs_sq_sum, 0))
+            obs_stats = update_stats(
+                obs_stats, jnp.sum(result.steps), jnp.sum(result.obs_sum, 0), jnp.sum(result.obs_sq_sum, 0)
+            )
         finite = jnp.isfinite(fitness)
         metrics = {
             "return_mean": jnp.nanmean(fitness),
@@ -344,8 +346,7 @@ def result_from_state(parts: Components, state: TrainState, history, run_dir) ->
     """Packs a ``TrainState`` into a ``TrainResult`` (host copies of params and statistics)."""
     host = checkpoint.to_host(state)
     params = parts.unravel(jnp.asarray(parts.strategy.mean(host.strategy_state)))
-    obs_stats = (jax.tree_util.tree_map(jnp.asarray, host.obs_stats)
-                 if parts.config.es.normalize_observations else None)
+    obs_stats = jax.tree_util.tree_map(jnp.asarray, host.obs_stats) if parts.config.es.normalize_observations else None
     return TrainResult(
         params=params,
         obs_stats=obs_stats,
@@ -365,7 +366,8 @@ def _restore(parts: Components, run_dir, state: TrainState) -> TrainState:
     replicated = NamedSharding(parts.mesh, PartitionSpec())
     restored = jax.tree_util.tree_map(
         lambda like, x: jax.device_put(np.asarray(x, dtype=like.dtype), replicated),
-        state, host_state,
+        state,
+        host_state,
     )
     logger.info("resumed from checkpoint %d in %s", step, run_dir)
     return restored
@@ -374,6 +376,7 @@ def _restore(parts: Components, run_dir, state: TrainState) -> TrainState:
 def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
     """Resuming must not change the run: only ``run.iterations`` (unless a sigma schedule
     spans it), ``run.tensorboard`` and ``run.max_minutes`` may differ."""
+
     def comparable(c: TrainConfig) -> dict:
         flat = c.to_dict()
         if c.es.sigma_schedule == "constant":  # else sigma would jump at the resumed iteration
@@ -383,12 +386,16 @@ def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
         return flat
 
     ours, theirs = comparable(config), comparable(stored)
-    differ = [f"{section}.{name}: checkpoint {theirs[section][name]!r}, now {value!r}"
-              for section in ours for name, value in ours[section].items()
-              if theirs[section].get(name) != value]
+    differ = [
+        f"{section}.{name}: checkpoint {theirs[section][name]!r}, now {value!r}"
+        for section in ours
+        for name, value in ours[section].items()
+        if theirs[section].get(name) != value
+    ]
     if differ:
-        raise ValueError(f"{run_dir} holds a checkpoint of a different config ("
-                         + "; ".join(differ) + "); use another run directory")
+        raise ValueError(
+            f"{run_dir} holds a checkpoint of a different config (" + "; ".join(differ) + "); use another run directory"
+        )
 
 
 class CompiledCalls:
@@ -404,9 +411,12 @@ class CompiledCalls:
         """The call fusing ``count`` iterations, compiled for ``state``'s shapes on first use."""
         if count not in self.programs:
             config = self.parts.config
-            logger.info("compiling the ES iteration (%s members x %s env steps; a program "
-                        "compiled once is loaded from the compilation cache afterwards)",
-                        config.es.population_size * config.es.n_episodes, self.parts.env.episode_length)
+            logger.info(
+                "compiling the ES iteration (%s members x %s env steps; a program "
+                "compiled once is loaded from the compilation cache afterwards)",
+                config.es.population_size * config.es.n_episodes,
+                self.parts.env.episode_length,
+            )
             replicated = NamedSharding(self.parts.mesh, PartitionSpec())
             start = time.perf_counter()
             call = jax.jit(make_train_call(self.parts, count), out_shardings=replicated)
@@ -417,24 +427,29 @@ class CompiledCalls:
         return self.programs[count]
 
 
-def metric_rows(parts: Components, done: int, metrics: dict[str, np.ndarray], run_s: float,
-                compile_s: float) -> list[dict[str, Any]]:
+def metric_rows(
+    parts: Components, done: int, metrics: dict[str, np.ndarray], run_s: float, compile_s: float
+) -> list[dict[str, Any]]:
     """One row per iteration of a call that started after ``done`` iterations: its metrics
     (``(count,)`` each, on the host), the sample budget spent and the call's timings."""
     count = len(next(iter(metrics.values())))
-    return [{
-        "iteration": done + i + 1,
-        "env_steps": (done + i + 1) * parts.steps_per_iteration,
-        **{name: float(value[i]) for name, value in metrics.items()},
-        "env_steps_per_s": parts.simulated_steps_per_iteration * count / run_s,
-        "run_s": run_s / count,
-        "compile_s": compile_s,
-        "parameters": parts.num_dims,
-    } for i in range(count)]
+    return [
+        {
+            "iteration": done + i + 1,
+            "env_steps": (done + i + 1) * parts.steps_per_iteration,
+            **{name: float(value[i]) for name, value in metrics.items()},
+            "env_steps_per_s": parts.simulated_steps_per_iteration * count / run_s,
+            "run_s": run_s / count,
+            "compile_s": compile_s,
+            "parameters": parts.num_dims,
+        }
+        for i in range(count)
+    ]
 
 
-def training_call_with_timing(parts: Components, calls: CompiledCalls, state: TrainState, done: int,
-                              count: int) -> tuple[TrainState, list[dict[str, Any]]]:
+def training_call_with_timing(
+    parts: Components, calls: CompiledCalls, state: TrainState, done: int, count: int
+) -> tuple[TrainState, list[dict[str, Any]]]:
     """Runs ``count`` fused iterations from ``state`` (``done`` iterations in): the new state
     and the iterations' metric rows (:func:`metric_rows`)."""
     call = calls.get(count, state)
@@ -468,8 +483,16 @@ class Reporter:
     started: float
 
     @classmethod
-    def open(cls, parts: Components, run_dir: str | Path | None, start: int, started: float, *,
-             progress: bool, progress_fn: Callable[[dict[str, Any]], None] | None) -> Reporter:
+    def open(
+        cls,
+        parts: Components,
+        run_dir: str | Path | None,
+        start: int,
+        started: float,
+        *,
+        progress: bool,
+        progress_fn: Callable[[dict[str, Any]], None] | None,
+    ) -> Reporter:
         """Writes the run's config and opens its metrics files, keeping the rows up to
         iteration ``start`` (a resumed run's checkpoint); ``started`` is the run's
         ``time.perf_counter()`` at its start."""
@@ -478,8 +501,11 @@ class Reporter:
         if run_dir is not None and primary:
             write_config(run_dir, config.to_dict())
         columns = metric_columns(episode_metric_names(parts.env))
-        writer = (MetricsWriter(run_dir, start if start else None, config.run.tensorboard, columns=columns)
-                  if run_dir is not None and primary else None)
+        writer = (
+            MetricsWriter(run_dir, start if start else None, config.run.tensorboard, columns=columns)
+            if run_dir is not None and primary
+            else None
+        )
         history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])
         bar = None
         if progress and primary:
@@ -502,8 +528,9 @@ class Reporter:
         """Moves the bar past ``rows``' iterations, showing the last one's returns."""
         if self.bar is not None:
             self.bar.update(len(rows))
-            self.bar.set_postfix(ret=f"{rows[-1]['return_mean']:.1f}",
-                                 eval=f"{rows[-1].get('eval_return', float('nan')):.1f}")
+            self.bar.set_postfix(
+                ret=f"{rows[-1]['return_mean']:.1f}", eval=f"{rows[-1].get('eval_return', float('nan')):.1f}"
+            )
 
     def close(self) -> None:
         """Closes the bar and the metrics files (a run ends, or is interrupted)."""
@@ -521,8 +548,7 @@ def past_time_limit(run: Any, started: float) -> bool:
 def checkpoint_due(run: Any, done: int, out_of_time: bool) -> bool:
     """Whether to save a checkpoint after ``done`` iterations: at the end of the run (all
     iterations, or the time limit) and every ``run.checkpoint_every`` iterations."""
-    return done == run.iterations or out_of_time or bool(
-        run.checkpoint_every and done % run.checkpoint_every == 0)
+    return done == run.iterations or out_of_time or bool(run.checkpoint_every and done % run.checkpoint_every == 0)
 
 
 def train(
@@ -553,8 +579,10 @@ def train(
     started = time.perf_counter()
     run = config.run
     if run.max_minutes and jax.process_count() > 1:
-        raise ValueError("run.max_minutes must be 0 with several processes (each process's "
-                         "clock would decide on its own when to stop)")
+        raise ValueError(
+            "run.max_minutes must be 0 with several processes (each process's "
+            "clock would decide on its own when to stop)"
+        )
     parts = build(config, env=env, policy=policy, devices=devices)
     state, start = start_state(parts, run_dir)
     reporter = Reporter.open(parts, run_dir, start, started, progress=progress, progress_fn=progress_fn)
@@ -596,8 +624,13 @@ def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> Tra
 
 
 def evaluate_run(
-    run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, overrides: Sequence[str] = (),
-    env: Any = None, policy: Any = None,
+    run_dir: str | Path,
+    *,
+    episodes: int = 8,
+    seed: int = 12345,
+    overrides: Sequence[str] = (),
+    env: Any = None,
+    policy: Any = None,
 ) -> np.ndarray:
     """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
     seeds (derived from ``seed``, not the training seeds).
@@ -608,13 +641,19 @@ def evaluate_run(
     ``env.distraction=none`` also drops the run's other distraction settings
     (``configs.overrides.apply_condition``).
     """
-    return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides,
-                                 env=env, policy=policy)["return"]
+    return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides, env=env, policy=policy)[
+        "return"
+    ]
 
 
 def evaluate_run_episodes(
-    run_dir: str | Path, *, episodes: int = 8, seed: int = 12345, overrides: Sequence[str] = (),
-    env: Any = None, policy: Any = None,
+    run_dir: str | Path,
+    *,
+    episodes: int = 8,
+    seed: int = 12345,
+    overrides: Sequence[str] = (),
+    env: Any = None,
+    policy: Any = None,
 ) -> dict[str, np.ndarray]:
     """:func:`evaluate_run` with the env's per-episode statistics: ``{"return": (episodes,),
     name: (episodes,) ...}`` for each of the env's ``episode_metrics`` (the quadruped course's
@@ -627,9 +666,7 @@ def evaluate_run_episodes(
         from iap_mjx import envs
 
         envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here
-    config = dataclasses.replace(
-        config, run=dataclasses.replace(config.run, eval_episodes=episodes)
-    )
+    config = dataclasses.replace(config, run=dataclasses.replace(config.run, eval_episodes=episodes))
     parts = build(config, env=env, policy=policy)
     state = _restore(parts, run_dir, init_state(parts))
     state = state.replace(key=jax.random.PRNGKey(seed))

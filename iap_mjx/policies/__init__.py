@@ -47,23 +47,17 @@ def make(kind: str, observation_shape: Any, action_size: int, **options: Any) ->
 
 def _flat_size(observation_shape: Any) -> int:
     if not isinstance(observation_shape, tuple):
-        raise ValueError(
-            f"this policy needs an array observation, got shape {observation_shape!r}"
-        )
+        raise ValueError(f"this policy needs an array observation, got shape {observation_shape!r}")
     return int(math.prod(observation_shape))
 
 
 register(
     "linear",
-    lambda shape, action_size, **options: LinearPolicy(
-        _flat_size(shape), action_size, **options
-    ),
+    lambda shape, action_size, **options: LinearPolicy(_flat_size(shape), action_size, **options),
 )
 register(
     "mlp",
-    lambda shape, action_size, **options: MLPPolicy(
-        _flat_size(shape), action_size, **options
-    ),
+    lambda shape, action_size, **options: MLPPolicy(_flat_size(shape), action_size, **options),
 )
 
 register("iap", make_iap_policy)
@@ -72,5 +66,19 @@ register("convnet", make_convnet_policy)
 register("pmtg", make_pmtg_policy)
 register("hierarchical", make_hierarchical_policy)
 
-__all__ = ["CNNPolicy", "ConvNet", "ConvNetPolicy", "HierarchicalPolicy", "IAPPolicy", "LinearPolicy", "MLPPolicy", "PMTGPolicy",
-           "Policy", "init_param_count", "make", "names", "param_count", "register"]
+__all__ = [
+    "CNNPolicy",
+    "ConvNet",
+    "ConvNetPolicy",
+    "HierarchicalPolicy",
+    "IAPPolicy",
+    "LinearPolicy",
+    "MLPPolicy",
+    "PMTGPolicy",
+    "Policy",
+    "init_param_count",
+    "make",
+    "names",
+    "param_count",
+    "register",
+]

@@ -41,8 +41,10 @@ def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
     else:
         pixels, state_size = tuple(observation_shape), 0
     if len(pixels) != 3:
-        raise ValueError(f"a pixel policy needs (H, W, C) observations, got {observation_shape!r}; "
-                         "make the env with obs_mode='pixels', 'pixels_depth' or 'pixels+state'")
+        raise ValueError(
+            f"a pixel policy needs (H, W, C) observations, got {observation_shape!r}; "
+            "make the env with obs_mode='pixels', 'pixels_depth' or 'pixels+state'"
+        )
     return pixels, state_size
 
 
@@ -95,8 +97,9 @@ class IAPPolicy:
     @property
     def head(self) -> Controller:
         """The controller over :attr:`feature_size` features."""
-        return Controller(self.controller, self.feature_size, self.action_size, self.hidden_sizes,
-                          self.activation, owner="IAPPolicy")
+        return Controller(
+            self.controller, self.feature_size, self.action_size, self.hidden_sizes, self.activation, owner="IAPPolicy"
+        )
 
     def init(self, key: jax.Array) -> dict[str, Any]:
         """``{"attention": AttentionParams, "controller": Controller params}``."""
@@ -167,8 +170,10 @@ class CNNPolicy:
         """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""
         keys = jax.random.split(key, len(self.channels) + 1)
         ins = (self.image_shape[2], *self.channels[:-1])
-        conv = [{"w": jax.random.normal(k, (3, 3, c_in, c_out)) / math.sqrt(9 * c_in),
-                 "b": jnp.zeros((c_out,))} for k, c_in, c_out in zip(keys, ins, self.channels)]
+        conv = [
+            {"w": jax.random.normal(k, (3, 3, c_in, c_out)) / math.sqrt(9 * c_in), "b": jnp.zeros((c_out,))}
+            for k, c_in, c_out in zip(keys, ins, self.channels)
+        ]
         sizes = (self.channels[-1] + self.state_size, self.hidden_size, self.action_size)
         return {"conv": conv, "dense": init_dense_layers(keys[-1], sizes)}
 
@@ -182,8 +187,7 @@ class CNNPolicy:
         pixels, state = split_observation(obs)
         x = pixels[None]
         for layer in params["conv"]:
-            x = jax.lax.conv_general_dilated(x, layer["w"], (2, 2), "SAME",
-                                             dimension_numbers=("NHWC", "HWIO", "NHWC"))
+            x = jax.lax.conv_general_dilated(x, layer["w"], (2, 2), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
             x = jnp.tanh(x + layer["b"])
         features = jnp.mean(x, axis=(0, 1, 2))
         if self.state_size:

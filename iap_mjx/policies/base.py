@@ -32,9 +32,7 @@ class Policy(Protocol):
 
     def initial_state(self, key: jax.Array) -> PolicyState: ...
 
-    def apply(
-        self, params: Params, obs: Any, policy_state: PolicyState
-    ) -> tuple[jax.Array, PolicyState]: ...
+    def apply(self, params: Params, obs: Any, policy_state: PolicyState) -> tuple[jax.Array, PolicyState]: ...
 
 
 def param_count(params: Params) -> int:
@@ -60,9 +58,7 @@ ACTIVATIONS = {
 def check_choice(owner: str, field: str, value: Any, valid: Any) -> None:
     """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not among ``valid``."""
     if value not in valid:
-        raise ValueError(
-            f"{owner}.{field} = {value!r} is not valid; choose one of {sorted(valid)}"
-        )
+        raise ValueError(f"{owner}.{field} = {value!r} is not valid; choose one of {sorted(valid)}")
 
 
 def check_positive(owner: str, field: str, value: Any) -> None:

@@ -58,16 +58,19 @@ class ConvNet:
         check_sizes("ConvNet", "channels", self.channels, non_empty=True)
         check_sizes("ConvNet", "strides", self.strides, non_empty=True)
         if len(self.strides) != len(self.channels):
-            raise ValueError(f"ConvNet.strides = {self.strides!r} needs one stride per convolution "
-                             f"(channels = {self.channels!r})")
+            raise ValueError(
+                f"ConvNet.strides = {self.strides!r} needs one stride per convolution (channels = {self.channels!r})"
+            )
         for name in ("filter_size", "pool", "hidden_size"):
             check_positive("ConvNet", name, getattr(self, name))
         if not isinstance(self.state_size, int) or self.state_size < 0:
             raise ValueError(f"ConvNet.state_size = {self.state_size!r} must be a non-negative int")
         rows, cols = self.pooled_grid
         if rows < 1 or cols < 1:
-            raise ValueError(f"ConvNet: a {self.image_shape[:2]} image shrinks to nothing under strides "
-                             f"{self.strides} and a {self.pool}x{self.pool} pool; use smaller strides or pool")
+            raise ValueError(
+                f"ConvNet: a {self.image_shape[:2]} image shrinks to nothing under strides "
+                f"{self.strides} and a {self.pool}x{self.pool} pool; use smaller strides or pool"
+            )
 
     @property
     def pooled_grid(self) -> tuple[int, int]:
@@ -101,8 +104,9 @@ class ConvNet:
         pixels, state = split_observation(obs)
         x = pixels[None]
         for layer, stride in zip(conv, self.strides):
-            x = jax.lax.conv_general_dilated(x, layer["w"], (stride, stride), "SAME",
-                                             dimension_numbers=("NHWC", "HWIO", "NHWC"))
+            x = jax.lax.conv_general_dilated(
+                x, layer["w"], (stride, stride), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC")
+            )
             x = jax.nn.relu(x + layer["b"])
         window = (1, self.pool, self.pool, 1)
         x = jax.lax.reduce_window(x, -jnp.inf, jax.lax.max, window, window, "VALID")
@@ -118,14 +122,20 @@ class ConvNet:
         return jnp.clip(out, -1.0, 1.0), policy_state
 
 
-def init_convolutions(keys: jax.Array, in_channels: int, channels: tuple[int, ...],
-                      filter_size: int) -> list[dict[str, jax.Array]]:
+def init_convolutions(
+    keys: jax.Array, in_channels: int, channels: tuple[int, ...], filter_size: int
+) -> list[dict[str, jax.Array]]:
     """One ``{"w": (f, f, in, out), "b": (out,)}`` per entry of ``channels`` (one key each):
     LeCun-normal weights, zero biases."""
     ins = (in_channels, *channels[:-1])
     f = filter_size
-    return [{"w": jax.random.normal(k, (f, f, c_in, c_out), jnp.float32) / math.sqrt(f * f * c_in),
-             "b": jnp.zeros((c_out,), jnp.float32)} for k, c_in, c_out in zip(keys, ins, channels)]
+    return [
+        {
+            "w": jax.random.normal(k, (f, f, c_in, c_out), jnp.float32) / math.sqrt(f * f * c_in),
+            "b": jnp.zeros((c_out,), jnp.float32),
+        }
+        for k, c_in, c_out in zip(keys, ins, channels)
+    ]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,22 +176,40 @@ class ConvNetPolicy:
     @property
     def body(self) -> ConvNet:
         """The convolutions and pool (its ``output_size`` unused: the embedding is ours)."""
-        return ConvNet(tuple(self.image_shape), self.embedding_size, self.channels, self.strides,
-                       self.filter_size, self.pool, self.embedding_size, self.state_size)
+        return ConvNet(
+            tuple(self.image_shape),
+            self.embedding_size,
+            self.channels,
+            self.strides,
+            self.filter_size,
+            self.pool,
+            self.embedding_size,
+            self.state_size,
+        )
 
     @property
     def head(self) -> Controller:
-        return Controller(self.controller, self.embedding_size, self.action_size, self.hidden_sizes,
-                          self.activation, owner="ConvNetPolicy")
+        return Controller(
+            self.controller,
+            self.embedding_size,
+            self.action_size,
+            self.hidden_sizes,
+            self.activation,
+            owner="ConvNetPolicy",
+        )
 
     def init(self, key: jax.Array) -> dict[str, Any]:
         """``{"conv": [...], "embed": [dense (flat, embedding)], "controller": ...}``."""
         conv_key, embed_key, head_key = jax.random.split(key, 3)
         body = self.body
-        conv = init_convolutions(jax.random.split(conv_key, len(self.channels)), self.image_shape[2],
-                                 self.channels, self.filter_size)
-        return {"conv": conv, "embed": init_dense_layers(embed_key, (body.flat_size, self.embedding_size)),
-                "controller": self.head.init(head_key)}
+        conv = init_convolutions(
+            jax.random.split(conv_key, len(self.channels)), self.image_shape[2], self.channels, self.filter_size
+        )
+        return {
+            "conv": conv,
+            "embed": init_dense_layers(embed_key, (body.flat_size, self.embedding_size)),
+            "controller": self.head.init(head_key),
+        }
 
     def initial_state(self, key: jax.Array):
         """The controller's carry (``(h, c)`` zeros for an LSTM, else ``()``)."""

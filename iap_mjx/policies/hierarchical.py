@@ -87,8 +87,7 @@ def duration_steps(duration: jax.Array, duration_range: tuple[int, int]) -> jax.
     return jnp.round(lo + fraction * (hi - lo)).astype(jnp.int32)
 
 
-def hold(counter: jax.Array, held: jax.Array, new: jax.Array,
-         new_duration: jax.Array) -> tuple[jax.Array, jax.Array]:
+def hold(counter: jax.Array, held: jax.Array, new: jax.Array, new_duration: jax.Array) -> tuple[jax.Array, jax.Array]:
     """One step of the countdown: ``(latent, counter)`` after this step.
 
     Where ``counter <= 0`` the command is replaced by ``new`` and the counter set to
@@ -126,21 +125,32 @@ class HierarchicalPolicy:
 
     def __post_init__(self):
         lo_hi = tuple(self.duration_range)
-        if (len(lo_hi) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) for v in lo_hi)
-                or not 1 <= lo_hi[0] <= lo_hi[1]):
-            raise ValueError(f"HierarchicalPolicy.duration_range = {self.duration_range!r} must be (lo, hi) "
-                             "control steps, integers with 1 <= lo <= hi")
+        if (
+            len(lo_hi) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) for v in lo_hi)
+            or not 1 <= lo_hi[0] <= lo_hi[1]
+        ):
+            raise ValueError(
+                f"HierarchicalPolicy.duration_range = {self.duration_range!r} must be (lo, hi) "
+                "control steps, integers with 1 <= lo <= hi"
+            )
         object.__setattr__(self, "duration_range", lo_hi)
         check_positive("HierarchicalPolicy", "state_size", self.state_size)
         if self.low.obs_size != self.state_size:
-            raise ValueError(f"HierarchicalPolicy: the low level sees obs_size = {self.low.obs_size}, "
-                             f"the observation's state has {self.state_size}")
+            raise ValueError(
+                f"HierarchicalPolicy: the low level sees obs_size = {self.low.obs_size}, "
+                f"the observation's state has {self.state_size}"
+            )
         if self.high_output_size != 1 + self.latent_size:
-            raise ValueError(f"HierarchicalPolicy: the high level gives {self.high_output_size} outputs; "
-                             f"it must give 1 + latent_size = {1 + self.latent_size} (a duration, the latent)")
+            raise ValueError(
+                f"HierarchicalPolicy: the high level gives {self.high_output_size} outputs; "
+                f"it must give 1 + latent_size = {1 + self.latent_size} (a duration, the latent)"
+            )
         if self.high_level_imu and self.state_size < IMU_SIZE:
-            raise ValueError(f"HierarchicalPolicy.high_level_imu needs the state's first {IMU_SIZE} "
-                             f"entries (the IMU), the state has {self.state_size}")
+            raise ValueError(
+                f"HierarchicalPolicy.high_level_imu needs the state's first {IMU_SIZE} "
+                f"entries (the IMU), the state has {self.state_size}"
+            )
         if self.low_level_init is not None:
             self.low_level_params()  # a missing file or wrong shapes fail here, before compiling
 
@@ -174,10 +184,12 @@ class HierarchicalPolicy:
     def initial_state(self, key: jax.Array) -> HierarchyState:
         """The high level's state, a zero latent, the counter at 0 (the first step asks the
         high level), the TG phase at 0."""
-        return HierarchyState(high=self.high.initial_state(key),
-                              latent=jnp.zeros((self.latent_size,), jnp.float32),
-                              counter=jnp.zeros((), jnp.int32),
-                              phase=jnp.zeros((), jnp.float32))
+        return HierarchyState(
+            high=self.high.initial_state(key),
+            latent=jnp.zeros((self.latent_size,), jnp.float32),
+            counter=jnp.zeros((), jnp.int32),
+            phase=jnp.zeros((), jnp.float32),
+        )
 
     def high_observation(self, obs: dict[str, jax.Array]) -> Any:
         """What the high level sees of ``obs``: the image (zeros if ``blind``), with the IMU if
@@ -192,15 +204,19 @@ class HierarchicalPolicy:
     def apply(self, params: dict[str, Any], obs: dict[str, jax.Array], policy_state: HierarchyState):
         """One control step: ``(action (12,) in [-1, 1], new HierarchyState)``."""
         if not isinstance(obs, dict):
-            raise ValueError("the hierarchical policy needs {'pixels', 'state'} observations: make the "
-                             "env with obs_mode='pixels+state'")
+            raise ValueError(
+                "the hierarchical policy needs {'pixels', 'state'} observations: make the "
+                "env with obs_mode='pixels+state'"
+            )
         out, high_state = self.high.apply(params["high"], self.high_observation(obs), policy_state.high)
         expired = policy_state.counter <= 0
         high_state = jax.tree.map(lambda new, old: jnp.where(expired, new, old), high_state, policy_state.high)
-        latent, counter = hold(policy_state.counter, policy_state.latent, out[1:],
-                               duration_steps(out[0], self.duration_range))
-        action, low_state = self.low.apply(params["low"], jnp.ravel(obs["state"]),
-                                           {"phase": policy_state.phase, "latent": latent})
+        latent, counter = hold(
+            policy_state.counter, policy_state.latent, out[1:], duration_steps(out[0], self.duration_range)
+        )
+        action, low_state = self.low.apply(
+            params["low"], jnp.ravel(obs["state"]), {"phase": policy_state.phase, "latent": latent}
+        )
         return action, HierarchyState(high=high_state, latent=latent, counter=counter, phase=low_state["phase"])
 
 
@@ -219,8 +235,9 @@ class AttentiveHierarchicalPolicy(HierarchicalPolicy):
         return self.high.select(params["high"], self.high_observation(obs), policy_state.high)
 
 
-def fold_normalisation(w: np.ndarray, b: np.ndarray, mean: np.ndarray, var: np.ndarray,
-                       latent_size: int) -> tuple[np.ndarray, np.ndarray]:
+def fold_normalisation(
+    w: np.ndarray, b: np.ndarray, mean: np.ndarray, var: np.ndarray, latent_size: int
+) -> tuple[np.ndarray, np.ndarray]:
     """A PMTG low level trained on normalised observations (``iap_mjx.es.normalizer``:
     ``(obs - mean) / sqrt(var + 1e-8)``, clipped at 5 standard deviations) as weights on raw
     observations: ``w`` ``(latent + obs + 2, 16)``, ``b`` ``(16,)``, ``mean``/``var``
@@ -237,16 +254,21 @@ def fold_normalisation(w: np.ndarray, b: np.ndarray, mean: np.ndarray, var: np.n
 @functools.lru_cache(maxsize=8)
 def _load_low_level(path: str, input_size: int, output_size: int) -> dict[str, jax.Array]:
     if not Path(path).is_file():
-        raise ValueError(f"HierarchicalPolicy.low_level_init = {path!r}: no such file (an .npz with "
-                         "the low level's w and b)")
+        raise ValueError(
+            f"HierarchicalPolicy.low_level_init = {path!r}: no such file (an .npz with the low level's w and b)"
+        )
     with np.load(path) as stored:
         if "w" not in stored or "b" not in stored:
-            raise ValueError(f"HierarchicalPolicy.low_level_init = {path!r} must hold arrays 'w' and 'b', "
-                             f"it holds {sorted(stored.files)}")
+            raise ValueError(
+                f"HierarchicalPolicy.low_level_init = {path!r} must hold arrays 'w' and 'b', "
+                f"it holds {sorted(stored.files)}"
+            )
         w, b = np.asarray(stored["w"], np.float32), np.asarray(stored["b"], np.float32)
     if w.shape != (input_size, output_size) or b.shape != (output_size,):
-        raise ValueError(f"HierarchicalPolicy.low_level_init = {path!r}: w {w.shape}, b {b.shape}; the low "
-                         f"level needs w ({input_size}, {output_size}) and b ({output_size},)")
+        raise ValueError(
+            f"HierarchicalPolicy.low_level_init = {path!r}: w {w.shape}, b {b.shape}; the low "
+            f"level needs w ({input_size}, {output_size}) and b ({output_size},)"
+        )
     return {"w": jnp.asarray(w), "b": jnp.asarray(b)}
 
 
@@ -256,8 +278,9 @@ _HIERARCHY_FIELDS = {"duration_range", "blind", "high_level_imu", "low_level_ini
 _LOW_FIELDS = {"initial_tg"}
 
 
-def make_hierarchical_policy(observation_shape: Any, action_size: int, *, high_level: str = "iap",
-                             latent_size: int = 4, **options: Any) -> HierarchicalPolicy:
+def make_hierarchical_policy(
+    observation_shape: Any, action_size: int, *, high_level: str = "iap", latent_size: int = 4, **options: Any
+) -> HierarchicalPolicy:
     """Factory for ``policies.make("hierarchical", ...)`` on ``"pixels+state"`` observations.
 
     ``high_level``: ``"iap"`` (the IAP high level; its attention options ``kernel``,
@@ -271,8 +294,10 @@ def make_hierarchical_policy(observation_shape: Any, action_size: int, *, high_l
     check_choice("HierarchicalPolicy", "high_level", high_level, HIGH_LEVELS)
     check_positive("HierarchicalPolicy", "latent_size", latent_size)
     if not isinstance(observation_shape, dict) or set(observation_shape) != {"pixels", "state"}:
-        raise ValueError(f"the hierarchical policy needs {{'pixels', 'state'}} observations, got shape "
-                         f"{observation_shape!r}: make the env with obs_mode='pixels+state'")
+        raise ValueError(
+            f"the hierarchical policy needs {{'pixels', 'state'}} observations, got shape "
+            f"{observation_shape!r}: make the env with obs_mode='pixels+state'"
+        )
     image_shape, state_size = pixel_shape(observation_shape)
     options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
     attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
@@ -280,9 +305,11 @@ def make_hierarchical_policy(observation_shape: Any, action_size: int, *, high_l
     high_fields = attention_fields | _IAP_FIELDS if high_level == "iap" else _CNN_FIELDS
     unknown = sorted(set(options) - high_fields - tg_fields - _HIERARCHY_FIELDS - _LOW_FIELDS)
     if unknown:
-        raise ValueError(f"policy options {unknown} do not fit the hierarchical policy with high_level="
-                         f"{high_level!r}; valid: high_level, latent_size and "
-                         f"{sorted(high_fields | tg_fields | _HIERARCHY_FIELDS | _LOW_FIELDS)}")
+        raise ValueError(
+            f"policy options {unknown} do not fit the hierarchical policy with high_level="
+            f"{high_level!r}; valid: high_level, latent_size and "
+            f"{sorted(high_fields | tg_fields | _HIERARCHY_FIELDS | _LOW_FIELDS)}"
+        )
     pick = lambda names: {k: v for k, v in options.items() if k in names}  # noqa: E731
     imu = IMU_SIZE if options.get("high_level_imu") else 0
     outputs = 1 + latent_size
@@ -291,11 +318,19 @@ def make_hierarchical_policy(observation_shape: Any, action_size: int, *, high_l
         high = IAPPolicy(image_shape, outputs, attention, state_size=imu, **pick(_IAP_FIELDS))
     else:
         high = ConvNet(image_shape, outputs, state_size=imu, **pick(_CNN_FIELDS))
-    low = PMTGPolicy(state_size, action_size, latent=(0.0,) * latent_size, tg=TGConfig(**pick(tg_fields)),
-                     **pick(_LOW_FIELDS))
+    low = PMTGPolicy(
+        state_size, action_size, latent=(0.0,) * latent_size, tg=TGConfig(**pick(tg_fields)), **pick(_LOW_FIELDS)
+    )
     cls = AttentiveHierarchicalPolicy if high_level == "iap" and not options.get("blind") else HierarchicalPolicy
     return cls(high, low, state_size, **pick(_HIERARCHY_FIELDS))
 
 
-__all__ = ["AttentiveHierarchicalPolicy", "HierarchicalPolicy", "HierarchyState", "duration_steps",
-           "fold_normalisation", "hold", "make_hierarchical_policy"]
+__all__ = [
+    "AttentiveHierarchicalPolicy",
+    "HierarchicalPolicy",
+    "HierarchyState",
+    "duration_steps",
+    "fold_normalisation",
+    "hold",
+    "make_hierarchical_policy",
+]

@@ -10,9 +10,7 @@ import jax.numpy as jnp
 from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive, check_sizes
 
 
-def init_dense_layers(
-    key: jax.Array, sizes: tuple[int, ...]
-) -> list[dict[str, jax.Array]]:
+def init_dense_layers(key: jax.Array, sizes: tuple[int, ...]) -> list[dict[str, jax.Array]]:
     """LeCun-normal weights, zero biases for consecutive ``sizes`` (in, hidden..., out).
 
     Returns a list of ``{"w": (n_in, n_out), "b": (n_out,)}``, one per layer.

@@ -64,16 +64,14 @@ def phase_to_time(phase: jax.Array, ratio: jax.Array) -> jax.Array:
     """The period fraction ``tau`` in ``[0, 1)`` at which the warped phase reaches ``phase``."""
     stance = stance_fraction(ratio)
     in_stance = phase < math.pi
-    return jnp.where(in_stance, phase / math.pi * stance,
-                     stance + (phase - math.pi) / math.pi * (1.0 - stance))
+    return jnp.where(in_stance, phase / math.pi * stance, stance + (phase - math.pi) / math.pi * (1.0 - stance))
 
 
 def time_to_phase(tau: jax.Array, ratio: jax.Array) -> jax.Array:
     """The warped phase in ``[0, 2 pi)`` at period fraction ``tau`` in ``[0, 1)``."""
     stance = stance_fraction(ratio)
     in_stance = tau < stance
-    return jnp.where(in_stance, math.pi * tau / stance,
-                     math.pi + math.pi * (tau - stance) / (1.0 - stance))
+    return jnp.where(in_stance, math.pi * tau / stance, math.pi + math.pi * (tau - stance) / (1.0 - stance))
 
 
 def _wrap(tau: jax.Array) -> jax.Array:
@@ -127,18 +125,22 @@ class TGConfig:
                 raise ValueError(f"TGConfig.{name} = {getattr(self, name)!r} must be (low, high), low <= high")
             object.__setattr__(self, name, value)
         if self.frequency_range[0] < 0 or self.intensity_range[0] < 0 or self.ratio_range[0] <= 0:
-            raise ValueError("TGConfig: frequency and intensity must be >= 0 and the ratio > 0, got "
-                             f"{self.frequency_range}, {self.intensity_range}, {self.ratio_range}")
+            raise ValueError(
+                "TGConfig: frequency and intensity must be >= 0 and the ratio > 0, got "
+                f"{self.frequency_range}, {self.intensity_range}, {self.ratio_range}"
+            )
         if not self.residual_range >= 0 or not self.dt > 0:
-            raise ValueError(f"TGConfig: residual_range >= 0 and dt > 0 needed, got "
-                             f"{self.residual_range!r}, {self.dt!r}")
+            raise ValueError(
+                f"TGConfig: residual_range >= 0 and dt > 0 needed, got {self.residual_range!r}, {self.dt!r}"
+            )
         lo, hi = self.target_bounds()
         outside = (lo < a1.JOINT_RANGES[:3, 0] - 1e-6) | (hi > a1.JOINT_RANGES[:3, 1] + 1e-6)
         if np.any(outside):
             raise ValueError(
                 f"TGConfig: with these bounds the (abduction, thigh, knee) targets can reach "
                 f"{np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()}, outside the joint ranges "
-                f"{a1.LEG_RANGES}; narrow intensity_range, height_range or residual_range")
+                f"{a1.LEG_RANGES}; narrow intensity_range, height_range or residual_range"
+            )
 
     def target_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Per leg joint, ``(3,)`` lowest and highest targets any bounded input can give."""
@@ -160,6 +162,7 @@ class TGConfig:
 
     def parameters(self, u: jax.Array) -> dict[str, jax.Array]:
         """``u`` ``(4,)`` in ``[-1, 1]`` -> ``{"frequency", "intensity", "height", "ratio"}``."""
+
         def linear(x, bounds):
             return bounds[0] + (x + 1.0) * 0.5 * (bounds[1] - bounds[0])
 
@@ -186,8 +189,9 @@ class TGConfig:
         return np.asarray(out, np.float64)
 
 
-def swing_extend(config: TGConfig, phases: jax.Array, intensity: jax.Array,
-                 height: jax.Array) -> tuple[jax.Array, jax.Array]:
+def swing_extend(
+    config: TGConfig, phases: jax.Array, intensity: jax.Array, height: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """Per leg ``(4,)`` swing ``S`` and extension ``E`` at the legs' phases."""
     lift = jnp.where(phases < math.pi, config.stance_lift, config.swing_lift)
     swing = intensity * config.swing_amplitude * jnp.cos(phases)
@@ -195,14 +199,14 @@ def swing_extend(config: TGConfig, phases: jax.Array, intensity: jax.Array,
     return swing, extend
 
 
-def joint_targets(config: TGConfig, phases: jax.Array, intensity: jax.Array, height: jax.Array,
-                  residuals: jax.Array) -> jax.Array:
+def joint_targets(
+    config: TGConfig, phases: jax.Array, intensity: jax.Array, height: jax.Array, residuals: jax.Array
+) -> jax.Array:
     """``(12,)`` joint targets (rad, legs in ``a1.LEGS`` order): the TG's legs at ``phases``
     around the standing pose, plus ``residuals`` ``(12,)`` (already bounded)."""
     swing, extend = swing_extend(config, phases, intensity, height)
     abduction0, thigh0, knee0 = a1.HOME_LEG
-    legs = jnp.stack([jnp.full_like(swing, abduction0), thigh0 - swing - extend / 2,
-                      knee0 + extend], axis=1)  # (4, 3)
+    legs = jnp.stack([jnp.full_like(swing, abduction0), thigh0 - swing - extend / 2, knee0 + extend], axis=1)  # (4, 3)
     return legs.reshape(12) + residuals
 
 
@@ -221,8 +225,7 @@ def tg_step(config: TGConfig, phase: jax.Array, u: jax.Array) -> TGStep:
     params = config.parameters(u[12:])
     phase = advance(phase, params["frequency"], params["ratio"], config.dt)
     phases = leg_phases(phase, params["ratio"], config.offsets)
-    targets = joint_targets(config, phases, params["intensity"], params["height"],
-                            config.residual_range * u[:12])
+    targets = joint_targets(config, phases, params["intensity"], params["height"], config.residual_range * u[:12])
     return TGStep(phase, phases, targets)
 
 
@@ -254,8 +257,10 @@ class PMTGPolicy:
     def __post_init__(self):
         check_positive("PMTGPolicy", "obs_size", self.obs_size)
         if self.action_size != len(a1.JOINT_NAMES):
-            raise ValueError(f"PMTGPolicy.action_size = {self.action_size!r}: PMTG drives the quadruped's "
-                             f"{len(a1.JOINT_NAMES)} joints (use env quadruped-flat or quadruped-walls)")
+            raise ValueError(
+                f"PMTGPolicy.action_size = {self.action_size!r}: PMTG drives the quadruped's "
+                f"{len(a1.JOINT_NAMES)} joints (use env quadruped-flat or quadruped-walls)"
+            )
         object.__setattr__(self, "latent", tuple(float(v) for v in self.latent))
         if self.initial_tg is not None:
             initial = tuple(float(v) for v in self.initial_tg)
@@ -263,10 +268,12 @@ class PMTGPolicy:
                 raise ValueError(f"PMTGPolicy.initial_tg = {self.initial_tg!r} must be {TG_PARAMETERS} or None")
             units = self.tg.outputs_for(*initial)
             if np.any(np.abs(units) >= 1.0 - 1e-3):
-                raise ValueError(f"PMTGPolicy.initial_tg = {initial}: each value must lie strictly inside its "
-                                 f"TGConfig range (frequency {self.tg.frequency_range}, intensity "
-                                 f"{self.tg.intensity_range}, height {self.tg.height_range}, ratio "
-                                 f"{self.tg.ratio_range}): tanh outputs cannot reach the bounds")
+                raise ValueError(
+                    f"PMTGPolicy.initial_tg = {initial}: each value must lie strictly inside its "
+                    f"TGConfig range (frequency {self.tg.frequency_range}, intensity "
+                    f"{self.tg.intensity_range}, height {self.tg.height_range}, ratio "
+                    f"{self.tg.ratio_range}): tanh outputs cannot reach the bounds"
+                )
             object.__setattr__(self, "initial_tg", initial)
 
     @property
@@ -283,9 +290,8 @@ class PMTGPolicy:
         del key
         bias = np.zeros(self.output_size, np.float32)
         if self.initial_tg is not None:
-            bias[self.action_size:] = np.arctanh(self.tg.outputs_for(*self.initial_tg))
-        return {"w": jnp.zeros((self.input_size, self.output_size), jnp.float32),
-                "b": jnp.asarray(bias)}
+            bias[self.action_size :] = np.arctanh(self.tg.outputs_for(*self.initial_tg))
+        return {"w": jnp.zeros((self.input_size, self.output_size), jnp.float32), "b": jnp.asarray(bias)}
 
     def initial_state(self, key: jax.Array) -> dict[str, jax.Array]:
         """``{"phase": () 0, "latent": (len(latent),)}``."""
@@ -295,8 +301,7 @@ class PMTGPolicy:
     def outputs(self, params, obs: jax.Array, policy_state) -> jax.Array:
         """The linear map's ``(16,)`` outputs in ``[-1, 1]``."""
         phase = policy_state["phase"]
-        x = jnp.concatenate([policy_state["latent"], jnp.ravel(obs),
-                             jnp.stack([jnp.cos(phase), jnp.sin(phase)])])
+        x = jnp.concatenate([policy_state["latent"], jnp.ravel(obs), jnp.stack([jnp.cos(phase), jnp.sin(phase)])])
         return jnp.tanh(x @ params["w"] + params["b"])
 
     def apply(self, params, obs: jax.Array, policy_state):

@@ -80,13 +80,18 @@ class CameraConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
-        if not (isinstance(self.geom_groups, (tuple, list))
-                and all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups)):
+        if not (
+            isinstance(self.geom_groups, (tuple, list))
+            and all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups)
+        ):
             raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
         if not isinstance(self.tile, int) or self.tile < 1:
             raise ValueError(f"tile must be a positive int, got {self.tile!r}")
-        if (not isinstance(self.cull_pairs_per_tile, (int, float))
-                or not math.isfinite(self.cull_pairs_per_tile) or self.cull_pairs_per_tile < 0):
+        if (
+            not isinstance(self.cull_pairs_per_tile, (int, float))
+            or not math.isfinite(self.cull_pairs_per_tile)
+            or self.cull_pairs_per_tile < 0
+        ):
             raise ValueError(f"cull_pairs_per_tile must be a finite number >= 0, got {self.cull_pairs_per_tile!r}")
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, 40_000 // (self.height * self.width))))
@@ -96,8 +101,11 @@ class CameraConfig:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.sky not in SKIES:
             raise ValueError(f"sky must be one of {SKIES}, got {self.sky!r}")
-        if not (isinstance(self.background_color, (tuple, list)) and len(self.background_color) == 3
-                and all(isinstance(c, (int, float)) and 0 <= c <= 1 for c in self.background_color)):
+        if not (
+            isinstance(self.background_color, (tuple, list))
+            and len(self.background_color) == 3
+            and all(isinstance(c, (int, float)) and 0 <= c <= 1 for c in self.background_color)
+        ):
             raise ValueError(f"background_color must be 3 numbers in [0, 1], got {self.background_color!r}")
         object.__setattr__(self, "geom_groups", tuple(self.geom_groups))
         object.__setattr__(self, "background_color", tuple(float(c) for c in self.background_color))
@@ -128,8 +136,7 @@ class Camera:
         from outside only (a camera inside a geom does not see that geom).
     """
 
-    def __init__(self, mj_model: mujoco.MjModel, camera_id: int = 0, height: int = 100,
-                 width: int = 100, **config):
+    def __init__(self, mj_model: mujoco.MjModel, camera_id: int = 0, height: int = 100, width: int = 100, **config):
         self.config = CameraConfig(camera_id=camera_id, height=height, width=width, **config)
         if camera_id >= mj_model.ncam:
             raise ValueError(f"camera_id must be < the model's ncam={mj_model.ncam}, got {camera_id}")
@@ -138,8 +145,7 @@ class Camera:
         self.fovy = float(mj_model.cam_fovy[camera_id])
         self.zfar = float(self.scene.zfar)
         self.tracer = tracing.Tracer(self.scene, self.config, self.fovy)
-        self.shader = shading.Shader(self.scene, self.config, self.tracer.x, self.tracer.y,
-                                     self.tracer.pixel_pitch)
+        self.shader = shading.Shader(self.scene, self.config, self.tracer.x, self.tracer.y, self.tracer.pixel_pitch)
         self._identity = (self.config, self.scene.digest(), self.fovy)
         self._programs = {}
 
@@ -151,8 +157,10 @@ class Camera:
 
     def __repr__(self) -> str:
         c = self.config
-        return (f"Camera(camera_id={c.camera_id}, height={c.height}, width={c.width}, "
-                f"geoms={len(self.scene.geom_ids)}, shading={c.shading!r})")
+        return (
+            f"Camera(camera_id={c.camera_id}, height={c.height}, width={c.width}, "
+            f"geoms={len(self.scene.geom_ids)}, shading={c.shading!r})"
+        )
 
     @property
     def geom_ids(self) -> np.ndarray:
@@ -167,10 +175,13 @@ class Camera:
         y = np.broadcast_to(self.tracer.y, (h, w))
         return np.stack([x, y, -np.ones((h, w), np.float32)], axis=-1)
 
-    def render(self, data: mjx.Data, background: jax.Array | None = None,
-               geom_rgb: jax.Array | None = None,
-               sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None = None,
-               ) -> tuple[jax.Array, jax.Array]:
+    def render(
+        self,
+        data: mjx.Data,
+        background: jax.Array | None = None,
+        geom_rgb: jax.Array | None = None,
+        sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None = None,
+    ) -> tuple[jax.Array, jax.Array]:
         """Renders one state (``vmap`` it for a batch); :meth:`render_ids` also returns the
         geom seen at each pixel.
 
@@ -196,24 +207,27 @@ class Camera:
         rgb, depth, _ = self.render_ids(data, background, geom_rgb, sky_texture)
         return rgb, depth
 
-    def render_ids(self, data: mjx.Data, background: jax.Array | None = None,
-                   geom_rgb: jax.Array | None = None,
-                   sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None = None,
-                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    def render_ids(
+        self,
+        data: mjx.Data,
+        background: jax.Array | None = None,
+        geom_rgb: jax.Array | None = None,
+        sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None = None,
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """:meth:`render`'s rgb and depth, and the hit geom's MuJoCo id ``(H, W)`` int32
         (``-1`` where nothing is hit) from the same trace (one program, not two)."""
         background = self._checked_background(background)
         geom_rgb = self._checked_geom_rgb(geom_rgb)
         sky_texture, sky_frame = _sky_stack_and_row(sky_texture)
-        return self._chunked_over_batch(True)(self._poses(data), background, geom_rgb, sky_texture,
-                                              sky_frame)
+        return self._chunked_over_batch(True)(self._poses(data), background, geom_rgb, sky_texture, sky_frame)
 
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
         empty = jnp.zeros((0,), jnp.float32)
-        _, depth, ids = self._chunked_over_batch(False)(self._poses(data), empty, empty,
-                                                        jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32))
+        _, depth, ids = self._chunked_over_batch(False)(
+            self._poses(data), empty, empty, jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32)
+        )
         return depth, ids
 
     # -- the inputs of render, as the program takes them -------------------------------------
@@ -223,10 +237,11 @@ class Camera:
         cfg = self.config
         if background is None:
             return jnp.zeros((0,), jnp.float32)
-        if (tuple(background.shape) != (cfg.height, cfg.width, 3)
-                or not jnp.issubdtype(background.dtype, jnp.floating)):
-            raise ValueError(f"background must be floats in [0, 1] of shape {(cfg.height, cfg.width, 3)}, "
-                             f"got {background.dtype} {background.shape}")
+        if tuple(background.shape) != (cfg.height, cfg.width, 3) or not jnp.issubdtype(background.dtype, jnp.floating):
+            raise ValueError(
+                f"background must be floats in [0, 1] of shape {(cfg.height, cfg.width, 3)}, "
+                f"got {background.dtype} {background.shape}"
+            )
         return background
 
     def _checked_geom_rgb(self, geom_rgb: jax.Array | None) -> jax.Array:
@@ -234,8 +249,7 @@ class Camera:
         if geom_rgb is None:
             return jnp.zeros((0,), jnp.float32)
         if tuple(geom_rgb.shape) != (len(self.scene.geom_ids), 3):
-            raise ValueError(
-                f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
+            raise ValueError(f"geom_rgb must have shape {(len(self.scene.geom_ids), 3)}, got {geom_rgb.shape}")
         return geom_rgb
 
     # -- one image, and a batch of them -----------------------------------------------------
@@ -255,9 +269,14 @@ class Camera:
             "light_body_pos": data.xpos[jnp.asarray(sc.light_bodyid)],
             "light_body_mat": data.xmat[jnp.asarray(sc.light_bodyid)],
             "light_body_com": data.subtree_com[jnp.asarray(sc.light_bodyid)],
-            **({"light_target_pos": data.xpos[jnp.asarray(sc.light_targetbodyid)],
-                "light_target_com": data.subtree_com[jnp.asarray(sc.light_targetbodyid)]}
-               if np.any(sc.light_mode >= 3) else {}),
+            **(
+                {
+                    "light_target_pos": data.xpos[jnp.asarray(sc.light_targetbodyid)],
+                    "light_target_com": data.subtree_com[jnp.asarray(sc.light_targetbodyid)],
+                }
+                if np.any(sc.light_mode >= 3)
+                else {}
+            ),
         }
 
     def _chunked_over_batch(self, colour: bool):
@@ -272,8 +291,7 @@ class Camera:
             return cached
 
         def single(poses, background, geom_rgb, sky_texture, sky_frame):
-            return self._trace_and_shade(poses, background, geom_rgb, sky_texture, sky_frame, colour,
-                                         batched=False)
+            return self._trace_and_shade(poses, background, geom_rgb, sky_texture, sky_frame, colour, batched=False)
 
         batched = jax.custom_batching.custom_vmap(single)
 
@@ -283,8 +301,8 @@ class Camera:
             shared_sky = not in_batched[3]
             per_image = (poses, background, geom_rgb, sky_frame) + (() if shared_sky else (sky_texture,))
             flags = tuple(in_batched[:3]) + (in_batched[4],) + (() if shared_sky else (True,))
-            args = jax.tree.map(
-                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
+            args = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
+
             def one_chunk(a):
                 sky = sky_texture if shared_sky else a[4]
                 return self._trace_and_shade(a[0], a[1], a[2], sky, a[3], colour, batched=True)
@@ -295,8 +313,7 @@ class Camera:
         self._programs[colour] = batched
         return batched
 
-    def _trace_and_shade(self, poses, background, geom_rgb, sky_texture, sky_frame, colour: bool,
-                         batched: bool):
+    def _trace_and_shade(self, poses, background, geom_rgb, sky_texture, sky_frame, colour: bool, batched: bool):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
         depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
         more (tile, geom) pairs than the budget, dense tracing.
@@ -310,16 +327,19 @@ class Camera:
         tracer, shader = self.tracer, self.shader
         lift = jax.vmap if batched else (lambda f: f)
         frames = lift(tracer.geom_frames)(poses)
-        seen = (jnp.all(jnp.isfinite(poses["cam_pos"]), axis=-1)
-                & jnp.all(jnp.isfinite(poses["cam_mat"]), axis=(-2, -1)))  # () or (C,) per image
+        seen = jnp.all(jnp.isfinite(poses["cam_pos"]), axis=-1) & jnp.all(
+            jnp.isfinite(poses["cam_mat"]), axis=(-2, -1)
+        )  # () or (C,) per image
         finite = jnp.any(seen)
         shape = jnp.shape(poses["cam_pos"])[:-1] + (self.config.height, self.config.width)
 
         def nothing():
             # derived from an input, so it carries the same sharding type under shard_map
             zero = 0.0 * jnp.nan_to_num(poses["cam_pos"][..., 0])[..., None, None]
-            return (jnp.broadcast_to(zero + self.scene.zfar, shape),
-                    jnp.broadcast_to(zero.astype(jnp.int32) + len(self.scene.geom_ids), shape))
+            return (
+                jnp.broadcast_to(zero + self.scene.zfar, shape),
+                jnp.broadcast_to(zero.astype(jnp.int32) + len(self.scene.geom_ids), shape),
+            )
 
         def padded_of(trace):
             return lambda: lift(tracing.pad_by_one_pixel)(trace())
@@ -340,7 +360,8 @@ class Camera:
             depth_p, best_p = jax.lax.cond(
                 jnp.any(overflow & seen) | ~finite,
                 lambda: jax.lax.cond(finite, dense, padded_of(nothing)),
-                padded_of(lambda: lift(tracer.decode_tiled)(keys)))
+                padded_of(lambda: lift(tracer.decode_tiled)(keys)),
+            )
         else:
             depth_p, best_p = jax.lax.cond(finite, dense, padded_of(nothing))
         # a non-finite image of a traced batch: nothing seen (its own trace, a search with NaN
@@ -365,8 +386,12 @@ class Camera:
             safe_mat = jnp.where(seen[..., None, None], poses["cam_mat"], 0.0)
             texels = _materialised(lambda: shader.skybox_texels(safe_mat, sky_texture, sky_frame), finite)
             background = tuple(sky_lib.unpack_rgb(texels))
-        planes = _materialised(lambda: lift(shader.compose)(
-            poses, lift(shader.surface_colour)(frames, padded, geom_rgb), light, best_p, background), finite)
+        planes = _materialised(
+            lambda: lift(shader.compose)(
+                poses, lift(shader.surface_colour)(frames, padded, geom_rgb), light, best_p, background
+            ),
+            finite,
+        )
         return jnp.where(seen_px[..., None], jnp.stack(planes, axis=-1), 0.0), depth, ids
 
 
@@ -388,28 +413,43 @@ def _sky_stack_and_row(sky_texture) -> tuple[jax.Array, jax.Array]:
     sky_frame = None
     if isinstance(sky_texture, (tuple, list)):
         sky_texture, sky_frame = sky_texture
-        if not (sky_texture.ndim == 2 and sky_texture.dtype == jnp.int32
-                and math.isqrt(sky_texture.shape[1]) ** 2 == sky_texture.shape[1] > 0
-                and sky_texture.size < 2**31):
-            raise ValueError("sky_texture (stack, row): the stack must be packed frames "
-                             "(N, S * S) int32 (fewer than 2**31 texels), got "
-                             f"{sky_texture.dtype} {sky_texture.shape}")
+        if not (
+            sky_texture.ndim == 2
+            and sky_texture.dtype == jnp.int32
+            and math.isqrt(sky_texture.shape[1]) ** 2 == sky_texture.shape[1] > 0
+            and sky_texture.size < 2**31
+        ):
+            raise ValueError(
+                "sky_texture (stack, row): the stack must be packed frames "
+                "(N, S * S) int32 (fewer than 2**31 texels), got "
+                f"{sky_texture.dtype} {sky_texture.shape}"
+            )
         if jnp.shape(sky_frame) != ():
-            raise ValueError(f"sky_texture (stack, row): the row must be a scalar int, got shape "
-                             f"{jnp.shape(sky_frame)}")
+            raise ValueError(
+                f"sky_texture (stack, row): the row must be a scalar int, got shape {jnp.shape(sky_frame)}"
+            )
         # clamped: the texel gather trusts its indices (a row past the stack reads past it)
         sky_frame = jnp.clip(jnp.asarray(sky_frame, jnp.int32), 0, sky_texture.shape[0] - 1)
     elif sky_texture is None:
         sky_texture = jnp.zeros((0, 1), jnp.int32)
-    elif (sky_texture.ndim == 3 and sky_texture.shape[0] == sky_texture.shape[1]
-          and sky_texture.shape[2] == 3 and sky_texture.dtype == jnp.uint8):
+    elif (
+        sky_texture.ndim == 3
+        and sky_texture.shape[0] == sky_texture.shape[1]
+        and sky_texture.shape[2] == 3
+        and sky_texture.dtype == jnp.uint8
+    ):
         sky_texture = sky_lib.pack_rgb(sky_texture)[None]
-    elif (sky_texture.ndim == 1 and sky_texture.dtype == jnp.int32
-          and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0):
+    elif (
+        sky_texture.ndim == 1
+        and sky_texture.dtype == jnp.int32
+        and math.isqrt(sky_texture.shape[0]) ** 2 == sky_texture.shape[0] > 0
+    ):
         sky_texture = sky_texture[None]
     else:
-        raise ValueError("sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32 (or a "
-                         f"pair (stack (N, S * S), row)), got {sky_texture.dtype} {sky_texture.shape}")
+        raise ValueError(
+            "sky_texture must be (S, S, 3) uint8 or packed (S * S,) int32 (or a "
+            f"pair (stack (N, S * S), row)), got {sky_texture.dtype} {sky_texture.shape}"
+        )
     if sky_frame is None:
         sky_frame = jnp.zeros((), jnp.int32)
     return sky_texture, sky_frame
@@ -420,14 +460,16 @@ def _check_projection(mj_model: mujoco.MjModel, camera_id: int, height: int, wid
     draws a perspective frustum from ``cam_fovy`` and the image's aspect ratio."""
     projection = int(mj_model.cam_projection[camera_id])
     if projection != int(mujoco.mjtProjection.mjPROJ_PERSPECTIVE):
-        raise ValueError(f"camera_id={camera_id} has projection {mujoco.mjtProjection(projection).name}; "
-                         "only perspective cameras (mjPROJ_PERSPECTIVE) are supported")
+        raise ValueError(
+            f"camera_id={camera_id} has projection {mujoco.mjtProjection(projection).name}; "
+            "only perspective cameras (mjPROJ_PERSPECTIVE) are supported"
+        )
     sensor = np.asarray(mj_model.cam_sensorsize[camera_id], np.float64)
     if np.any(sensor > 0):  # intrinsics (focal, principal, sensorsize) set the frustum
         fx, fy, cx, cy = (float(v) for v in mj_model.cam_intrinsic[camera_id])
-        if not (fx == fy and cx == 0 and cy == 0
-                and math.isclose(sensor[0] / sensor[1], width / height, rel_tol=1e-6)):
+        if not (fx == fy and cx == 0 and cy == 0 and math.isclose(sensor[0] / sensor[1], width / height, rel_tol=1e-6)):
             raise ValueError(
                 f"camera_id={camera_id} has intrinsics (sensorsize {tuple(sensor)}, focal {(fx, fy)}, "
                 f"principal {(cx, cy)}): supported only with equal focal lengths, principal (0, 0) "
-                f"and width / height equal to the sensor's {sensor[0] / sensor[1]:.6g}, got {width}x{height}")
+                f"and width / height equal to the sensor's {sensor[0] / sensor[1]:.6g}, got {width}x{height}"
+            )

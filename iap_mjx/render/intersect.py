@@ -57,8 +57,7 @@ def sphere(o: Vec, d: Vec, size) -> jnp.ndarray:
 def ellipsoid(o: Vec, d: Vec, size) -> jnp.ndarray:
     """An axis-aligned ellipsoid with semi-axes ``size`` at the origin."""
     inv = tuple(1.0 / s for s in size)
-    return sphere(tuple(o[i] * inv[i] for i in range(3)), tuple(d[i] * inv[i] for i in range(3)),
-                  (1.0, 0.0, 0.0))
+    return sphere(tuple(o[i] * inv[i] for i in range(3)), tuple(d[i] * inv[i] for i in range(3)), (1.0, 0.0, 0.0))
 
 
 def _side_wall(o: Vec, d: Vec, r, h) -> jnp.ndarray:

@@ -22,8 +22,12 @@ CYLINDER = int(mujoco.mjtGeom.mjGEOM_CYLINDER)
 BOX = int(mujoco.mjtGeom.mjGEOM_BOX)
 SUPPORTED_TYPES = (PLANE, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX)
 TYPE_NAMES = {
-    PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule",
-    ELLIPSOID: "ellipsoid", CYLINDER: "cylinder", BOX: "box",
+    PLANE: "plane",
+    SPHERE: "sphere",
+    CAPSULE: "capsule",
+    ELLIPSOID: "ellipsoid",
+    CYLINDER: "cylinder",
+    BOX: "box",
 }
 
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
@@ -127,7 +131,7 @@ def _texture_rgb(m: mujoco.MjModel, tex: int) -> np.ndarray:
     """``(height, width, 3)`` float32 texture in [0, 1]."""
     adr, h, w = int(m.tex_adr[tex]), int(m.tex_height[tex]), int(m.tex_width[tex])
     c = int(m.tex_nchannel[tex])
-    data = np.asarray(m.tex_data[adr: adr + h * w * c], np.float32).reshape(h, w, c) / 255.0
+    data = np.asarray(m.tex_data[adr : adr + h * w * c], np.float32).reshape(h, w, c) / 255.0
     return data[..., :3] if c >= 3 else np.repeat(data[..., :1], 3, axis=-1)
 
 
@@ -148,7 +152,7 @@ def _sky(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
             side = rgb[:face]  # first cube face (+x), a side face of a z-up skybox
             centre = slice(face // 4, 3 * face // 4)
             top = side[: max(1, face // 50), centre].reshape(-1, 3).mean(0)
-            bottom = side[-max(1, face // 50):, centre].reshape(-1, 3).mean(0)
+            bottom = side[-max(1, face // 50) :, centre].reshape(-1, 3).mean(0)
             z = 1.0 / np.sqrt(2.0)
             return ((top + bottom) / 2).astype(np.float32), ((top - bottom) / (2 * z)).astype(np.float32)
     return np.zeros(3, np.float32), np.zeros(3, np.float32)
@@ -176,10 +180,7 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         alphas.append(min(float(rgba[3]), 1.0))
         matid = int(m.geom_matid[g])
         tex = _material_rgb_texture(m, matid) if matid >= 0 else -1
-        is_checker = (
-            gtype == PLANE and tex >= 0
-            and int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_2D)
-        )
+        is_checker = gtype == PLANE and tex >= 0 and int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_2D)
         checker.append(is_checker)
         if is_checker:
             # As measured with mujoco.Renderer (tests/test_render_mujoco.py), per axis: with
@@ -236,18 +237,24 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
         light_targetbodyid=np.where(light_mode >= 3, light_target, 0).astype(np.int32),
         light_offset=np.where(
-            in_body_frame[:, None], m.light_pos[lights],
+            in_body_frame[:, None],
+            m.light_pos[lights],
             np.where((light_mode == 2)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
-        ).astype(np.float32).reshape(-1, 3),
-        light_dirs=np.where(in_body_frame[:, None], m.light_dir[lights],
-                            m.light_dir0[lights]).astype(np.float32).reshape(-1, 3),
+        )
+        .astype(np.float32)
+        .reshape(-1, 3),
+        light_dirs=np.where(in_body_frame[:, None], m.light_dir[lights], m.light_dir0[lights])
+        .astype(np.float32)
+        .reshape(-1, 3),
         light_directional=light_type == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL),
         light_cos_cutoff=np.where(
             light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT),
-            np.cos(np.deg2rad(np.asarray(m.light_cutoff[lights], np.float64))), -1.0,
+            np.cos(np.deg2rad(np.asarray(m.light_cutoff[lights], np.float64))),
+            -1.0,
         ).astype(np.float32),
-        light_exponent=np.where(light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT),
-                                np.asarray(m.light_exponent[lights]), 0.0).astype(np.float32),
+        light_exponent=np.where(
+            light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT), np.asarray(m.light_exponent[lights]), 0.0
+        ).astype(np.float32),
         light_diffuse=np.asarray(m.light_diffuse[lights], np.float32).reshape(-1, 3),
         ambient=ambient.astype(np.float32),
         headlight_diffuse=np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),

@@ -30,8 +30,9 @@ class Shader:
     (``tracing.pad_by_one_pixel``); ``poses`` are the per-state arrays the camera reads
     (``Camera._poses``); ``frames`` are ``Tracer.geom_frames``'s."""
 
-    def __init__(self, scene: scene_lib.Scene, config: Any, x: np.ndarray, y: np.ndarray,
-                 pixel_pitch: tuple[float, float]):
+    def __init__(
+        self, scene: scene_lib.Scene, config: Any, x: np.ndarray, y: np.ndarray, pixel_pitch: tuple[float, float]
+    ):
         """``config``: the camera's ``CameraConfig``; ``x`` ``(1, W)``, ``y`` ``(H, 1)``: the
         pixels' image coordinates and ``pixel_pitch`` their spacing (``Tracer``'s)."""
         self.scene = scene
@@ -94,16 +95,14 @@ class Shader:
                 u = origin[k, 0] + depth * (x * r_cam[k, 0, 0] + y * r_cam[k, 1, 0] - r_cam[k, 2, 0])
                 v = origin[k, 1] + depth * (x * r_cam[k, 0, 1] + y * r_cam[k, 1, 1] - r_cam[k, 2, 1])
                 squares = [c * sc.checker_scale[k, i] for i, c in enumerate((u, v))]
-                squares = [c + sc.checker_offset[k, i] if sc.checker_offset[k, i] else c
-                           for i, c in enumerate(squares)]
+                squares = [c + sc.checker_offset[k, i] if sc.checker_offset[k, i] else c for i, c in enumerate(squares)]
                 odd = ((_floor_int(squares[0]) + _floor_int(squares[1])) & 1) == 1
                 mine = best == k
                 if geom_rgb.size == 0:
                     tints = [sc.checker_rgb[k, :, c] for c in range(3)]
                 else:  # MuJoCo multiplies the texture by the (changed) colour
                     tints = [sc.checker_texture[k, :, c] * rgb_table[k, c] for c in range(3)]
-                colour = [jnp.where(mine, jnp.where(odd, tints[c][1], tints[c][0]), colour[c])
-                          for c in range(3)]
+                colour = [jnp.where(mine, jnp.where(odd, tints[c][1], tints[c][0]), colour[c]) for c in range(3)]
         return tuple(colour)
 
     def incident_light(self, poses, padded):
@@ -140,15 +139,17 @@ class Shader:
             lit = jnp.maximum(sum(normal[i] * toward[i] for i in range(3)), 0.0) * inv_len
             spot = -sum(toward[i] * direction[j, i] for i in range(3))
             exponent = float(sc.light_exponent[j])
-            falloff = (jax.lax.integer_pow(jnp.maximum(spot, 0.0), int(exponent))
-                       if exponent.is_integer() else jnp.maximum(spot, 0.0) ** exponent)
+            falloff = (
+                jax.lax.integer_pow(jnp.maximum(spot, 0.0), int(exponent))
+                if exponent.is_integer()
+                else jnp.maximum(spot, 0.0) ** exponent
+            )
             cone = jnp.where(spot >= sc.light_cos_cutoff[j], falloff, 0.0)
             cosines.append(lit * cone)
         diffuse = np.concatenate([sc.headlight_diffuse[None], sc.light_diffuse], axis=0)
         grey = np.allclose(diffuse, diffuse[:, :1]) and np.allclose(sc.ambient, sc.ambient[0])
         channels = (0,) if grey else (0, 1, 2)
-        light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines)))
-                 for c in channels]
+        light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines))) for c in channels]
         return tuple(light)
 
     def lights_in_camera_frame(self, poses) -> tuple[jax.Array, jax.Array]:
@@ -162,14 +163,15 @@ class Shader:
         mode = sc.light_mode
         fixed = jnp.asarray((mode == 0) | (mode >= 3))[:, None]  # placed in the body frame
         world_pos = jnp.where(
-            fixed, poses["light_body_pos"] + jnp.einsum("lij,lj->li", mats, offset),
-            jnp.where(jnp.asarray(mode == 2)[:, None], poses["light_body_com"],
-                      poses["light_body_pos"]) + offset)
-        world_dir = jnp.where(fixed, jnp.einsum("lij,lj->li", mats, jnp.asarray(sc.light_dirs)),
-                              jnp.asarray(sc.light_dirs))
+            fixed,
+            poses["light_body_pos"] + jnp.einsum("lij,lj->li", mats, offset),
+            jnp.where(jnp.asarray(mode == 2)[:, None], poses["light_body_com"], poses["light_body_pos"]) + offset,
+        )
+        world_dir = jnp.where(
+            fixed, jnp.einsum("lij,lj->li", mats, jnp.asarray(sc.light_dirs)), jnp.asarray(sc.light_dirs)
+        )
         if np.any(mode >= 3):  # aimed at the target body (3) or its subtree's centre of mass (4)
-            target = jnp.where(jnp.asarray(mode == 4)[:, None], poses["light_target_com"],
-                               poses["light_target_pos"])
+            target = jnp.where(jnp.asarray(mode == 4)[:, None], poses["light_target_com"], poses["light_target_pos"])
             world_dir = jnp.where(jnp.asarray(mode >= 3)[:, None], target - world_pos, world_dir)
         world_dir = world_dir / jnp.linalg.norm(world_dir, axis=-1, keepdims=True)
         cam_mat = poses["cam_mat"]
@@ -203,6 +205,7 @@ def _surface_tangent(depth_p, best_p, x, y, pixel: float, axis: int):
     step of one pixel along the image axis at the pixel's depth. ``depth_p``, ``best_p`` are
     padded by one pixel; ``pixel`` is the pixel pitch in image coordinates (positive along
     columns, negative along rows)."""
+
     def window(a, offset):
         rows = slice(1 + offset, a.shape[0] - 1 + offset) if axis == 0 else slice(1, -1)
         cols = slice(1 + offset, a.shape[1] - 1 + offset) if axis == 1 else slice(1, -1)

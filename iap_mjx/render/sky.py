@@ -49,8 +49,7 @@ def face_texel(dx: jax.Array, dy: jax.Array, dz: jax.Array, size: int) -> jax.Ar
     x_major = (ax >= ay) & (ax >= az)
     y_major = ~x_major & (ay >= az)
     major = jnp.where(x_major, ax, jnp.where(y_major, ay, az))
-    across = jnp.where(x_major, jnp.where(dx > 0, dy, -dy),
-                       jnp.where(y_major, jnp.where(dy > 0, -dx, dx), dx))
+    across = jnp.where(x_major, jnp.where(dx > 0, dy, -dy), jnp.where(y_major, jnp.where(dy > 0, -dx, dx), dx))
     down = jnp.where(x_major | y_major, -dz, jnp.where(dz > 0, -dy, dy))
     half = 0.5 * size
     scale = half / jnp.maximum(major, 1e-30)
@@ -60,8 +59,9 @@ def face_texel(dx: jax.Array, dy: jax.Array, dz: jax.Array, size: int) -> jax.Ar
     return (row * size + col).astype(jnp.int32)
 
 
-def skybox_texels(packed: jax.Array, frame: jax.Array, size: int, dx: jax.Array, dy: jax.Array,
-                  dz: jax.Array) -> jax.Array:
+def skybox_texels(
+    packed: jax.Array, frame: jax.Array, size: int, dx: jax.Array, dy: jax.Array, dz: jax.Array
+) -> jax.Array:
     """``(..., H, W)`` int32 packed texels (:func:`pack_rgb`) of the skybox textures
     ``packed[frame]`` (``packed``: ``(N, S * S)`` textures; ``frame``: ``(...)`` int32, one row
     per image) in world directions ``dx, dy, dz`` ``(..., H, W)``, as one flat gather from

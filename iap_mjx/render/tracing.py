@@ -68,8 +68,10 @@ class Tracer:
         for k, gtype in enumerate(scene.geom_type):
             groups.setdefault(int(gtype), []).append(k)
         self.culled_groups = tuple(
-            (gtype, tuple(members)) for gtype, members in sorted(groups.items())
-            if gtype != scene_lib.PLANE and self.pair_budget > 0 and len(members) >= 3)
+            (gtype, tuple(members))
+            for gtype, members in sorted(groups.items())
+            if gtype != scene_lib.PLANE and self.pair_budget > 0 and len(members) >= 3
+        )
         culled = {k for _, members in self.culled_groups for k in members}
         self.dense_geoms = tuple(k for k in range(len(scene.geom_ids)) if k not in culled)
 
@@ -87,8 +89,9 @@ class Tracer:
         self.tile_y = np.moveaxis(y, 2, 1).reshape(ny * nx, th * tw).astype(np.float32)
         self.grid_x = cols[None, :].astype(np.float32)  # (1, nx * tw)
         self.grid_y = rows[:, None].astype(np.float32)  # (ny * th, 1)
-        self.tile_bounds = np.stack([self.tile_x.min(1), self.tile_x.max(1),
-                                     self.tile_y.min(1), self.tile_y.max(1)], axis=1)
+        self.tile_bounds = np.stack(
+            [self.tile_x.min(1), self.tile_x.max(1), self.tile_y.min(1), self.tile_y.max(1)], axis=1
+        )
 
     def geom_frames(self, poses) -> dict[str, jax.Array]:
         """Per-geom constants of one image in camera and local frames: ``r_cam`` ``(G, 3, 3)``
@@ -114,7 +117,8 @@ class Tracer:
         shape = (self.height, self.width)
         keys = [self.far_key(shape)] + [
             jnp.broadcast_to(self.key(self.hit_depth(k, r_cam, origin, x, y), k), shape)
-            for k in range(len(self.scene.geom_ids))]
+            for k in range(len(self.scene.geom_ids))
+        ]
         return jnp.min(jnp.stack(keys), axis=0)
 
     def culled_keys(self, frames):
@@ -131,35 +135,51 @@ class Tracer:
         tx, ty = jnp.asarray(self.tile_x), jnp.asarray(self.tile_y)
         r_cam, origin = frames["r_cam"], frames["origin"]
         shape = (ny * th, nx * tw)
-        keys = jnp.min(jnp.stack(
-            [self.far_key(shape)]
-            + [jnp.broadcast_to(self.key(self.hit_depth(k, r_cam, origin, gx, gy), k), shape)
-               for k in self.dense_geoms]),
-            axis=0)
+        keys = jnp.min(
+            jnp.stack(
+                [self.far_key(shape)]
+                + [
+                    jnp.broadcast_to(self.key(self.hit_depth(k, r_cam, origin, gx, gy), k), shape)
+                    for k in self.dense_geoms
+                ]
+            ),
+            axis=0,
+        )
         overflow = jnp.zeros((), bool)
         budget = self.pair_budget
         windows = jax.lax.ScatterDimensionNumbers(
-            update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0, 1))
+            update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0, 1)
+        )
         for gtype, members in self.culled_groups:
             members_arr = jnp.asarray(members, jnp.int32)
             overlap = self.tile_overlap(frames, members).reshape(-1)  # tile-major pairs
             overflow |= jnp.sum(overlap) > budget
             pair, valid = first_pairs(overlap, budget)
             tile, local = pair // len(members), pair % len(members)
-            params = jnp.concatenate([
-                r_cam[members_arr, 0, :], r_cam[members_arr, 1, :], -r_cam[members_arr, 2, :],
-                origin[members_arr], jnp.asarray(sc.geom_size[list(members)]),
-            ], axis=1)[local]
-            col = [params[:, i: i + 1] for i in range(15)]
+            params = jnp.concatenate(
+                [
+                    r_cam[members_arr, 0, :],
+                    r_cam[members_arr, 1, :],
+                    -r_cam[members_arr, 2, :],
+                    origin[members_arr],
+                    jnp.asarray(sc.geom_size[list(members)]),
+                ],
+                axis=1,
+            )[local]
+            col = [params[:, i : i + 1] for i in range(15)]
             px, py = tx[tile], ty[tile]
             d = tuple(px * col[i] + py * col[3 + i] + col[6 + i] for i in range(3))
             t = intersect.BY_TYPE[gtype](tuple(col[9:12]), d, tuple(col[12:15]))
-            pair_keys = jnp.where(valid[:, None], self.key(t, members_arr[local][:, None]),
-                                  jnp.iinfo(jnp.int32).max)
+            pair_keys = jnp.where(valid[:, None], self.key(t, members_arr[local][:, None]), jnp.iinfo(jnp.int32).max)
             corner = jnp.stack([tile // nx * th, tile % nx * tw], axis=1)  # (budget, 2)
-            keys = jax.lax.scatter_min(keys, corner, pair_keys.reshape(budget, th, tw), windows,
-                                       indices_are_sorted=True,
-                                       mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
+            keys = jax.lax.scatter_min(
+                keys,
+                corner,
+                pair_keys.reshape(budget, th, tw),
+                windows,
+                indices_are_sorted=True,
+                mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS,
+            )
         return keys, overflow
 
     def tile_overlap(self, frames, members):
@@ -208,8 +228,12 @@ class Tracer:
         x_lo, x_hi = extent(ends[..., 0])
         y_lo, y_hi = extent(ends[..., 1])
         t = self.tile_bounds
-        overlap = ((x_lo[None] <= t[:, 1:2]) & (x_hi[None] >= t[:, 0:1])
-                   & (y_lo[None] <= t[:, 3:4]) & (y_hi[None] >= t[:, 2:3]))
+        overlap = (
+            (x_lo[None] <= t[:, 1:2])
+            & (x_hi[None] >= t[:, 0:1])
+            & (y_lo[None] <= t[:, 3:4])
+            & (y_hi[None] >= t[:, 2:3])
+        )
         return (overlap | crosses[None]) & ~behind[None]
 
     def hit_depth(self, k, r_cam, origin, x, y):

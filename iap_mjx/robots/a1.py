@@ -116,14 +116,14 @@ def _leg(leg: str) -> str:
     return f"""
       <body name="{leg}_hip" pos="{x:g} {y:g} 0">
         <inertial pos="0 0 0" mass="{HIP_MASS:g}" diaginertia="{hip_inertia:.6g} {hip_inertia:.6g} {hip_inertia:.6g}"/>
-        <joint name="{leg}_abduction" axis="1 0 0" range="{ranges['abduction']}"/>
+        <joint name="{leg}_abduction" axis="1 0 0" range="{ranges["abduction"]}"/>
         <body name="{leg}_thigh" pos="0 {side:g} 0">
           <inertial pos="0 0 {-half:g}" mass="{THIGH_MASS:g}" diaginertia="{_rod_inertia(THIGH_MASS, LINK_LENGTH, THIGH_RADIUS)}"/>
-          <joint name="{leg}_thigh" axis="0 1 0" range="{ranges['thigh']}"/>
+          <joint name="{leg}_thigh" axis="0 1 0" range="{ranges["thigh"]}"/>
           <geom name="{leg}_thigh" class="limb" size="{THIGH_RADIUS:g}" fromto="0 0 0 0 0 {-LINK_LENGTH:g}"/>
           <body name="{leg}_calf" pos="0 0 {-LINK_LENGTH:g}">
             <inertial pos="0 0 {-half:g}" mass="{CALF_MASS:g}" diaginertia="{_rod_inertia(CALF_MASS, LINK_LENGTH, CALF_RADIUS)}"/>
-            <joint name="{leg}_knee" axis="0 1 0" range="{ranges['knee']}"/>
+            <joint name="{leg}_knee" axis="0 1 0" range="{ranges["knee"]}"/>
             <geom name="{leg}_calf" class="limb" size="{CALF_RADIUS:g}" fromto="0 0 0 0 0 {-LINK_LENGTH:g}"/>
             <geom name="{leg}_foot" class="foot" pos="0 0 {-LINK_LENGTH:g}"/>
           </body>
@@ -155,21 +155,29 @@ def robot_xml() -> tuple[str, str, str, str]:
       <site name="imu" pos="0 0 0"/>
       <camera name="eye" pos="{sx + 0.01:g} 0 0.02" xyaxes="0 -1 0 0 0 1" fovy="70"/>
       <camera name="track" mode="trackcom" pos="-0.6 -1.6 0.7" xyaxes="0.94 -0.34 0 0.12 0.34 0.93" fovy="50"/>
-      {''.join(_leg(leg) for leg in LEGS)}
+      {"".join(_leg(leg) for leg in LEGS)}
     </body>"""
     actuators = "\n".join(
         f'    <position class="robot" name="{name}" joint="{name}" ctrlrange="{lo:g} {hi:g}"/>'
-        for name, (lo, hi) in zip(JOINT_NAMES, JOINT_RANGES))
+        for name, (lo, hi) in zip(JOINT_NAMES, JOINT_RANGES)
+    )
     sensors = "\n".join(
-        ['    <framequat name="trunk_quat" objtype="body" objname="trunk"/>',
-         '    <gyro name="gyro" site="imu"/>',
-         '    <framelinvel name="trunk_linvel" objtype="body" objname="trunk"/>']
-        + [f'    <jointpos name="{name}_pos" joint="{name}"/>' for name in JOINT_NAMES])
+        [
+            '    <framequat name="trunk_quat" objtype="body" objname="trunk"/>',
+            '    <gyro name="gyro" site="imu"/>',
+            '    <framelinvel name="trunk_linvel" objtype="body" objname="trunk"/>',
+        ]
+        + [f'    <jointpos name="{name}_pos" joint="{name}"/>' for name in JOINT_NAMES]
+    )
     return defaults, body, actuators, sensors
 
 
-def world_xml(*, platform: tuple[float, float, float, float] | None = None, n_walls: int = 0,
-              wall_half_size: tuple[float, float, float] = (0.05, 0.6, 0.25)) -> str:
+def world_xml(
+    *,
+    platform: tuple[float, float, float, float] | None = None,
+    n_walls: int = 0,
+    wall_half_size: tuple[float, float, float] = (0.05, 0.6, 0.25),
+) -> str:
     """A whole model: the robot on a floor, optionally on a raised platform with walls.
 
     Args:
@@ -190,20 +198,25 @@ def world_xml(*, platform: tuple[float, float, float, float] | None = None, n_wa
     else:
         x_min, x_max, half_width, drop = platform
         floor_z, floor_bits = -drop, (0, 0)
-        ground = (f'    <geom name="platform" type="box" pos="{(x_min + x_max) / 2:g} 0 {-drop / 2:g}" '
-                  f'size="{(x_max - x_min) / 2:g} {half_width:g} {drop / 2:g}" contype="{GROUND_BIT}" '
-                  f'conaffinity="0" condim="3" friction="{FOOT_FRICTION:g} 0.02 0.01" '
-                  f'group="{WORLD_GROUP}" rgba="0.55 0.57 0.6 1"/>')
+        ground = (
+            f'    <geom name="platform" type="box" pos="{(x_min + x_max) / 2:g} 0 {-drop / 2:g}" '
+            f'size="{(x_max - x_min) / 2:g} {half_width:g} {drop / 2:g}" contype="{GROUND_BIT}" '
+            f'conaffinity="0" condim="3" friction="{FOOT_FRICTION:g} 0.02 0.01" '
+            f'group="{WORLD_GROUP}" rgba="0.55 0.57 0.6 1"/>'
+        )
     wx, wy, wz = wall_half_size
     walls = "\n".join(
         f'    <body name="wall{i}" mocap="true" pos="{2.0 * (i + 1):g} 0 {wz:g}">'
         f'<geom name="wall{i}" type="box" size="{wx:g} {wy:g} {wz:g}" contype="0" '
         f'conaffinity="0" group="{WORLD_GROUP}" rgba="0.75 0.2 0.2 1"/></body>'
-        for i in range(n_walls))
+        for i in range(n_walls)
+    )
     if n_walls:
-        walls += (f'\n    <body name="wall_contact" mocap="true" pos="2 0 {wz:g}">'
-                  f'<geom name="wall_contact" type="box" size="{wx:g} {wy:g} {wz:g}" contype="{WALL_BIT}" '
-                  f'conaffinity="0" condim="1" priority="1" group="{CONTACT_GROUP}" rgba="0.75 0.2 0.2 0"/></body>')
+        walls += (
+            f'\n    <body name="wall_contact" mocap="true" pos="2 0 {wz:g}">'
+            f'<geom name="wall_contact" type="box" size="{wx:g} {wy:g} {wz:g}" contype="{WALL_BIT}" '
+            f'conaffinity="0" condim="1" priority="1" group="{CONTACT_GROUP}" rgba="0.75 0.2 0.2 0"/></body>'
+        )
     return f"""
 <mujoco model="a1_class_quadruped">
   <compiler angle="radian" autolimits="true"/>
@@ -232,8 +245,8 @@ def world_xml(*, platform: tuple[float, float, float, float] | None = None, n_wa
 {sensors}
   </sensor>
   <keyframe>
-    <key name="home" qpos="0 0 {HOME_HEIGHT:g} 1 0 0 0 {' '.join(f'{q:g}' for q in HOME_JOINTS)}"
-         ctrl="{' '.join(f'{q:g}' for q in HOME_JOINTS)}"/>
+    <key name="home" qpos="0 0 {HOME_HEIGHT:g} 1 0 0 0 {" ".join(f"{q:g}" for q in HOME_JOINTS)}"
+         ctrl="{" ".join(f"{q:g}" for q in HOME_JOINTS)}"/>
   </keyframe>
 </mujoco>
 """

@@ -25,16 +25,16 @@ logger = logging.getLogger(__name__)
 def env_and_policy(config: Any) -> tuple[Any, Any]:
     """The env and policy a ``TrainConfig`` names, built (for a run not trained yet)."""
     env = envs.make(config.env.name, **dict(config.env.overrides))
-    policy = policies.make(config.policy.kind, env.observation_shape, env.action_size,
-                           **dict(config.policy.options))
+    policy = policies.make(config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
     return env, policy
 
 
 has_pixels = video.has_pixels
 
 
-def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None,
-                program: Any = None) -> tuple[Path, float]:
+def write_video(
+    result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None, program: Any = None
+) -> tuple[Path, float]:
     """An episode of ``result``'s centre params on its env: a pixel env's frames with the
     patches outlined, or a state env rendered from its video camera. ``program``: the episode
     compiled ahead (:func:`compile_video_in_background`) for these ``steps``."""
@@ -43,8 +43,16 @@ def write_video(result: Any, path: str | Path, *, seed: int = 0, steps: int | No
     env, policy = result.env, result.policy
     steps = env.episode_length if steps is None else steps
     logger.info("rendering a %d-step episode of the trained policy to %s", steps, path)
-    return video.episode_video(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
-                               steps=steps, obs_stats=result.obs_stats, program=program)
+    return video.episode_video(
+        env,
+        policy,
+        result.params,
+        path,
+        key=jax.random.PRNGKey(seed),
+        steps=steps,
+        obs_stats=result.obs_stats,
+        program=program,
+    )
 
 
 def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6) -> tuple[Path, float]:
@@ -53,8 +61,16 @@ def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6
     env, policy = result.env, result.policy
     if not has_pixels(env):
         raise ValueError(f"{result.config.env.name!r} observes the state: a strip shows a pixel agent's frames")
-    return video.episode_strip(env, policy, result.params, path, key=jax.random.PRNGKey(seed),
-                               steps=env.episode_length, frames=frames, obs_stats=result.obs_stats)
+    return video.episode_strip(
+        env,
+        policy,
+        result.params,
+        path,
+        key=jax.random.PRNGKey(seed),
+        steps=env.episode_length,
+        frames=frames,
+        obs_stats=result.obs_stats,
+    )
 
 
 def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Future | None:
@@ -80,13 +96,19 @@ def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Fut
     return future
 
 
-def write_run_artifacts(result: Any, run_dir: str | Path,
-                        video_program: concurrent.futures.Future | None = None) -> list[Path]:
+def write_run_artifacts(
+    result: Any, run_dir: str | Path, video_program: concurrent.futures.Future | None = None
+) -> list[Path]:
     """Writes ``reward_curve.png`` and, for pixel envs, ``episode.mp4`` into ``run_dir``;
     ``video_program`` is :func:`compile_video_in_background`'s future for this config."""
     run_dir = Path(run_dir)
-    paths = [curves.plot_reward_curve(result.history, run_dir / "reward_curve.png",
-                                      title=f"{result.config.env.name}: {result.config.policy.kind} policy")]
+    paths = [
+        curves.plot_reward_curve(
+            result.history,
+            run_dir / "reward_curve.png",
+            title=f"{result.config.env.name}: {result.config.policy.kind} policy",
+        )
+    ]
     if has_pixels(result.env):
         program = video_program.result() if video_program is not None else None
         path, episode_return = write_video(result, run_dir / "episode.mp4", program=program)

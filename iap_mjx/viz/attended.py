@@ -56,14 +56,24 @@ def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int,
 def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
     """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
     each frame the policy sees."""
+
     def geom_map(state):
         return {"geoms": env.geom_map(state.data, state.info.get("distraction"))}
 
     return video.episode_program(env, policy, steps=steps, extra=geom_map)
 
 
-def episode_counts(env: Any, policy: Any, params: Any, *, episodes: int = 3, seed: int = 0,
-                   steps: int | None = None, obs_stats: Any = None, program: Any = None) -> list[dict[str, int]]:
+def episode_counts(
+    env: Any,
+    policy: Any,
+    params: Any,
+    *,
+    episodes: int = 3,
+    seed: int = 0,
+    steps: int | None = None,
+    obs_stats: Any = None,
+    program: Any = None,
+) -> list[dict[str, int]]:
     """Per episode, ``{label: selected pixels showing it}`` over ``episodes`` episodes of
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
     ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
@@ -104,8 +114,9 @@ def markdown(counts: list[dict[str, int]]) -> str:
     """A markdown table of the shares over all episodes, and per label the episodes in which
     it has the largest share."""
     first = [max(episode, key=episode.get) for episode in counts]
-    lines = ["| what the selected pixels show | share | episodes where it is the largest share |",
-             "|---|---:|---:|"]
-    lines += [f"| {label} | {100 * share:.1f}% | {first.count(label)} of {len(counts)} |"
-              for label, share in shares(counts).items()]
+    lines = ["| what the selected pixels show | share | episodes where it is the largest share |", "|---|---:|---:|"]
+    lines += [
+        f"| {label} | {100 * share:.1f}% | {first.count(label)} of {len(counts)} |"
+        for label, share in shares(counts).items()
+    ]
     return "\n".join(lines)

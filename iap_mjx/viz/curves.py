@@ -26,12 +26,23 @@ def plot_reward_curve(history: Iterable[dict[str, Any]], path: str | Path, *, ti
     fig, ax = plt.subplots(figsize=(7, 4))
     if rows and "return_mean" in rows[0]:
         ax.plot(iterations, [row["return_mean"] for row in rows], label="population mean")
-        ax.fill_between(iterations, [row["return_min"] for row in rows],
-                        [row["return_max"] for row in rows], alpha=0.2, label="population min-max")
+        ax.fill_between(
+            iterations,
+            [row["return_min"] for row in rows],
+            [row["return_max"] for row in rows],
+            alpha=0.2,
+            label="population min-max",
+        )
     evaluated = [row for row in rows if "eval_return" in row]
     if evaluated:
-        ax.plot([row["iteration"] for row in evaluated], [row["eval_return"] for row in evaluated],
-                "o-", color="black", markersize=3, label="centre (evaluation seeds)")
+        ax.plot(
+            [row["iteration"] for row in evaluated],
+            [row["eval_return"] for row in evaluated],
+            "o-",
+            color="black",
+            markersize=3,
+            label="centre (evaluation seeds)",
+        )
     ax.set_xlabel("ES iteration")
     ax.set_ylabel("episode return")
     ax.set_title(title)

@@ -43,8 +43,9 @@ def closed_forms(length: np.ndarray, theta: np.ndarray) -> dict[str, np.ndarray]
     return {kind: np.asarray(ft.closed_form_mse(kind, x, y, m=M, r=R_SIGNS)) for kind in ESTIMATORS}
 
 
-def monte_carlo(length: float, theta: np.ndarray, *, draws: int,
-                seed: int = 0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def monte_carlo(
+    length: float, theta: np.ndarray, *, draws: int, seed: int = 0
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Empirical MSE per estimator at ``theta (P,)`` from ``draws`` iid projection draws.
 
     Returns ``{kind: (mse (P,), standard_error (P,))}``.
@@ -53,12 +54,14 @@ def monte_carlo(length: float, theta: np.ndarray, *, draws: int,
     truth = ft.softmax_kernel(x, y)
     out = {}
     for kind in ESTIMATORS:
+
         @jax.jit
         def squared_errors(keys, kind=kind):
             def one(key):
                 proj = ft.draw_projections(key, kind, m=M, d=D, r=R_SIGNS, orthogonal=False)
-                estimate = jnp.sum(ft.feature_map(kind, x, proj, role="query")
-                                   * ft.feature_map(kind, y, proj, role="key"), axis=-1)
+                estimate = jnp.sum(
+                    ft.feature_map(kind, x, proj, role="query") * ft.feature_map(kind, y, proj, role="key"), axis=-1
+                )
                 return (estimate - truth) ** 2
 
             errors = jax.vmap(one)(keys)
@@ -88,10 +91,23 @@ def figure3(path: Path, *, draws: int) -> Path:
     for index, kind in enumerate(ESTIMATORS):
         ax = fig.add_subplot(1, 3, index + 1, projection="3d")
         ax.plot_surface(grid_theta, grid_length, surfaces[kind], cmap="viridis", alpha=0.75, linewidth=0)
-        ax.plot(theta, np.full_like(theta, SLICE_LENGTH), slice_curves[kind], color="grey", linewidth=3,
-                label=f"closed form, R = {SLICE_LENGTH:g}")
-        ax.scatter(mc_theta, np.full_like(mc_theta, SLICE_LENGTH), mc[kind][0], color="red", s=18,
-                   depthshade=False, label=f"Monte Carlo ({draws} draws)")
+        ax.plot(
+            theta,
+            np.full_like(theta, SLICE_LENGTH),
+            slice_curves[kind],
+            color="grey",
+            linewidth=3,
+            label=f"closed form, R = {SLICE_LENGTH:g}",
+        )
+        ax.scatter(
+            mc_theta,
+            np.full_like(mc_theta, SLICE_LENGTH),
+            mc[kind][0],
+            color="red",
+            s=18,
+            depthshade=False,
+            label=f"Monte Carlo ({draws} draws)",
+        )
         ax.set_xlabel("angle θ")
         ax.set_ylabel("length R")
         ax.set_zlabel("MSE")
@@ -119,10 +135,13 @@ def figure4(path: Path, *, draws: int) -> Path:
     colours = {"trig": "tab:blue", "exp": "tab:orange", "hybrid": "tab:green"}
     for kind in ESTIMATORS:
         ax.plot(theta, curves[kind], color=colours[kind], label=f"{kind} (closed form)")
-        ax.scatter(mc_theta, mc[kind][0], color=colours[kind], marker="x", s=30,
-                   label=f"{kind} (Monte Carlo, {draws} draws)")
-    ax.set_xticks(np.arange(-3, 4) * np.pi, [f"{k}π" if k not in (0, 1, -1) else {0: "0", 1: "π", -1: "-π"}[k]
-                                              for k in range(-3, 4)])
+        ax.scatter(
+            mc_theta, mc[kind][0], color=colours[kind], marker="x", s=30, label=f"{kind} (Monte Carlo, {draws} draws)"
+        )
+    ax.set_xticks(
+        np.arange(-3, 4) * np.pi,
+        [f"{k}π" if k not in (0, 1, -1) else {0: "0", 1: "π", -1: "-π"}[k] for k in range(-3, 4)],
+    )
     ax.set_xlabel("angle θ (extended axis)")
     ax.set_ylabel("MSE")
     ax.set_yscale("symlog", linthresh=1e-2)
@@ -139,8 +158,10 @@ def write_mse_figures(out_dir: str | Path, *, draws: int = 100_000) -> list[Path
     """Writes ``figure3_mse.png`` and ``figure4_mse_slices.png`` into ``out_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = [figure3(out_dir / "figure3_mse.png", draws=draws),
-             figure4(out_dir / "figure4_mse_slices.png", draws=draws)]
+    paths = [
+        figure3(out_dir / "figure3_mse.png", draws=draws),
+        figure4(out_dir / "figure4_mse_slices.png", draws=draws),
+    ]
     for path in paths:
         logger.info("wrote %s", path)
     return paths

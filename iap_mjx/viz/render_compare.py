@@ -49,15 +49,14 @@ def _set_skybox(model, renderer, frame: np.ndarray) -> None:
     Suite does (one square face, which MuJoCo repeats on all six)."""
     import mujoco
 
-    sky = next(t for t in range(model.ntex)
-               if int(model.tex_type[t]) == int(mujoco.mjtTexture.mjTEXTURE_SKYBOX))
+    sky = next(t for t in range(model.ntex) if int(model.tex_type[t]) == int(mujoco.mjtTexture.mjTEXTURE_SKYBOX))
     size = frame.shape[0]
     if size * size * 3 > model.tex_width[sky] * model.tex_height[sky] * model.tex_nchannel[sky]:
         raise ValueError(f"a {size}x{size} sky does not fit the model's skybox texture")
     model.tex_width[sky] = size
     model.tex_height[sky] = size
     adr = int(model.tex_adr[sky])
-    model.tex_data[adr: adr + frame.size] = frame.reshape(-1)
+    model.tex_data[adr : adr + frame.size] = frame.reshape(-1)
     renderer._gl_context.make_current()
     mujoco.mjr_uploadTexture(model, renderer._mjr_context, sky)
 
@@ -68,14 +67,18 @@ def _render_reference(request: dict) -> dict:
     ``cam_xpos``/``cam_xmat`` per state written into the data of every requested camera)."""
     import mujoco
 
-    model = (mujoco.MjModel.from_xml_string(str(request["xml"])) if "xml" in request
-             else _suite_model(str(request["domain"])))
+    model = (
+        mujoco.MjModel.from_xml_string(str(request["xml"]))
+        if "xml" in request
+        else _suite_model(str(request["domain"]))
+    )
     height, width = int(request["height"]), int(request["width"])
     renderer = mujoco.Renderer(model, height, width)
     data = mujoco.MjData(model)
     out = {"rgb": [], "depth": [], "segmentation": []}
-    for i, (qpos, geom_pos, geom_size, site_rgba) in enumerate(zip(
-            request["qpos"], request["geom_pos"], request["geom_size"], request["site_rgba"])):
+    for i, (qpos, geom_pos, geom_size, site_rgba) in enumerate(
+        zip(request["qpos"], request["geom_pos"], request["geom_size"], request["site_rgba"])
+    ):
         model.geom_pos[:] = geom_pos
         model.geom_size[:] = geom_size
         model.site_rgba[:] = site_rgba
@@ -108,9 +111,9 @@ def _render_reference(request: dict) -> dict:
     return {k: np.asarray(v) for k, v in out.items()}
 
 
-def reference_frames(domain: str, states, camera_ids, height: int,
-                     width: int, distractions: dict | None = None,
-                     xml: str | None = None) -> dict[str, np.ndarray]:
+def reference_frames(
+    domain: str, states, camera_ids, height: int, width: int, distractions: dict | None = None, xml: str | None = None
+) -> dict[str, np.ndarray]:
     """MuJoCo's own frames of ``states`` (``(model, data)`` pairs of dm_control's ``domain``,
     or of the model compiled from ``xml`` if given; each model's geom positions and sizes and
     site colours are applied, as tasks edit them at reset: reacher moves its target, finger
@@ -129,22 +132,31 @@ def reference_frames(domain: str, states, camera_ids, height: int,
     with tempfile.TemporaryDirectory() as tmp:
         request = Path(tmp) / "request.npz"
         result = Path(tmp) / "result.npz"
-        np.savez(request, domain=domain,
-                 geom_pos=np.stack([np.asarray(m.geom_pos) for m, _ in states]),
-                 geom_size=np.stack([np.asarray(m.geom_size) for m, _ in states]),
-                 site_rgba=np.stack([np.asarray(m.site_rgba) for m, _ in states]),
-                 qpos=np.stack([np.asarray(d.qpos, np.float64) for _, d in states]),
-                 camera_ids=np.asarray(camera_ids, np.int32), height=height, width=width,
-                 **({} if xml is None else {"xml": xml}),
-                 **{k: np.asarray(v) for k, v in (distractions or {}).items()})
+        np.savez(
+            request,
+            domain=domain,
+            geom_pos=np.stack([np.asarray(m.geom_pos) for m, _ in states]),
+            geom_size=np.stack([np.asarray(m.geom_size) for m, _ in states]),
+            site_rgba=np.stack([np.asarray(m.site_rgba) for m, _ in states]),
+            qpos=np.stack([np.asarray(d.qpos, np.float64) for _, d in states]),
+            camera_ids=np.asarray(camera_ids, np.int32),
+            height=height,
+            width=width,
+            **({} if xml is None else {"xml": xml}),
+            **{k: np.asarray(v) for k, v in (distractions or {}).items()},
+        )
         env = dict(os.environ, MUJOCO_GL=GL_BACKEND, PYOPENGL_PLATFORM=GL_BACKEND)
         proc = subprocess.run(
-            [sys.executable, "-m", "iap_mjx.viz.render_compare", "--reference", str(request),
-             str(result)], env=env, capture_output=True, text=True)
+            [sys.executable, "-m", "iap_mjx.viz.render_compare", "--reference", str(request), str(result)],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         if proc.returncode != 0:
             raise RuntimeError(
                 f"MuJoCo's renderer failed with MUJOCO_GL={GL_BACKEND} (is libosmesa6 "
-                f"installed?):\n{proc.stderr[-2000:]}")
+                f"installed?):\n{proc.stderr[-2000:]}"
+            )
         with np.load(result) as out:
             return {k: out[k] for k in out.files}
 
@@ -188,7 +200,7 @@ def side_by_side(out: Path, size: int = 100, seed: int = 0, camera_id: int = 0) 
 
     fig, axes = plt.subplots(2, len(TASKS), figsize=(2.2 * len(TASKS), 4.6))
     for col, (domain, task) in enumerate(TASKS):
-        (model, data), = suite_states(domain, task, 1, seed)
+        ((model, data),) = suite_states(domain, task, 1, seed)
         cam = Camera(model, camera_id=camera_id, height=size, width=size)
         ours, _ = jax.jit(cam.render)(mjx.put_data(model, data))
         ref = reference_frames(domain, [(model, data)], [camera_id], size, size)

@@ -31,7 +31,7 @@ STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state en
 def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
     """The newest RGB frame ``(H, W, 3)`` of a (frame-stacked) pixel observation."""
     pixels = obs["pixels"] if isinstance(obs, dict) else obs
-    return pixels[..., pixels.shape[-1] - channels_per_frame:][..., :3]
+    return pixels[..., pixels.shape[-1] - channels_per_frame :][..., :3]
 
 
 def has_pixels(env: Any) -> bool:
@@ -45,10 +45,10 @@ def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
     from iap_mjx.render import Camera
 
     if env.mj_model.ncam == 0:
-        raise ValueError(f"{getattr(env, 'name', env)!r} observes the state and its model has no camera "
-                         "to render a video from")
-    return Camera(env.mj_model, camera_id=int(getattr(env, "video_camera_id", 0)), height=size[0],
-                  width=size[1])
+        raise ValueError(
+            f"{getattr(env, 'name', env)!r} observes the state and its model has no camera to render a video from"
+        )
+    return Camera(env.mj_model, camera_id=int(getattr(env, "video_camera_id", 0)), height=size[0], width=size[1])
 
 
 def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any], dict] | None = None) -> Any:
@@ -105,8 +105,9 @@ def compile_episode_program(env: Any, policy: Any, *, steps: int, obs_stats: Any
     return episode_program(env, policy, steps=steps).lower(params, stats, jax.random.PRNGKey(0)).compile()
 
 
-def record_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int,
-                   obs_stats: Any = None, program: Any = None) -> dict[str, np.ndarray]:
+def record_episode(
+    env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int, obs_stats: Any = None, program: Any = None
+) -> dict[str, np.ndarray]:
     """Rolls one episode of ``steps`` control steps and records what a video needs.
 
     Args:
@@ -125,8 +126,15 @@ def record_episode(env: Any, policy: Any, params: Any, key: jax.Array, *, steps:
     return jax.tree_util.tree_map(np.asarray, program(params, obs_stats, key))
 
 
-def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_return: float,
-             *, scale: int = 3, step: int | None = None) -> np.ndarray:
+def annotate(
+    frame: np.ndarray,
+    indices: np.ndarray | None,
+    layer: Any,
+    episode_return: float,
+    *,
+    scale: int = 3,
+    step: int | None = None,
+) -> np.ndarray:
     """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text.
 
     Each selected patch is outlined in red; one drawn smaller than ``MARK_BELOW`` pixels (a 2x2
@@ -146,14 +154,12 @@ def annotate(frame: np.ndarray, indices: np.ndarray | None, layer: Any, episode_
         _, cols = layer.grid
         for index in indices:
             top, left = (int(index) // cols) * stride * scale, (int(index) % cols) * stride * scale
-            draw.rectangle([left, 16 + top, left + patch * scale - 1, 16 + top + patch * scale - 1],
-                           outline=RED)
+            draw.rectangle([left, 16 + top, left + patch * scale - 1, 16 + top + patch * scale - 1], outline=RED)
             if patch * scale < MARK_BELOW:
                 x, y = left + patch * scale / 2, 16 + top + patch * scale / 2
                 halo = MARK_RADIUS + 2
                 draw.ellipse([x - halo, y - halo, x + halo, y + halo], outline=WHITE, width=2)
-                draw.ellipse([x - MARK_RADIUS, y - MARK_RADIUS, x + MARK_RADIUS, y + MARK_RADIUS],
-                             outline=RED, width=2)
+                draw.ellipse([x - MARK_RADIUS, y - MARK_RADIUS, x + MARK_RADIUS, y + MARK_RADIUS], outline=RED, width=2)
     caption = f"return {episode_return:8.2f}" if step is None else f"step {step}   return {episode_return:.2f}"
     draw.text((2, 2), caption, fill=(255, 255, 255))
     return np.asarray(canvas)
@@ -182,9 +188,18 @@ def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) ->
     return path
 
 
-def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array,
-                  steps: int, obs_stats: Any = None, program: Any = None,
-                  fps: int | None = None) -> tuple[Path, float]:
+def episode_video(
+    env: Any,
+    policy: Any,
+    params: Any,
+    path: str | Path,
+    *,
+    key: jax.Array,
+    steps: int,
+    obs_stats: Any = None,
+    program: Any = None,
+    fps: int | None = None,
+) -> tuple[Path, float]:
     """Runs one episode (:func:`record_episode`) and writes its annotated video. Returns
     ``(path, episode return)``."""
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
@@ -192,8 +207,10 @@ def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: 
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
     scale = 3 if has_pixels(env) else 1
-    frames = [annotate(frame, None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
-              for t, frame in enumerate(record["frames"])]
+    frames = [
+        annotate(frame, None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
+        for t, frame in enumerate(record["frames"])
+    ]
     if fps is None:  # a state env's video in real time (the quadruped's 0.02 s steps: 50 fps)
         timestep = None if has_pixels(env) else getattr(env, "control_timestep", None)
         repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
@@ -201,9 +218,20 @@ def episode_video(env: Any, policy: Any, params: Any, path: str | Path, *, key: 
     return write_video(path, frames, fps=fps), float(returns[-1])
 
 
-def episode_strip(env: Any, policy: Any, params: Any, path: str | Path, *, key: jax.Array, steps: int,
-                  frames: int = 6, columns: int = 3, obs_stats: Any = None, program: Any = None,
-                  scale: int = 2) -> tuple[Path, float]:
+def episode_strip(
+    env: Any,
+    policy: Any,
+    params: Any,
+    path: str | Path,
+    *,
+    key: jax.Array,
+    steps: int,
+    frames: int = 6,
+    columns: int = 3,
+    obs_stats: Any = None,
+    program: Any = None,
+    scale: int = 2,
+) -> tuple[Path, float]:
     """Runs one episode (:func:`record_episode`) and writes ``frames`` of it, evenly spaced from
     the first step to the last, annotated as the video's (:func:`annotate`, the step in the
     caption) and tiled ``columns`` to a row, as a PNG. Returns ``(path, episode return)``."""
@@ -216,13 +244,24 @@ def episode_strip(env: Any, policy: Any, params: Any, path: str | Path, *, key: 
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
     picks = np.unique(np.linspace(0, steps - 1, frames).round().astype(int))
-    tiles = [annotate(record["frames"][t], None if indices is None else indices[t], layer,
-                      float(returns[t]), scale=scale, step=int(t)) for t in picks]
-    rows = [tiles[i:i + columns] for i in range(0, len(tiles), columns)]
+    tiles = [
+        annotate(
+            record["frames"][t],
+            None if indices is None else indices[t],
+            layer,
+            float(returns[t]),
+            scale=scale,
+            step=int(t),
+        )
+        for t in picks
+    ]
+    rows = [tiles[i : i + columns] for i in range(0, len(tiles), columns)]
     blank = np.zeros_like(tiles[0])
     gap = np.full((tiles[0].shape[0], 4, 3), 255, np.uint8)
-    lines = [np.concatenate([part for tile in row + [blank] * (columns - len(row)) for part in (tile, gap)][:-1], axis=1)
-             for row in rows]
+    lines = [
+        np.concatenate([part for tile in row + [blank] * (columns - len(row)) for part in (tile, gap)][:-1], axis=1)
+        for row in rows
+    ]
     rule = np.full((4, lines[0].shape[1], 3), 255, np.uint8)
     image = np.concatenate([part for line in lines for part in (line, rule)][:-1], axis=0)
     path = Path(path)
