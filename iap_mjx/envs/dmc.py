@@ -99,7 +99,7 @@ def serial_lapack_batch(nv: int) -> int | None:
     them. XLA:CPU runs a program's thunks on that same pool, so when every pool thread is
     blocked in such a call at once (one per device, when a ``shard_map`` runs the same program
     on as many devices as there are pool threads), nobody runs the tasks: XLA:CPU deadlocks,
-    every thread parked on a futex (seen here at 128 quadruped envs per device on 2 devices).
+    every thread parked on a futex (for example 128 quadruped envs per device on 2 devices).
     The Cholesky dominates MJX's other LAPACK call (``cho_solve``'s triangular solves, ``nv**2``
     flops per env). jaxlib removed the split from open-source builds after 0.11.0
     (jax commit 859992407d, "Don't try to parallelize LAPACK kernels in opensource builds").

@@ -24,7 +24,7 @@ difference is at most a texel's blur).
 
 Everything here works on planes ``(H, W)`` with an optional leading axis of images, so the
 camera can call it on a chunk of images at once: the texture read is then one gather from
-a stack of textures, one row per image (a batched gather is slower on CPU).
+a stack of textures, one row per image, which XLA:CPU runs faster than a batched gather.
 """
 
 from __future__ import annotations
