@@ -45,19 +45,13 @@ from mujoco import mjx  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import report  # noqa: E402
 
+from iap_mjx.configs import distraction  # noqa: E402
 from iap_mjx.render import Camera  # noqa: E402
 from iap_mjx.viz import render_compare  # noqa: E402
 
 SECTION = "camera"
 DISTRACTION_SECTION = "camera-distraction"
-DISTRACTION_TASKS = (
-    "cheetah-run",
-    "walker-walk",
-    "cartpole-swingup",
-    "ball_in_cup-catch",
-    "reacher-easy",
-    "finger-spin",
-)
+DISTRACTION_TASKS = distraction.TASKS
 RESOLUTIONS = ((64, 64), (100, 100), (240, 320))
 BATCHES = (1, 64, 256)
 TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy")

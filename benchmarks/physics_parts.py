@@ -21,9 +21,10 @@ from jax.sharding import Mesh
 from mujoco import rollout as native_rollout
 
 from iap_mjx import envs
+from iap_mjx.configs import distraction
 from iap_mjx.envs import batch
 
-TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
+TASKS = distraction.TASKS
 QUADRUPED_TASKS = ("quadruped-flat", "quadruped-walls")
 
 

@@ -23,16 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
+from iap_mjx.configs import distraction
+
 logger = logging.getLogger(__name__)
 
-TASKS = (
-    ("cheetah", "run"),
-    ("walker", "walk"),
-    ("cartpole", "swingup"),
-    ("ball_in_cup", "catch"),
-    ("reacher", "easy"),
-    ("finger", "spin"),
-)
+# dm_control's (domain, task) names of the suite's six tasks.
+TASKS = tuple(tuple(name.split("-")) for name in distraction.TASKS)
 GL_BACKEND = os.environ.get("IAP_MJX_REFERENCE_GL", "osmesa")
 
 
