@@ -1,7 +1,7 @@
 """``iap-mjx reproduce fig10``: runs that cannot show selected patches fail before anything
 compiles; each run's strip is the camera scaled up with the high level's patches in red, named by
 its patch size and stride, and the section shows both. The episode itself is
-``viz.video.run_episode``'s (tested in test_video.py; the quadruped's compiles for minutes), so
+``viz.video.record_episode``'s (tested in test_video.py; the quadruped's compiles for minutes), so
 here it is a hand-made record drawn by the real strip code."""
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def episodes(monkeypatch):
         config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
         return types.SimpleNamespace(config=config, params="params", obs_stats=None)
 
-    def run_episode(env, policy, params, key, *, steps, obs_stats=None, program=None):
+    def record_episode(env, policy, params, key, *, steps, obs_stats=None, program=None):
         assert params == "params" and steps == STEPS
         keys.append(np.asarray(key).tolist())
         small = policy.layer.config.patch_size == 1
@@ -54,7 +54,7 @@ def episodes(monkeypatch):
     from iap_mjx import es
 
     monkeypatch.setattr(es, "load_run", load_run)
-    monkeypatch.setattr(video, "run_episode", run_episode)
+    monkeypatch.setattr(video, "record_episode", record_episode)
     return keys
 
 
