@@ -104,7 +104,7 @@ def reproduce_fig10(
             )
         )
         logger.info("fig10: %s, return %.2f", path, episode_return)
-    links = [path if results is None else image_link(path, Path(results)) for path, _ in parts]
+    links = [path if results is None else image_link(path, Path(results), "fig10") for path, _ in parts]
     markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link})" for (path, caption), link in zip(parts, links))
     if results is not None:
         write_results(Path(results), markdown, run_dirs=tuple(checked), frames=frames, out_dir=out_dir)

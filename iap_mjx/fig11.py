@@ -268,6 +268,6 @@ def write_results(
         f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
         f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
         f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
-        f"the mean ± std over seeds of the per-seed means.\n\n![fig11]({image_link(png, path)})\n\n{markdown}\n"
+        f"the mean ± std over seeds of the per-seed means.\n\n![fig11]({image_link(png, path, 'fig11')})\n\n{markdown}\n"
     )
     write_section(path, "fig11", body, title="# Results")

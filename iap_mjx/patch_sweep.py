@@ -235,7 +235,7 @@ def write_results(
             f"--results {path.name}",
         ]
     )
-    image = image_link(png, path)
+    image = image_link(png, path, "fig7")
     body = (
         f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
         f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "

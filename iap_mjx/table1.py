@@ -217,7 +217,7 @@ def write_results(
             f"--results {path.name}",
         ]
     )
-    image = image_link(png, path)
+    image = image_link(png, path, name)
     if policy == "iap":
         title = (
             "## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "

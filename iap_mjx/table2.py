@@ -255,6 +255,6 @@ def write_results(
         f"One seed (seed {seed}) per setting, the same budget. Max episode return: the largest `return_max` "
         "of the run's metrics (each iteration's best population member), over the iterations trained; "
         "beside it the largest `eval_return` (the centre's mean over its evaluation episodes). L: patches "
-        f"on the course's camera.\n\n![table2]({image_link(png, path)})\n\n{markdown}\n"
+        f"on the course's camera.\n\n![table2]({image_link(png, path, 'table2')})\n\n{markdown}\n"
     )
     write_section(path, "table2", body, title="# Results")

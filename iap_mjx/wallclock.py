@@ -238,7 +238,7 @@ def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str,
     from iap_mjx.viz.sections import image_link, write_section
 
     command_line = " ".join(["iap-mjx reproduce fig8", *overrides, f"--out {png.parent}", f"--results {path.name}"])
-    image = image_link(png, path)
+    image = image_link(png, path, "fig8")
     body = (
         f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
         f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "

@@ -107,7 +107,7 @@ def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episo
     assert markdown.splitlines()[0] == (
         f"Patch size 1, stride 1 (L = 768 patches, top 10 selected): `{small}`, episode return 10.00."
     )
-    assert "![fig10-p4-s4](fig10-p4-s4.png)" in markdown and "(L = 48 patches" in markdown
+    assert "![fig10-p4-s4](experiments/fig10/fig10-p4-s4.png)" in markdown and "(L = 48 patches" in markdown
     text = results.read_text()
     assert "<!-- BEGIN fig10 -->" in text and markdown in text
     assert f"`iap-mjx reproduce fig10 --run-dirs {small},{large} --frames 3" in text

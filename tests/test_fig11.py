@@ -129,7 +129,7 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
         "its seed-std above blind's mean plus its seed-std, 0.50): met.",
     ]
     text = results.read_text()
-    assert "old" not in text and "kept" in text and markdown in text and "![fig11](fig11.png)" in text
+    assert "old" not in text and "kept" in text and markdown in text and "![fig11](experiments/fig11/fig11.png)" in text
     assert "`iap-mjx reproduce fig11 run.iterations=3 --seeds 2 --episodes 4" in text
     stored = json.loads((tmp_path / "fig11.json").read_text())
     assert stored["parameters"] == {"IAP": 873, "CNN": 7269, "blind": 873}

@@ -94,8 +94,10 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
         results=results,
     )
     text = results.read_text()
-    assert "old" not in text and "kept" in text and row in text and "![table1](table1.png)" in text
+    assert "old" not in text and "kept" in text and row in text and "![table1](experiments/table1/table1.png)" in text
     assert "`iap-mjx reproduce table1 run.iterations=3 --seeds 2 --episodes 4" in text
+    published = tmp_path / "experiments" / "table1" / "table1.png"  # tracked, unlike the output folder
+    assert published.read_bytes() == (tmp_path / "table1.png").read_bytes()
     assert json.loads((tmp_path / "table1.json").read_text())[0]["conditions"]["none"] == [210.0] * 4
 
 

@@ -116,7 +116,7 @@ def test_table_reports_maximum_returns_patches_and_commands(tmp_path, capsys):
         "patch size 1, stride 1 (L = 768, max return 12.0)."
     )
     text = results.read_text()
-    assert "<!-- BEGIN table2 -->" in text and markdown in text and "![table2](table2.png)" in text
+    assert "<!-- BEGIN table2 -->" in text and markdown in text and "![table2](experiments/table2/table2.png)" in text
     assert f"`iap-mjx reproduce table2 run.iterations=3 --settings 1x1,2x2,4x4,4x2 --seed 0 --out {tmp_path}" in text
     stored = json.loads((tmp_path / "table2.json").read_text())
     assert [row["population_max"] for row in stored][3] == [1.0, 20.0, 3.0]

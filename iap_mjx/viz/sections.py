@@ -4,18 +4,25 @@ and the cells their tables share."""
 from __future__ import annotations
 
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
 
 
-def image_link(image: Path, markdown: Path) -> Path:
-    """``image`` as a markdown file at ``markdown`` links it: relative to that file's folder
-    where it lies below it, else as given."""
-    try:
-        return image.resolve().relative_to(markdown.resolve().parent)
-    except ValueError:
-        return image
+def image_link(image: Path, markdown: Path, section: str) -> Path:
+    """Copies ``image`` to ``<markdown's folder>/experiments/<section>/`` and returns its link
+    relative to ``markdown``.
+
+    Runs write their figures into an output folder that git ignores (``results/``); the copy
+    puts the figure a committed markdown file shows in a tracked folder beside it.
+    """
+    folder = Path(markdown).resolve().parent
+    target = folder / "experiments" / section / Path(image).name
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if Path(image).resolve() != target:
+        shutil.copyfile(image, target)
+    return target.relative_to(folder)
 
 
 def mean_std(values: list[float], digits: int = 1) -> str:
