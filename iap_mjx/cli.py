@@ -304,6 +304,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # Every run saved a checkpoint of its last finished iteration; rerunning resumes them.
+        print(
+            "\ninterrupted; the same command resumes: finished runs are skipped, the others "
+            "continue from their last checkpoint",
+            file=sys.stderr,
+        )
+        return 130
     print(markdown)
     return 0
 

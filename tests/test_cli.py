@@ -78,6 +78,19 @@ def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):
     assert f"--run-dir {tmp_path}" in capsys.readouterr().err
 
 
+def test_interrupted_reproduce_exits_130_saying_how_to_resume(monkeypatch, tmp_path, capsys):
+    from iap_mjx import table1
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(table1, "reproduce_table1", interrupted)
+    code = cli.main(["reproduce", "table1", "--out", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 130 and captured.out == ""
+    assert "the same command resumes" in captured.err
+
+
 def test_show_prints_the_resolved_config_of_a_preset_and_of_a_run(tmp_path, capsys):
     overrides = ["es.population_size=8", "env.height=64", "env.width=64"]
     assert cli.main(["show", "walker-walk-pixels", *overrides]) == 0
