@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Every paper experiment of RESULTS.md, in the order they were run on the 2-core development
+# machine: one heavy run at a time, each `iap-mjx reproduce` resumable (finished runs are skipped,
+# the others continue from their last checkpoint), so rerunning this script after an interrupt
+# loses at most the iterations since the last checkpoint.
+#
+#   bash experiments/reproduce-all.sh            # from the repository's root, in its venv
+#
+# Settings (environment variables):
+#   OUT      where the runs go (default results/; git ignores it)
+#   EXPORT   the tracked folder that receives trained checkpoints (default pretrained/)
+#   NICE     niceness of every run (default 10)
+#
+# Figure 8 measures each method's seconds per iteration before it trains (once, stored in
+# $OUT/fig8/timings.json): leave the machine alone while it does (about 15 minutes).
+set -uo pipefail
+OUT=${OUT:-results}
+EXPORT=${EXPORT:-pretrained}
+NICE=${NICE:-10}
+run() {
+    echo "== $(date -u '+%F %T') iap-mjx $*"
+    nice -n "$NICE" iap-mjx "$@"
+    echo "== $(date -u '+%F %T') exit $?"
+}
+T1="reproduce table1 --seeds 3 --episodes 20 --out $OUT/table1 --export $EXPORT/dcs"
+run $T1 --tasks cartpole-swingup,cheetah-run,reacher-easy,ball_in_cup-catch,walker-walk
+run $T1 --policy cnn --tasks cartpole-swingup,cheetah-run
+# finger-spin last: its seed 0 shows no learning signal from pixels (RESULTS.md, table1-analysis)
+run $T1 --tasks finger-spin
+run reproduce fig7 run.iterations=30 --out "$OUT/fig7"
+run reproduce fig8 run.iterations=30 --out "$OUT/fig8"
+run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
+run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/table2"
+run reproduce fig10 --out "$OUT/table2"
