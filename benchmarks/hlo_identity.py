@@ -8,7 +8,8 @@ What is hashed (SHA-256, one JSON entry each):
   as the rollout batches it) for the brute, ReLU and hybrid (10,5) kernels at 100x100 with 4x4
   patches and at 240x320 with 2x2 patches; lowered only, never compiled or run.
 - ``lowered/training/<preset>``: the whole ES training call of ``cheetah-run-pixels`` and
-  ``dcs-cartpole-swingup`` (``iap_mjx.es.train.make_train_call``, lowered as ``train`` lowers it,
+  ``dcs-cartpole-swingup`` (``make_train_call`` of ``iap_mjx.es.iteration``, or of
+  ``iap_mjx.es.train`` in a base commit from before its split, lowered as ``train`` lowers it,
   on the devices the CLI makes: one per core); ``--presets`` names others.
 - ``lowered/camera/<task>/<case>``: ``iap_mjx.render.Camera`` programs, ``jax.jit(jax.vmap(...))``
   over a batch of 8 states (``-single``: one state, no ``vmap``): ``render``, ``render_ids`` and
@@ -48,6 +49,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib
+import importlib.util
 import json
 import os
 import re
@@ -264,6 +266,18 @@ def camera_output_hashes() -> dict[str, str]:
     return hashes
 
 
+def training_functions():
+    """``(build, init_state, make_train_call)`` of the ``iap_mjx`` imported: in
+    ``iap_mjx.es.components`` and ``iap_mjx.es.iteration``, or, in a base commit from before
+    ``iap_mjx/es/train.py`` was split (issue 27), in that module."""
+    if importlib.util.find_spec("iap_mjx.es.components") is None:
+        train = importlib.import_module("iap_mjx.es.train")  # the module (``iap_mjx.es.train`` is also a function)
+        return train.build, train.init_state, train.make_train_call
+    components = importlib.import_module("iap_mjx.es.components")
+    iteration = importlib.import_module("iap_mjx.es.iteration")
+    return components.build, components.init_state, iteration.make_train_call
+
+
 def training_programs(presets=PRESETS):
     """``(name, Lowered)`` of each preset's training call, lowered as ``train`` lowers it."""
     import jax
@@ -271,13 +285,12 @@ def training_programs(presets=PRESETS):
 
     from iap_mjx import configs
 
-    train = importlib.import_module("iap_mjx.es.train")  # the module (``iap_mjx.es.train`` is also a function)
-
+    build, init_state, make_train_call = training_functions()
     for preset in presets:
         config = configs.get(preset)
-        parts = train.build(config)
-        state = train.init_state(parts)
-        call = train.make_train_call(parts, config.run.iterations_per_call)
+        parts = build(config)
+        state = init_state(parts)
+        call = make_train_call(parts, config.run.iterations_per_call)
         replicated = NamedSharding(parts.mesh, PartitionSpec())
         yield f"training/{preset}", jax.jit(call, out_shardings=replicated).lower(state)
 

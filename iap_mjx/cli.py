@@ -3,6 +3,10 @@
 One small function per command; ``build_parser`` wires them to ``argparse`` subparsers, so a
 new command is a new ``add_parser`` call and a function. JAX is imported only inside the
 commands, after ``main`` has split the CPU into devices and turned on the compilation cache.
+
+It is one module at over 400 lines because the command line is one ``argparse`` tree: most of
+the length is ``build_parser`` (half of it ``reproduce``'s options) and one short function per
+command, the longest of which (``cmd_reproduce``) only hands each figure to its own module.
 """
 
 from __future__ import annotations

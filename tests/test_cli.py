@@ -3,13 +3,13 @@ end is ``tests/test_first_run.py`` (the README's command, then ``iap-mjx eval`` 
 
 from __future__ import annotations
 
-import importlib
 import json
 from pathlib import Path
 
 import pytest
 
 from iap_mjx import cli, configs, envs
+from iap_mjx.es import runs
 
 CACHE = Path(__file__).resolve().parent.parent / ".jax_cache"
 
@@ -128,9 +128,8 @@ def test_show_fails_naming_the_problem(argv, message, tmp_path, capsys):
 def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     """``iap-mjx eval RUN env.k=v``: the run's config with the condition's env settings (the
     rest of the env, the policy and the ES as trained), validated before anything is built."""
-    train_module = importlib.import_module("iap_mjx.es.train")  # the module, not es.train()
     stored = configs.get("dcs-cartpole-swingup-quick").to_dict()
-    monkeypatch.setattr(train_module.checkpoint, "load_config", lambda run_dir: stored)
+    monkeypatch.setattr(runs.checkpoint, "load_config", lambda run_dir: stored)
     built = []
 
     class Built(Exception):
@@ -140,9 +139,9 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
         built.append(config)
         raise Built
 
-    monkeypatch.setattr(train_module, "build", build)
+    monkeypatch.setattr(runs, "build", build)
     with pytest.raises(Built):
-        train_module.evaluate_run("run", episodes=3, overrides=("env.background_videos=val", "env.dynamic=true"))
+        runs.evaluate_run("run", episodes=3, overrides=("env.background_videos=val", "env.dynamic=true"))
     (config,) = built
     trained = configs.TrainConfig.from_dict(stored)
     env = dict(config.env.overrides)
@@ -151,12 +150,12 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     assert unchanged(env.items()) == unchanged(trained.env.overrides) and len(unchanged(env.items())) >= 8
     assert config.policy == trained.policy and config.es == trained.es and config.run.eval_episodes == 3
     with pytest.raises(Built):
-        train_module.evaluate_run("run", overrides=("env.distraction=none",))
+        runs.evaluate_run("run", overrides=("env.distraction=none",))
     assert envs.check(built[-1].env.name, **dict(built[-1].env.overrides)).distraction_config() is None
     with pytest.raises(ValueError, match="env only"):
-        train_module.evaluate_run("run", overrides=("es.sigma=0.1",))
+        runs.evaluate_run("run", overrides=("es.sigma=0.1",))
     with pytest.raises(ValueError, match="background_videos = 'test': valid train, val"):
-        train_module.evaluate_run("run", overrides=("env.background_videos=test",))
+        runs.evaluate_run("run", overrides=("env.background_videos=test",))
     assert len(built) == 2
 
 

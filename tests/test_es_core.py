@@ -11,9 +11,9 @@ import pytest
 import scipy.stats
 
 from iap_mjx.configs import ESConfig, training
+from iap_mjx.es.components import make_optimizer
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks, identity, z_scores
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, antithetic_noise
-from iap_mjx.es.train import make_optimizer
 
 
 def test_centred_ranks_match_scipy_ordinal_ranks():

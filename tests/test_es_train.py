@@ -22,7 +22,7 @@ from test_es_envs import PointMass
 
 from iap_mjx.configs import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 from iap_mjx.es import train
-from iap_mjx.es.train import evaluate_run
+from iap_mjx.es.runs import evaluate_run
 
 TESTS = Path(__file__).resolve().parent
 
@@ -252,7 +252,7 @@ def test_a_chunk_size_that_would_deadlock_xla_is_refused_before_compiling():
     import jaxlib.version
 
     from iap_mjx import envs
-    from iap_mjx.es.train import build
+    from iap_mjx.es.components import build
 
     env = envs.make("cheetah-run")
     limit = env.max_chunk_size

@@ -18,6 +18,12 @@ Bad states: after every env step, an env whose ``qpos``/``qvel`` are not finite 
 ``metrics["nan_terminations"]`` becomes 1. ``done`` is sticky: a done env's ``step`` returns
 the same ``data`` and reward 0, so a batch can run to a fixed horizon with a done mask and
 one bad env never touches another's numbers.
+
+It is one module at over 400 lines because most of it is one class, ``DmControlEnv``, that
+every task subclasses: building the model, the env protocol, the task hooks with their
+defaults and the bad-state and contact bookkeeping of ``step``, each method short. The rest is
+what the class and its tasks use: the physics stages, the batch limit of jaxlib's CPU LAPACK
+(``serial_lapack_batch``) and the port of dm_control's joint randomiser.
 """
 
 from __future__ import annotations

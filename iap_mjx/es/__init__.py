@@ -4,9 +4,11 @@
 :mod:`iap_mjx.configs`). ``OpenES`` and ``EvosaxStrategy`` are the strategies.
 """
 
+from iap_mjx.es.components import TrainState, build
+from iap_mjx.es.runs import TrainResult, evaluate_run, evaluate_run_episodes, load_run
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
-from iap_mjx.es.train import TrainResult, TrainState, build, evaluate_run, evaluate_run_episodes, load_run, train
+from iap_mjx.es.train import train
 
 __all__ = [
     "EvosaxStrategy",

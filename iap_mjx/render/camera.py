@@ -12,6 +12,11 @@ checks on their inputs, and how a batch is run. An image is made in two passes:
 Under ``vmap`` the batch is rendered in chunks (``batch_chunk`` images per step of a loop) so
 intermediates stay in cache (``Camera._chunked_over_batch``); each pass's results are
 materialised once (``Camera._trace_and_shade``).
+
+It is one module at over 400 lines because it is one class and what it takes: ``CameraConfig``
+and its checks, ``Camera``'s public methods, the checks of their inputs, and the one program
+that joins the two passes and batches them; the passes themselves are in ``tracing.py`` and
+``shading.py``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,117 @@
+"""One ES iteration as a pure function ``state -> (state, metrics)``, the training call that
+fuses several, and the evaluation of the centre alone.
+
+One iteration, all inside one ``jit``: ``ask`` (perturb the centre) -> evaluate every member on
+``n_episodes`` episodes, and the centre itself on ``run.eval_episodes`` episodes of separate
+seeds, in the same batch (:mod:`iap_mjx.es.rollout`; one rollout program to compile) ->
+``tell`` (shape, estimate, update) -> merge the observation statistics.
+``run.iterations_per_call`` iterations are fused by a ``lax.scan``
+(:func:`make_train_call`). Each iteration's keys are ``fold_in(stream key, iteration)``, so a
+resumed run continues bit for bit; the centre's evaluation seeds come from the evaluation
+stream (``components.EVAL_STREAM``) the same way here and in :func:`make_centre_evaluation`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+
+from iap_mjx.es.components import EVAL_STREAM, TRAIN_STREAM, Components, TrainState
+from iap_mjx.es.normalizer import ObsStats, update_stats
+from iap_mjx.es.strategy import OpenES
+
+
+def _stats_or_none(parts: Components, stats: ObsStats) -> ObsStats | None:
+    return stats if parts.config.es.normalize_observations else None
+
+
+def _eval_keys(state: TrainState, episodes: int | None = None) -> jax.Array:
+    key = jax.random.fold_in(jax.random.fold_in(state.key, EVAL_STREAM), state.iteration)
+    return jax.random.split(key, episodes) if episodes is not None else key
+
+
+def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState, dict]]:
+    """One ES iteration ``state -> (state, metrics)``; metrics are ``()`` scalars.
+
+    ``eval_return``/``eval_return_std`` are the centre's returns at the start of the
+    iteration (the params after ``iteration - 1`` updates) on the evaluation seeds.
+    """
+    es = parts.config.es
+    population_size, n_episodes = es.population_size, es.n_episodes
+    members = population_size * n_episodes
+    eval_episodes = parts.config.run.eval_episodes
+
+    def iteration(state: TrainState):
+        key = jax.random.fold_in(jax.random.fold_in(state.key, TRAIN_STREAM), state.iteration)
+        ask_key, episode_key, tell_key = jax.random.split(key, 3)
+        centre = parts.strategy.mean(state.strategy_state)
+        population, strategy_state = parts.strategy.ask(ask_key, state.strategy_state)
+        flat = jnp.concatenate(
+            [
+                jnp.repeat(population, n_episodes, axis=0),
+                jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
+            ]
+        )
+        keys = jnp.concatenate([jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
+        everything = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
+        result = jax.tree_util.tree_map(lambda x: x[:members], everything)
+        eval_returns = everything.ret[members:]
+        returns = result.ret.reshape(population_size, n_episodes)
+        bad = result.bad.reshape(population_size, n_episodes)
+        fitness = jnp.where(jnp.any(bad > 0, axis=1), jnp.nan, jnp.mean(returns, axis=1))
+        strategy_state = parts.strategy.tell(tell_key, population, fitness, strategy_state)
+        obs_stats = state.obs_stats
+        if es.normalize_observations:
+            obs_stats = update_stats(
+                obs_stats, jnp.sum(result.steps), jnp.sum(result.obs_sum, 0), jnp.sum(result.obs_sq_sum, 0)
+            )
+        finite = jnp.isfinite(fitness)
+        metrics = {
+            "return_mean": jnp.nanmean(fitness),
+            "return_max": jnp.max(jnp.where(finite, fitness, -jnp.inf)),
+            "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
+            "return_std": jnp.nanstd(fitness),
+            "nan_episodes": jnp.sum(bad),
+            "contact_saturated_episodes": jnp.sum(result.saturated),
+            "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
+        }
+        if eval_episodes:
+            metrics["eval_return"] = jnp.mean(eval_returns)
+            metrics["eval_return_std"] = jnp.std(eval_returns)
+        for name, values in result.metrics.items():  # the env's per-episode statistics, if any
+            metrics[f"{name}_mean"] = jnp.mean(values)
+            if eval_episodes:
+                metrics[f"eval_{name}"] = jnp.mean(everything.metrics[name][members:])
+        if isinstance(parts.strategy, OpenES):
+            metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
+        new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
+        return new_state, metrics
+
+    return iteration
+
+
+def make_train_call(parts: Components, count: int):
+    """``count`` fused iterations: ``state -> (state, metrics with a leading (count,) axis)``."""
+    iteration = make_iteration(parts)
+
+    def call(state):
+        return jax.lax.scan(lambda s, _: iteration(s), state, None, length=count)
+
+    return call
+
+
+def make_centre_evaluation(parts: Components, episodes: int, *, with_metrics: bool = False):
+    """``state -> returns (episodes,)`` of the centre params on the evaluation seeds; with
+    ``with_metrics``, ``{"return": (episodes,), name: (episodes,) ...}`` with the env's
+    per-episode statistics (``EpisodeResult.metrics``) too."""
+
+    def evaluate(state: TrainState):
+        keys = jax.random.split(_eval_keys(state), episodes)
+        centre = parts.strategy.mean(state.strategy_state)
+        flat = jnp.broadcast_to(centre, (episodes, centre.shape[0]))
+        result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
+        return {"return": result.ret, **result.metrics} if with_metrics else result.ret
+
+    return evaluate

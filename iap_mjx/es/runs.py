@@ -1,0 +1,150 @@
+"""What a run yields: a :class:`TrainResult` (the centre's params, a policy function ready to
+act, the history), from a finished ``TrainState`` or from a run directory's latest checkpoint,
+and evaluations of a run's checkpointed centre on fresh seeds (``(episodes,)`` returns, and the
+env's per-episode statistics), optionally under changed env settings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import NamedSharding, PartitionSpec
+
+from iap_mjx.configs.overrides import apply_condition, check_condition
+from iap_mjx.configs.training import TrainConfig
+from iap_mjx.es import checkpoint
+from iap_mjx.es.bookkeeping import restore_state
+from iap_mjx.es.components import Components, TrainState, build, init_state
+from iap_mjx.es.episode import observe
+from iap_mjx.es.iteration import make_centre_evaluation
+from iap_mjx.es.metrics_log import read_history
+from iap_mjx.es.normalizer import ObsStats
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What ``train`` returns.
+
+    Attributes:
+      params: the centre's policy params (a pytree), the ones to ship.
+      obs_stats: observation statistics the policy was trained with (``None`` if unused).
+      history: one dict per iteration (the columns of ``metrics.csv``).
+      policy_fn: jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one
+        unbatched observation, with the run's observation normalisation applied.
+      initial_policy_state: ``key -> policy_state`` for one episode.
+      config: the config trained.
+      run_dir: where metrics and checkpoints went (``None`` if nowhere).
+      state: the final ``TrainState``.
+      env, policy: the env and policy the run was built with, for whatever runs the policy
+        next (a video, an evaluation) without building them again.
+    """
+
+    params: Any
+    obs_stats: ObsStats | None
+    history: list[dict[str, Any]]
+    policy_fn: Callable[..., Any]
+    initial_policy_state: Callable[[jax.Array], Any]
+    config: TrainConfig
+    run_dir: Path | None
+    state: TrainState
+    env: Any
+    policy: Any
+
+
+def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
+    """Jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one step."""
+    policy = parts.policy
+
+    @jax.jit
+    def policy_fn(params, obs, policy_state=()):
+        return policy.apply(params, observe(obs_stats, obs), policy_state)
+
+    return policy_fn
+
+
+def result_from_state(parts: Components, state: TrainState, history, run_dir) -> TrainResult:
+    """Packs a ``TrainState`` into a ``TrainResult`` (host copies of params and statistics)."""
+    host = checkpoint.to_host(state)
+    params = parts.unravel(jnp.asarray(parts.strategy.mean(host.strategy_state)))
+    obs_stats = jax.tree_util.tree_map(jnp.asarray, host.obs_stats) if parts.config.es.normalize_observations else None
+    return TrainResult(
+        params=params,
+        obs_stats=obs_stats,
+        history=history,
+        policy_fn=make_policy_fn(parts, obs_stats),
+        initial_policy_state=parts.policy.initial_state,
+        config=parts.config,
+        run_dir=Path(run_dir) if run_dir is not None else None,
+        state=state,
+        env=parts.env,
+        policy=parts.policy,
+    )
+
+
+def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> TrainResult:
+    """A run's latest checkpoint as a :class:`TrainResult` (params, ``policy_fn``, config,
+    history), without training. ``env``/``policy`` as in :func:`iap_mjx.es.train.train`."""
+    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    parts = build(config, env=env, policy=policy)
+    state = restore_state(parts, run_dir, init_state(parts))
+    return result_from_state(parts, state, read_history(run_dir), run_dir)
+
+
+def evaluate_run(
+    run_dir: str | Path,
+    *,
+    episodes: int = 8,
+    seed: int = 12345,
+    overrides: Sequence[str] = (),
+    env: Any = None,
+    policy: Any = None,
+) -> np.ndarray:
+    """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
+    seeds (derived from ``seed``, not the training seeds).
+
+    ``overrides``: ``env.<field>=<value>`` settings that change the evaluation's env from the
+    run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
+    (backgrounds never seen in training); the policy and its parameters are the run's.
+    ``env.distraction=none`` also drops the run's other distraction settings
+    (``configs.overrides.apply_condition``).
+    """
+    return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides, env=env, policy=policy)[
+        "return"
+    ]
+
+
+def evaluate_run_episodes(
+    run_dir: str | Path,
+    *,
+    episodes: int = 8,
+    seed: int = 12345,
+    overrides: Sequence[str] = (),
+    env: Any = None,
+    policy: Any = None,
+) -> dict[str, np.ndarray]:
+    """:func:`evaluate_run` with the env's per-episode statistics: ``{"return": (episodes,),
+    name: (episodes,) ...}`` for each of the env's ``episode_metrics`` (the quadruped course's
+    walls passed, falls, wall contacts, distance; nothing more for other envs)."""
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    check_condition(overrides)
+    config = apply_condition(TrainConfig.from_dict(checkpoint.load_config(run_dir)), overrides)
+    if env is None:
+        from iap_mjx import envs
+
+        envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here
+    config = dataclasses.replace(config, run=dataclasses.replace(config.run, eval_episodes=episodes))
+    parts = build(config, env=env, policy=policy)
+    state = restore_state(parts, run_dir, init_state(parts))
+    state = state.replace(key=jax.random.PRNGKey(seed))
+    # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
+    # device's copy, which would otherwise hold only that device's share of the episodes
+    replicated = NamedSharding(parts.mesh, PartitionSpec())
+    results = jax.jit(make_centre_evaluation(parts, episodes, with_metrics=True), out_shardings=replicated)(state)
+    return checkpoint.to_host(results)
