@@ -4,13 +4,16 @@ dm_control's OpenGL backend, and large constants passed as arguments.
 Each must be decided before the library it concerns starts (the device count before JAX
 initialises its backend, large constants and the GL backend before JAX and dm_control are
 imported), so entry points (the CLI, benchmarks, ``tests/conftest.py``, the notebook) call
-these first. Library code never calls them: importing ``iap_mjx`` changes no global state.
+these first. Library code never calls them: importing ``iap_mjx`` changes no global state
+(:func:`persistent_cache_off` is scoped and undone on exit).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 logger = logging.getLogger(__name__)
@@ -154,3 +157,26 @@ def disable_dm_control_rendering() -> str:
     ``MUJOCO_GL`` is left as it is. Returns the value in force.
     """
     return os.environ.setdefault("MUJOCO_GL", "disable")
+
+
+@contextlib.contextmanager
+def persistent_cache_off() -> Iterator[None]:
+    """Within the block JAX compiles every program and neither reads nor writes the
+    persistent cache; on exit the cache is as it was.
+
+    For timings that report compile seconds (Figure 8's ``measure``): with the cache on, a
+    program compiled by an earlier run loads in a fraction of its compile time, and which
+    variants had been compiled before would decide their reported compile seconds. This is the
+    one scoped change of process state that library code makes, undone on exit.
+    """
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    enabled = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    compilation_cache.reset_cache()  # JAX decides once per process whether the cache is used
+    try:
+        yield
+    finally:
+        jax.config.update("jax_enable_compilation_cache", enabled)
+        compilation_cache.reset_cache()

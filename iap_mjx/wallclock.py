@@ -9,7 +9,7 @@ patch size 8 (``L = 1,200``), where brute force fits, and ReLU and hybrid also a
 
 Wall-clock is honest on a shared machine by construction: the curves' x axis is the
 iteration count times each method's steady-state seconds per iteration (plus its compile
-time), measured by :func:`measure` with every method timed in the same process, one after
+time, with the persistent compilation cache off), measured by :func:`measure` with every method timed in the same process, one after
 another, on a machine left alone (``timings.json``; the command says so and measures once,
 before any training, when the file is missing). Brute force at ``L = 19,200`` is not trained:
 its cost per iteration is projected from the same run's timings, the hybrid ``p = 2``
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from iap_mjx import configs
+from iap_mjx import configs, runtime
 
 logger = logging.getLogger(__name__)
 
@@ -96,8 +96,9 @@ def time_iterations(config: configs.TrainConfig, iterations: int) -> dict[str, f
 def measure(
     checked: dict[tuple[str, int], configs.TrainConfig], *, iterations: int = 3, passes: int = 3
 ) -> dict[str, Any]:
-    """Every variant's seconds per iteration, then brute force's projected cost per
-    iteration at ``p = 2`` from the forward passes of brute force and hybrid at ``p = 2``."""
+    """Every variant's seconds per iteration and compile seconds (each program compiled, none
+    loaded from the persistent cache), then brute force's projected cost per iteration at
+    ``p = 2`` from the forward passes of brute force and hybrid at ``p = 2``."""
     from iap_mjx.reproduce import inference_seconds
 
     if iterations < 2:
@@ -106,10 +107,12 @@ def measure(
         "variants": {},
         "machine": f"{platform.machine()}, {platform.node()}",
         "started": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "compile": "persistent compilation cache off",
     }
-    for kernel, patch in VARIANTS:
-        logger.info("timing %s at patch size %d (%d iterations)", kernel, patch, iterations)
-        timings["variants"][name(kernel, patch)] = time_iterations(checked[kernel, patch], iterations)
+    with runtime.persistent_cache_off():
+        for kernel, patch in VARIANTS:
+            logger.info("timing %s at patch size %d (%d iterations)", kernel, patch, iterations)
+            timings["variants"][name(kernel, patch)] = time_iterations(checked[kernel, patch], iterations)
     hybrid = checked["hybrid", 2]
     brute_pass = inference_seconds(checked["brute", 2], passes=passes)
     hybrid_pass = inference_seconds(hybrid, passes=max(passes, 20))
@@ -243,6 +246,7 @@ def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str,
         f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
         f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "
         f"process on {timings['machine']}, {timings['started']}, one after another with the machine alone "
-        f"(`{TIMINGS_FILE}`); the training runs' own timings are not used.\n\n![fig8]({image})\n\n{markdown}\n"
+        f"(`{TIMINGS_FILE}`; compile seconds with the {timings.get('compile', 'persistent compilation cache on')}); "
+        f"the training runs' own timings are not used.\n\n![fig8]({image})\n\n{markdown}\n"
     )
     write_section(path, "fig8", body, title="# Results")

@@ -9,6 +9,7 @@ them, sizes from 0 to half an entry).
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -118,3 +119,31 @@ def test_the_suites_own_cache_writes_atomically():
     cache = compilation_cache._get_cache(jax.devices()[0].client)
     assert getattr(type(cache), "writes_atomically", False), type(cache)
     assert Path(str(cache.path)).resolve() == Path(__file__).resolve().parent.parent / ".jax_cache"
+
+
+def test_persistent_cache_off_compiles_without_the_cache_and_restores_it(tmp_path):
+    """In a fresh interpreter with the cache on: a program compiled inside
+    ``persistent_cache_off`` writes no entry, one compiled after it does, and the setting is
+    restored."""
+    script = textwrap.dedent(f"""
+        import json
+        from pathlib import Path
+        from iap_mjx import runtime
+        runtime.enable_compilation_cache({str(tmp_path)!r})
+        import jax, jax.numpy as jnp
+        jax.jit(lambda x: x * 2.0)(jnp.ones(3)).block_until_ready()  # the cache is built lazily
+        before = len(list(Path({str(tmp_path)!r}).iterdir()))
+        with runtime.persistent_cache_off():
+            jax.jit(lambda x: jnp.cos(x) - 5.0)(jnp.ones(4)).block_until_ready()
+        inside = len(list(Path({str(tmp_path)!r}).iterdir()))
+        jax.jit(lambda x: jnp.tanh(x) + 7.0)(jnp.ones(6)).block_until_ready()
+        after = len(list(Path({str(tmp_path)!r}).iterdir()))
+        print(json.dumps({{"before": before, "inside": inside, "after": after,
+                           "enabled": bool(jax.config.jax_enable_compilation_cache)}}))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    counts = json.loads(done.stdout.splitlines()[-1])
+    assert counts["before"] >= 1, counts
+    assert counts["inside"] == counts["before"], counts
+    assert counts["after"] > counts["inside"], counts
+    assert counts["enabled"], counts
