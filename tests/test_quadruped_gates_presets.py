@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -47,6 +48,10 @@ def test_presets_are_the_hierarchy_over_depth():
     assert iap.high.attention.kernel == "relu" and iap.high.image_shape == (24, 32, 1)
     assert not iap.blind and blind.blind and blind.high == iap.high  # the same high level, eyes shut
     assert iap.duration_range == (10, 50) and iap.latent_size == 4
+    # 617 parameters: the walls course's 873 less W_Q and W_K's rows for two of three channels
+    # (4x4 patches of 1 channel, not 3: 2 x 32 x 4 = 256 fewer)
+    for policy in (iap, blind):
+        assert sum(policy.level_param_counts(policy.init(jax.random.PRNGKey(0))).values()) == 617
     # the walls presets' ES and budget, so that the courses compare
     walls = configs.get("quadruped-walls-iap")
     for name in PRESETS:
