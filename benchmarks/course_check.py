@@ -1,4 +1,5 @@
-"""Does the course need vision? A walker that goes straight, on many ``quadruped-walls`` episodes.
+"""Does the course need vision? A walker that goes straight, on many ``quadruped-walls`` (or
+``quadruped-gates``) episodes.
 
 The walker is the PMTG low level with a constant latent (it sees the IMU and joint angles, never
 the walls): by default the policy's initial params (the TG's trot at ``initial_tg``, zero
@@ -8,15 +9,17 @@ episodes of the course (each with its own wall placement), through the ES's own 
 (``iap_mjx.es.rollout``), and reports per-episode course statistics (the env's
 ``episode_metrics``): the fraction that pass every wall, touch a wall, fall off the platform,
 and the mean walls passed and distance. If the straight walker passes most episodes, the
-course does not need eyes.
+course does not need eyes. ``--env quadruped-gates`` runs the gates corridor instead and
+reports its statistics (gates passed, obstacle contacts, leaving the corridor, falls).
 
     python benchmarks/course_check.py --episodes 64
     python benchmarks/course_check.py --episodes 64 --low-level runs/flat0 --section course-check
+    python benchmarks/course_check.py --env quadruped-gates --episodes 32 --section course-check-gates
     python benchmarks/course_check.py --low-level runs/flat0 --export-low-level low.npz
         # the run's weights with its observation normalisation folded in, for
         # policy.low_level_init=low.npz of the quadruped-walls-* presets
 
-``key=value`` arguments set ``quadruped-walls`` env settings (e.g. ``n_walls=3``).
+``key=value`` arguments set the env's settings (e.g. ``n_walls=3``, ``n_gates=3``).
 """
 
 from __future__ import annotations
@@ -44,12 +47,16 @@ from iap_mjx import configs, es  # noqa: E402
 from iap_mjx.configs.overrides import parse_value  # noqa: E402
 from iap_mjx.policies.hierarchical import fold_normalisation  # noqa: E402
 
+COURSES = ("quadruped-walls", "quadruped-gates")
 
-def walker(low_level: str | None, env_overrides: tuple) -> tuple[configs.TrainConfig, object, object]:
-    """``(config, params, obs_stats)`` of the straight walker on the course."""
+
+def walker(
+    low_level: str | None, env_overrides: tuple, env_name: str = "quadruped-walls"
+) -> tuple[configs.TrainConfig, object, object]:
+    """``(config, params, obs_stats)`` of the straight walker on the course ``env_name``."""
     if low_level is None:
         config = configs.TrainConfig(
-            env=configs.EnvSpec("quadruped-walls", env_overrides),
+            env=configs.EnvSpec(env_name, env_overrides),
             policy=configs.PolicySpec("pmtg"),
             es=configs.ESConfig(population_size=2, normalize_observations=False),
             run=configs.RunConfig(eval_episodes=0),
@@ -61,15 +68,15 @@ def walker(low_level: str | None, env_overrides: tuple) -> tuple[configs.TrainCo
         raise SystemExit(f"{low_level} trained a {trained.config.policy.kind!r} policy; a pmtg one is needed")
     config = dataclasses.replace(
         trained.config,
-        env=configs.EnvSpec("quadruped-walls", env_overrides),
+        env=configs.EnvSpec(env_name, env_overrides),
         run=dataclasses.replace(trained.config.run, eval_episodes=0),
     )
     return config, trained.params, trained.obs_stats
 
 
 def run(config: configs.TrainConfig, params, obs_stats, episodes: int, seed: int) -> dict[str, np.ndarray]:
-    """Per-episode ``{"return", "steps", "walls_passed", "fell_off", "wall_contacts", "distance"}``
-    and the env."""
+    """Per-episode ``{"return", "steps", "saturated"}`` and the env's ``episode_metrics`` (e.g.
+    ``walls_passed``, ``fell_off``, ``wall_contacts``, ``distance``), and the env."""
     chunk = min(32, episodes)
     config = dataclasses.replace(config, run=dataclasses.replace(config.run, chunk_size=chunk))
     parts = es.build(config)
@@ -78,11 +85,13 @@ def run(config: configs.TrainConfig, params, obs_stats, episodes: int, seed: int
     keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
     result = jax.jit(parts.evaluate)(population, keys, obs_stats)
     host = jax.tree_util.tree_map(np.asarray, result)
-    return {"return": host.ret, "steps": host.steps, **host.metrics}, parts.env
+    return {"return": host.ret, "steps": host.steps, "saturated": host.saturated, **host.metrics}, parts.env
 
 
 def summary(results: dict[str, np.ndarray], env) -> dict[str, float]:
-    """Fractions of episodes by outcome, and means."""
+    """Fractions of episodes by outcome, and means (the walls course's or the gates corridor's)."""
+    if env.name == "quadruped-gates":
+        return gates_summary(results, env)
     passed, contacts = results["walls_passed"], results["wall_contacts"]
     fell = results["fell_off"] > 0
     ended = results["steps"] < env.episode_length
@@ -102,7 +111,33 @@ def summary(results: dict[str, np.ndarray], env) -> dict[str, float]:
     }
 
 
-def markdown(label: str, stats: dict[str, float], command: str, n_walls: int) -> str:
+def gates_summary(results: dict[str, np.ndarray], env) -> dict[str, float]:
+    """The gates corridor's outcomes: fractions of episodes, and means."""
+    passed, touched = results["gates_passed"], results["collisions"] > 0
+    left, fell = results["left_corridor"] > 0, results["fell_over"] > 0
+    return {
+        "episodes": len(passed),
+        "passed every gate": float(np.mean(passed >= env.config.n_gates)),
+        "passed no gate": float(np.mean(passed == 0)),
+        "touched a gate or clutter": float(np.mean(touched)),
+        "left the corridor": float(np.mean(left)),
+        "fell over (trunk down)": float(np.mean(fell)),
+        "reached the far end": float(np.mean(results["distance"] > env.x_end)),
+        "contact slots saturated": float(np.mean(results["saturated"] > 0)),
+        "gates passed (mean)": float(np.mean(passed)),
+        "distance m (mean)": float(np.mean(results["distance"])),
+        "return (mean)": float(np.mean(results["return"])),
+    }
+
+
+def course_size(env) -> str:
+    """``"3 walls"`` or ``"3 gates"``: what the course has."""
+    if env.name == "quadruped-gates":
+        return f"{env.config.n_gates} gates"
+    return f"{env.config.n_walls} walls"
+
+
+def markdown(label: str, stats: dict[str, float], command: str, course: str) -> str:
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     load = os.getloadavg()[0]
     rows = "\n".join(
@@ -111,13 +146,14 @@ def markdown(label: str, stats: dict[str, float], command: str, n_walls: int) ->
     )
     return (
         f"### {label}\n\nCommand: `{command}` ({when}; 1-min load average {load:.1f}; "
-        f"{n_walls} walls)\n\n| statistic | value |\n|---|---:|\n{rows}\n"
+        f"{course})\n\n| statistic | value |\n|---|---:|\n{rows}\n"
     )
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("overrides", nargs="*", metavar="key=value", help="quadruped-walls env settings")
+    parser.add_argument("overrides", nargs="*", metavar="key=value", help="the env's settings")
+    parser.add_argument("--env", choices=COURSES, default="quadruped-walls", help="the course")
     parser.add_argument("--episodes", type=int, default=64)
     parser.add_argument("--seed", type=int, default=2024, help="course draws (not a training seed)")
     parser.add_argument(
@@ -133,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--section", help="also write this section of RESULTS.md")
     args = parser.parse_args(argv)
     env_overrides = tuple(sorted((k, parse_value(v)) for k, v in (o.split("=", 1) for o in args.overrides)))
-    config, params, obs_stats = walker(args.low_level, env_overrides)
+    config, params, obs_stats = walker(args.low_level, env_overrides, args.env)
     if args.export_low_level:
         if args.low_level is None or obs_stats is None:
             raise SystemExit("--export-low-level needs --low-level RUN_DIR of a run with observation statistics")
@@ -143,7 +179,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {args.export_low_level}: w {w.shape}, b {b.shape}")
         return 0
     results, env = run(config, params, obs_stats, args.episodes, args.seed)
-    n_walls = env.config.n_walls
     stats = summary(results, env)
     label = (
         f"Trained flat low level `{args.low_level}`, constant latent"
@@ -151,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
         else "The TG's trot (`PMTGPolicy.initial_tg`, zero weights and residuals)"
     )
     command = "python benchmarks/course_check.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    text = markdown(label, stats, command.strip(), n_walls)
+    text = markdown(label, stats, command.strip(), course_size(env))
     print(text)
     if args.section:
         import report

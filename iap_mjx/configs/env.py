@@ -8,12 +8,17 @@ field and its valid values before any model is built.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
-PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state")
+PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
 """The observation modes ``iap_mjx.envs.pixels`` renders."""
+DEPTH_MAX = 4.0
+"""Metres of depth that ``"depth+state"`` maps onto ``[0, 1]`` unless ``depth_max`` says
+otherwise: on ``quadruped-gates`` the next gate (at most 2.8 m past the one just passed) and
+what stands between."""
 OBS_MODES = ("state",) + PIXEL_MODES
 SOLVERS = ("newton", "cg")  # QuadrupedConfig.solver: MuJoCo's mjSOL_NEWTON, mjSOL_CG
 
@@ -30,6 +35,20 @@ DISTRACTION_FIELDS = {
 (the names stay those typed on a command line: ``env.distraction=medium``)."""
 DISTRACTION_SETTINGS = tuple(name for name in DISTRACTION_FIELDS if name != "distraction")
 """The ``EnvConfig`` fields that belong to ``distraction`` (meaningless without one)."""
+
+
+def check_depth_max(depth_max: Any, obs_mode: str, owner: str = "") -> None:
+    """Raises ``ValueError`` unless ``depth_max`` is ``None`` or, with ``obs_mode``
+    ``"depth+state"`` (the one mode that scales depth), a finite number of metres > 0."""
+    if depth_max is None:
+        return
+    if obs_mode != "depth+state":
+        raise ValueError(
+            f"{owner}depth_max = {depth_max!r} scales the depth of obs_mode 'depth+state' only, "
+            f"got obs_mode={obs_mode!r}; leave depth_max unset (None) or set obs_mode='depth+state'."
+        )
+    if not isinstance(depth_max, (int, float)) or isinstance(depth_max, bool) or not 0 < depth_max < math.inf:
+        raise ValueError(f"{owner}depth_max must be None or a finite number of metres > 0, got {depth_max!r}.")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,6 +74,10 @@ class EnvConfig:
         is ended as a bad state.
       obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
       camera_id, height, width, frame_stack: the camera settings for pixel modes.
+      depth_max: ``"depth+state"`` only: its depth is ``min(depth, depth_max) / depth_max``,
+        in ``[0, 1]`` (metres along the optical axis, 1 at ``depth_max`` and beyond);
+        ``None`` means :data:`DEPTH_MAX` (4 m). Setting it with another ``obs_mode`` is an
+        error, not silently ignored.
       distraction: the Distracting Control Suite's difficulty, ``"easy"``, ``"medium"`` or
         ``"hard"`` (``None`` or ``"none"``: no distraction); pixel modes of the suite's six
         tasks, camera 0 only; see ``iap_mjx.envs.distraction``. The settings below belong to
@@ -85,6 +108,7 @@ class EnvConfig:
     height: int = 100
     width: int = 100
     frame_stack: int = 1
+    depth_max: float | None = None
     distraction: str | None = None
     dynamic: bool = False
     distraction_kinds: tuple[str, ...] | str | None = None
@@ -111,6 +135,7 @@ class EnvConfig:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
         if not isinstance(self.camera_id, int) or self.camera_id < 0:
             raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
+        check_depth_max(self.depth_max, self.obs_mode, "EnvConfig.")
         self._check_distraction()
 
     def _check_distraction(self) -> None:
@@ -223,3 +248,20 @@ class QuadrupedWallsConfig(QuadrupedConfig):
         super().__post_init__()
         if not isinstance(self.n_walls, int) or isinstance(self.n_walls, bool) or self.n_walls < 1:
             raise ValueError(f"QuadrupedWallsConfig.n_walls must be an int >= 1, got {self.n_walls!r}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class QuadrupedGatesConfig(QuadrupedConfig):
+    """``QuadrupedConfig`` plus the gates corridor's settings (``quadruped-gates`` only).
+
+    Attributes:
+      n_gates: gates along the corridor, each followed by one clutter box (a static shape:
+        the corridor is ``2.5 n_gates + 2.5`` m long, ``iap_mjx.envs.quadruped_gates``).
+    """
+
+    n_gates: int = 3
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not isinstance(self.n_gates, int) or isinstance(self.n_gates, bool) or self.n_gates < 1:
+            raise ValueError(f"QuadrupedGatesConfig.n_gates must be an int >= 1, got {self.n_gates!r}.")

@@ -19,6 +19,13 @@ zeroed image (blind, the control). A latent of 4, commands held 10 to 50 control
 ES and budget for the three, so that their curves compare: the flat preset's OpenES settings
 (sigma 0.05, Adam 0.02, weight decay 0.005), not yet tuned on the course, without observation
 normalisation (it needs vector observations; the low level reads the raw state).
+
+``quadruped-gates-iap``, ``-blind`` (beyond the paper: a procedural stand-in for its Figure 9's
+Gibson navigation): the same hierarchy, ES and budget on ``quadruped-gates``, a corridor of
+narrow gates and clutter (``iap_mjx.envs.quadruped_gates``), the high level seeing only the
+first-person camera's depth (``"depth+state"``: 24x32x1 in ``[0, 1]``, 4 m of depth, the
+state beside it for the low level). IAP's ReLU attention over 4x4 depth patches, or the same
+high level on a zeroed image (blind, the control).
 """
 
 from __future__ import annotations
@@ -69,6 +76,28 @@ for _name, _high, _what in (
             "quadruped-walls",
             "hierarchical",
             COURSE_ENV,
+            _high + HIERARCHY,
+            COURSE_ES,
+            COURSE_RUN,
+        )
+    )
+
+GATES_ENV: Options = (("obs_mode", "depth+state"),)
+"""The corridor through the first-person camera's depth channel (24x32, scaled to [0, 1] over
+4 m), the state beside it for the low level."""
+
+for _name, _high, _what in (
+    ("iap", IAP_HIGH, "IAP high level over depth patches (ReLU features, 4x4 patches, top 10 -> linear)"),
+    ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed depth image: the control)"),
+):
+    register(
+        Preset(
+            f"quadruped-gates-{_name}",
+            f"quadruped-gates from depth, hierarchical: {_what} -> latent (4) held 10-50 steps -> "
+            "linear PMTG low level; return = metres along the corridor in 20 s",
+            "quadruped-gates",
+            "hierarchical",
+            GATES_ENV,
             _high + HIERARCHY,
             COURSE_ES,
             COURSE_RUN,

@@ -1,15 +1,27 @@
 """Environments: MJX ports of dm_control tasks and an A1-class quadruped (``quadruped-flat``,
-``quadruped-walls``), with the brax State convention.
+``quadruped-walls``, ``quadruped-gates``), with the brax State convention.
 
 ``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
 arguments without building); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
-quadruped's, ``QuadrupedWallsConfig`` the course's); ``batch`` runs large populations in chunks.
+quadruped's, ``QuadrupedWallsConfig`` the course's, ``QuadrupedGatesConfig`` the gates
+corridor's); ``batch`` runs large populations in chunks.
 """
 
 from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)
-from iap_mjx.configs.env import EnvConfig, QuadrupedConfig, QuadrupedWallsConfig
+from iap_mjx.configs.env import EnvConfig, QuadrupedConfig, QuadrupedGatesConfig, QuadrupedWallsConfig
 from iap_mjx.envs import batch
 from iap_mjx.envs.base import Env, State
 from iap_mjx.envs.registry import check, make, names
 
-__all__ = ["Env", "EnvConfig", "QuadrupedConfig", "QuadrupedWallsConfig", "State", "batch", "check", "make", "names"]
+__all__ = [
+    "Env",
+    "EnvConfig",
+    "QuadrupedConfig",
+    "QuadrupedGatesConfig",
+    "QuadrupedWallsConfig",
+    "State",
+    "batch",
+    "check",
+    "make",
+    "names",
+]

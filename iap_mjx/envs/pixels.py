@@ -6,7 +6,12 @@ is an image rendered from ``State.data`` by ``iap_mjx.render.Camera``:
 - ``"pixels"``: ``(H, W, 3 * frame_stack)`` float32 RGB in [0, 1];
 - ``"pixels_depth"``: ``(H, W, 4 * frame_stack)`` RGB-D, depth in metres along the optical
   axis (the camera's far plane where nothing is hit);
-- ``"pixels+state"``: ``{"pixels": (H, W, 3 * frame_stack), "state": (n,)}``.
+- ``"pixels+state"``: ``{"pixels": (H, W, 3 * frame_stack), "state": (n,)}``;
+- ``"depth+state"``: ``{"pixels": (H, W, frame_stack), "state": (n,)}``, the depth channel
+  alone (the camera's geometry pass, no colour), scaled to ``[0, 1]``:
+  ``min(depth, depth_max) / depth_max`` with depth in metres along the optical axis, so 1 is
+  ``depth_max`` (default ``iap_mjx.configs.env.DEPTH_MAX``, 4 m) or farther, sky included. A
+  network gets a bounded input whose scale does not depend on the scene's far plane.
 
 Frames are stacked along channels, oldest first (the newest frame is the last ``C``
 channels); at ``reset`` the first frame fills the whole stack.
@@ -25,7 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.configs.distraction import DistractionConfig
-from iap_mjx.configs.env import PIXEL_MODES
+from iap_mjx.configs.env import DEPTH_MAX, PIXEL_MODES, check_depth_max
 from iap_mjx.envs import distraction as distraction_lib
 from iap_mjx.envs.base import State
 from iap_mjx.render import Camera
@@ -42,6 +47,7 @@ class PixelEnv:
       camera: the ``iap_mjx.render.Camera`` used.
       distraction: the ``distraction.Distraction`` applied before rendering, or ``None``.
       obs_mode, frame_stack: as given.
+      depth_max: metres of depth mapped onto ``[0, 1]`` (``"depth+state"``), else ``None``.
     """
 
     def __init__(
@@ -54,15 +60,18 @@ class PixelEnv:
         frame_stack: int = 1,
         distraction: DistractionConfig | None = None,
         videos: Any = None,
+        depth_max: float | None = None,
         **camera_config: Any,
     ):
         if obs_mode not in PIXEL_MODES:
             raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
         if not isinstance(frame_stack, int) or isinstance(frame_stack, bool) or frame_stack < 1:
             raise ValueError(f"frame_stack must be an int >= 1, got {frame_stack!r}")
+        check_depth_max(depth_max, obs_mode)
         self.env = env
         self.obs_mode = obs_mode
         self.frame_stack = frame_stack
+        self.depth_max = (DEPTH_MAX if depth_max is None else float(depth_max)) if obs_mode == "depth+state" else None
         model = env.mj_model if distraction is None else distraction_lib.camera_model(env, distraction)
         self.camera = Camera(model, camera_id=camera_id, height=height, width=width, **camera_config)
         self.distraction = (
@@ -76,14 +85,19 @@ class PixelEnv:
 
     @property
     def channels(self) -> int:
-        """Channels of one frame: 4 for RGB-D, else 3."""
-        return 4 if self.obs_mode == "pixels_depth" else 3
+        """Channels of one frame: 4 for RGB-D, 1 for depth alone, else 3."""
+        return {"pixels_depth": 4, "depth+state": 1}.get(self.obs_mode, 3)
+
+    @property
+    def with_state(self) -> bool:
+        """Whether observations are ``{"pixels", "state"}`` dicts."""
+        return self.obs_mode in ("pixels+state", "depth+state")
 
     @property
     def observation_shape(self) -> Any:
         cfg = self.camera.config
         pixels = (cfg.height, cfg.width, self.channels * self.frame_stack)
-        if self.obs_mode == "pixels+state":
+        if self.with_state:
             return {"pixels": pixels, "state": tuple(self.env.observation_shape)}
         return pixels
 
@@ -99,9 +113,13 @@ class PixelEnv:
         return self.distraction.scene(data, perturbation)
 
     def render(self, data: Any, perturbation: Any = None) -> jax.Array:
-        """One frame ``(H, W, C)`` float32 of ``data`` (RGB, or RGB-D for ``"pixels_depth"``);
-        a distracted env needs the episode's ``perturbation`` (``state.info["distraction"]``)."""
+        """One frame ``(H, W, C)`` float32 of ``data`` (RGB, RGB-D for ``"pixels_depth"``, the
+        scaled depth for ``"depth+state"``); a distracted env needs the episode's
+        ``perturbation`` (``state.info["distraction"]``)."""
         data, inputs = self._scene(data, perturbation)
+        if self.obs_mode == "depth+state":
+            depth, _ = self.camera.trace(data)  # the geometry pass alone: no colour is shown
+            return (jnp.minimum(depth, self.depth_max) / self.depth_max)[..., None]
         rgb, depth = self.camera.render(data, **inputs)
         if self.obs_mode == "pixels_depth":
             return jnp.concatenate([rgb, depth[..., None]], axis=-1)
@@ -153,12 +171,12 @@ class PixelEnv:
         return state.replace(obs=self._observation(stack, state.obs))
 
     def _observation(self, stack: jax.Array, state_obs: jax.Array) -> Any:
-        if self.obs_mode == "pixels+state":
+        if self.with_state:
             return {"pixels": stack, "state": state_obs}
         return stack
 
     def _pixels(self, obs: Any) -> jax.Array:
-        return obs["pixels"] if self.obs_mode == "pixels+state" else obs
+        return obs["pixels"] if self.with_state else obs
 
 
 def with_pixels(
@@ -170,18 +188,21 @@ def with_pixels(
     frame_stack: int = 1,
     distraction: DistractionConfig | None = None,
     videos: Any = None,
+    depth_max: float | None = None,
     **camera_config: Any,
 ) -> PixelEnv:
     """Wraps ``env`` (which must expose ``mj_model``) so its observations are camera images.
 
     Args:
       env: an env following ``iap_mjx.envs.base.Env`` with ``mj_model`` (``mujoco.MjModel``).
-      obs_mode: ``"pixels"``, ``"pixels_depth"`` or ``"pixels+state"``.
+      obs_mode: ``"pixels"``, ``"pixels_depth"``, ``"pixels+state"`` or ``"depth+state"``.
       camera_id, height, width: the model camera and image size (default 100x100, camera 0,
         as the IAP paper's Cheetah-Run experiment).
       frame_stack: frames stacked along channels, oldest first.
       distraction: Distracting Control Suite perturbations (``None``: none); ``videos``
         the background videos they need (``iap_mjx.envs.backgrounds.load``).
+      depth_max: ``"depth+state"`` only: metres of depth mapped onto ``[0, 1]`` (``None``:
+        ``DEPTH_MAX``).
       camera_config: further ``iap_mjx.render.CameraConfig`` fields (shading, sky, ...).
     """
     return PixelEnv(
@@ -193,5 +214,6 @@ def with_pixels(
         frame_stack=frame_stack,
         distraction=distraction,
         videos=videos,
+        depth_max=depth_max,
         **camera_config,
     )

@@ -21,6 +21,7 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
     from iap_mjx.envs.cheetah import CheetahRun
     from iap_mjx.envs.finger import FingerSpin
     from iap_mjx.envs.quadruped import QuadrupedFlat, QuadrupedWalls
+    from iap_mjx.envs.quadruped_gates import QuadrupedGates
     from iap_mjx.envs.reacher import ReacherEasy
     from iap_mjx.envs.walker import WalkerWalk
 
@@ -30,6 +31,7 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
         CheetahRun,
         FingerSpin,
         QuadrupedFlat,
+        QuadrupedGates,
         QuadrupedWalls,
         ReacherEasy,
         WalkerWalk,
@@ -109,5 +111,6 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
         frame_stack=cfg.frame_stack,
         distraction=distraction,
         videos=videos,
+        depth_max=cfg.depth_max,
         **getattr(env, "camera_options", {}),
     )

@@ -24,7 +24,9 @@ every control step (:meth:`iap_mjx.envs.quadruped.QuadrupedWalls.contact_wall_po
 MJX collides every candidate pair at every step, however far apart (native MuJoCo's broad
 phase skips them), and with three colliding walls two thirds of the wall pairs could never
 touch; one colliding wall gives the same contacts at a third of the collision cost (the
-argument, with the course's distances, is in that method's docstring).
+argument, with the course's distances, is in that method's docstring). The gates corridor
+(:func:`corridor_xml`) does the same per kind of obstacle: one colliding copy of each gate
+segment and one of a clutter box (:meth:`iap_mjx.envs.quadruped_gates.QuadrupedGates.contact_positions`).
 """
 
 from __future__ import annotations
@@ -83,6 +85,7 @@ _MJCF_SOLVER = {"newton": "Newton", "cg": "CG"}
 GROUND_BIT, WALL_BIT = 1, 2
 # geom groups: the first-person camera draws the world only; nothing draws the contact wall
 ROBOT_GROUP, WORLD_GROUP, CONTACT_GROUP = 1, 0, 3
+WALL_RGB, CLUTTER_RGB = "0.75 0.2 0.2", "0.2 0.35 0.75"
 
 
 def targets_to_action(targets: jax.Array) -> jax.Array:
@@ -191,7 +194,6 @@ def world_xml(
         collided: with walls, a last mocap body ``wall_contact`` (the same box, invisible)
         is the one wall that collides (module docstring).
     """
-    defaults, body, actuators, sensors = robot_xml()
     if platform is None:
         floor_z, floor_bits = 0.0, (GROUND_BIT, 0)
         ground = ""
@@ -204,19 +206,102 @@ def world_xml(
             f'conaffinity="0" condim="3" friction="{FOOT_FRICTION:g} 0.02 0.01" '
             f'group="{WORLD_GROUP}" rgba="0.55 0.57 0.6 1"/>'
         )
-    wx, wy, wz = wall_half_size
     walls = "\n".join(
-        f'    <body name="wall{i}" mocap="true" pos="{2.0 * (i + 1):g} 0 {wz:g}">'
-        f'<geom name="wall{i}" type="box" size="{wx:g} {wy:g} {wz:g}" contype="0" '
-        f'conaffinity="0" group="{WORLD_GROUP}" rgba="0.75 0.2 0.2 1"/></body>'
+        _mocap_box(f"wall{i}", (2.0 * (i + 1), 0.0, wall_half_size[2]), wall_half_size, WALL_RGB)
         for i in range(n_walls)
     )
     if n_walls:
-        walls += (
-            f'\n    <body name="wall_contact" mocap="true" pos="2 0 {wz:g}">'
-            f'<geom name="wall_contact" type="box" size="{wx:g} {wy:g} {wz:g}" contype="{WALL_BIT}" '
-            f'conaffinity="0" condim="1" priority="1" group="{CONTACT_GROUP}" rgba="0.75 0.2 0.2 0"/></body>'
+        walls += "\n" + _mocap_box(
+            "wall_contact", (2.0, 0.0, wall_half_size[2]), wall_half_size, WALL_RGB, colliding=True
         )
+    return _model_xml(floor_z, floor_bits, f"{ground}\n{walls}")
+
+
+def corridor_xml(
+    *,
+    x_range: tuple[float, float],
+    half_width: float,
+    side_wall_half_size: tuple[float, float],
+    n_gates: int,
+    gate_half_size: tuple[float, float, float],
+    n_clutter: int,
+    clutter_half_size: tuple[float, float, float],
+) -> str:
+    """A whole model: the robot on the floor (the ground, z = 0) in a corridor of gates and
+    clutter (``quadruped-gates``).
+
+    Args:
+      x_range: ``(x_min, x_max)``, the corridor's extent along x.
+      half_width: the corridor's inner half-width: its side walls' inner faces at
+        ``|y| = half_width``.
+      side_wall_half_size: ``(half_thickness, half_height)`` of the two side walls (boxes
+        along x over ``x_range``; seen, not collided).
+      n_gates: gates, each two mocap boxes ``gate{i}_left``, ``gate{i}_right`` of half-size
+        ``gate_half_size`` (the segments either side of the opening; the env places them).
+      n_clutter: mocap boxes ``clutter{i}`` of half-size ``clutter_half_size``.
+
+    Gates and clutter are seen, not collided; three more mocap bodies, invisible, collide:
+    ``gate_contact_left``, ``gate_contact_right`` (one gate's two segments) and
+    ``clutter_contact`` (one clutter box), which the env moves onto the nearest gate and
+    clutter box (as ``wall_contact`` on the walls course, module docstring).
+    """
+    x_min, x_max = x_range
+    thickness, height = side_wall_half_size
+    centre, half_length = (x_min + x_max) / 2, (x_max - x_min) / 2
+    sides = "\n".join(
+        f'    <geom name="side_{side}" type="box" pos="{centre:g} {sign * (half_width + thickness):g} {height:g}" '
+        f'size="{half_length:g} {thickness:g} {height:g}" contype="0" conaffinity="0" group="{WORLD_GROUP}" '
+        'rgba="0.62 0.62 0.66 1"/>'
+        for side, sign in (("left", 1.0), ("right", -1.0))
+    )
+    gates = [
+        _mocap_box(f"gate{i}_{side}", (1.0 + i, 0.0, gate_half_size[2]), gate_half_size, WALL_RGB)
+        for i in range(n_gates)
+        for side in ("left", "right")
+    ]
+    clutter = [
+        _mocap_box(f"clutter{i}", (1.5 + i, 0.0, clutter_half_size[2]), clutter_half_size, CLUTTER_RGB)
+        for i in range(n_clutter)
+    ]
+    contacts = [
+        _mocap_box(f"gate_contact_{side}", (1.0, 0.0, gate_half_size[2]), gate_half_size, WALL_RGB, colliding=True)
+        for side in ("left", "right")
+    ]
+    contacts.append(
+        _mocap_box("clutter_contact", (1.5, 0.0, clutter_half_size[2]), clutter_half_size, CLUTTER_RGB, colliding=True)
+    )
+    return _model_xml(0.0, (GROUND_BIT, 0), "\n".join([sides, *gates, *clutter, *contacts]))
+
+
+def _mocap_box(
+    name: str,
+    pos: tuple[float, float, float],
+    half_size: tuple[float, float, float],
+    rgb: str,
+    *,
+    colliding: bool = False,
+) -> str:
+    """One MJCF line: a mocap body ``name`` at ``pos`` with a box geom of the same name.
+
+    Seen and not collided (group ``WORLD_GROUP``), or, ``colliding``, the invisible copy that
+    collides (group ``CONTACT_GROUP``, alpha 0; frictionless and taking precedence, module
+    docstring)."""
+    x, y, z = pos
+    hx, hy, hz = half_size
+    if colliding:
+        bits = f'contype="{WALL_BIT}" conaffinity="0" condim="1" priority="1" group="{CONTACT_GROUP}"'
+    else:
+        bits = f'contype="0" conaffinity="0" group="{WORLD_GROUP}"'
+    return (
+        f'    <body name="{name}" mocap="true" pos="{x:g} {y:g} {z:g}">'
+        f'<geom name="{name}" type="box" size="{hx:g} {hy:g} {hz:g}" {bits} rgba="{rgb} {0 if colliding else 1}"/></body>'
+    )
+
+
+def _model_xml(floor_z: float, floor_bits: tuple[int, int], world: str) -> str:
+    """The whole MJCF around ``world`` (MJCF lines of the world's geoms and bodies, spliced
+    between the floor plane at ``floor_z`` with contact bits ``floor_bits`` and the robot)."""
+    defaults, body, actuators, sensors = robot_xml()
     return f"""
 <mujoco model="a1_class_quadruped">
   <compiler angle="radian" autolimits="true"/>
@@ -234,8 +319,7 @@ def world_xml(
     <light name="sun" directional="true" pos="0 0 5" dir="-0.3 0.2 -1" diffuse="0.5 0.5 0.5"/>
     <geom name="floor" type="plane" size="0 0 1" pos="0 0 {floor_z:g}" material="grid" group="{WORLD_GROUP}"
           contype="{floor_bits[0]}" conaffinity="{floor_bits[1]}" condim="3" friction="{FOOT_FRICTION:g} 0.02 0.01"/>
-{ground}
-{walls}
+{world}
 {body}
   </worldbody>
   <actuator>

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 logger = logging.getLogger(__name__)
@@ -29,9 +30,11 @@ STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state en
 
 
 def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
-    """The newest RGB frame ``(H, W, 3)`` of a (frame-stacked) pixel observation."""
+    """The newest RGB frame ``(H, W, 3)`` of a (frame-stacked) pixel observation; a depth-only
+    frame (one channel, ``"depth+state"``, in [0, 1]) is shown as grey, near dark."""
     pixels = obs["pixels"] if isinstance(obs, dict) else obs
-    return pixels[..., pixels.shape[-1] - channels_per_frame :][..., :3]
+    newest = pixels[..., pixels.shape[-1] - channels_per_frame :][..., :3]
+    return jnp.repeat(newest, 3, axis=-1) if channels_per_frame == 1 else newest
 
 
 def has_pixels(env: Any) -> bool:
@@ -74,7 +77,7 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
     """
     from iap_mjx.es.episode import Step, run_episode
 
-    channels = 4 if getattr(env, "obs_mode", "pixels") == "pixels_depth" else 3
+    channels = getattr(env, "channels", 3)
     pixels = has_pixels(env)
     selects = pixels and hasattr(policy, "select")
     camera = None if pixels else state_camera(env)

@@ -1,0 +1,86 @@
+"""The ``quadruped-gates-*`` presets: the hierarchy over the corridor's depth camera (IAP, and the
+blind control), each training one ES iteration shrunk only in its budget (5-step episodes, 4
+members), the IAP one through the command line; the corridor's statistics reach the metrics."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from iap_mjx import cli, configs, envs, policies
+from iap_mjx.es import train
+
+PRESETS = ("quadruped-gates-iap", "quadruped-gates-blind")
+SHRINK = [
+    "env.episode_length=5",
+    "es.population_size=4",
+    "run.iterations=1",
+    "run.eval_episodes=2",
+    "run.checkpoint_every=0",
+    "run.tensorboard=false",
+]
+COURSE_COLUMNS = [
+    f"{prefix}{name}{suffix}"
+    for name in ("gates_passed", "collisions", "left_corridor", "fell_over", "distance")
+    for prefix, suffix in (("", "_mean"), ("eval_", ""))
+]
+OBSERVATION = {"pixels": (24, 32, 1), "state": (17,)}
+
+
+def test_presets_are_the_hierarchy_over_depth():
+    seen = {}
+    for name in PRESETS:
+        config = configs.get(name)
+        env_config = envs.check(config.env.name, **dict(config.env.overrides))
+        assert (config.env.name, env_config.obs_mode, env_config.height, env_config.width) == (
+            "quadruped-gates",
+            "depth+state",
+            24,
+            32,
+        )
+        assert config.policy.kind == "hierarchical"
+        seen[name] = policies.make("hierarchical", OBSERVATION, 12, **dict(config.policy.options))
+    iap, blind = seen["quadruped-gates-iap"], seen["quadruped-gates-blind"]
+    assert iap.high.attention.kernel == "relu" and iap.high.image_shape == (24, 32, 1)
+    assert not iap.blind and blind.blind and blind.high == iap.high  # the same high level, eyes shut
+    assert iap.duration_range == (10, 50) and iap.latent_size == 4
+    # 617 parameters: the walls course's 873 less W_Q and W_K's rows for two of three channels
+    # (4x4 patches of 1 channel, not 3: 2 x 32 x 4 = 256 fewer)
+    for policy in (iap, blind):
+        assert sum(policy.level_param_counts(policy.init(jax.random.PRNGKey(0))).values()) == 617
+    # the walls presets' ES and budget, so that the courses compare
+    walls = configs.get("quadruped-walls-iap")
+    for name in PRESETS:
+        assert (configs.get(name).es, configs.get(name).run) == (walls.es, walls.run)
+    assert configs.get("quadruped-gates-iap").policy == walls.policy  # the walls course's IAP hierarchy
+
+
+@pytest.mark.slow
+def test_blind_preset_trains_one_iteration(tmp_path):
+    config = configs.apply_overrides(configs.get("quadruped-gates-blind"), SHRINK)
+    result = train(config, run_dir=tmp_path, progress=False)
+    (row,) = result.history
+    assert np.isfinite(row["return_mean"]) and np.isfinite(row["eval_return"]) and row["nan_episodes"] == 0
+    for column in COURSE_COLUMNS:
+        assert np.isfinite(row[column]), column
+    assert 0 <= row["gates_passed_mean"] <= 3
+
+
+@pytest.mark.slow
+def test_iap_preset_trains_from_the_command_line(tmp_path, capsys):
+    """``iap-mjx train quadruped-gates-iap ...``: one iteration, the corridor's columns in
+    ``metrics.csv``, and the episode video of the depth frames with the patches outlined."""
+    run_dir = tmp_path / "run"
+    assert cli.main(["train", "quadruped-gates-iap", *SHRINK, "--run-dir", str(run_dir), "--no-progress"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["iterations"] == 1 and np.isfinite(summary["eval_return"])
+    with open(run_dir / "metrics.csv") as f:
+        reader = csv.DictReader(f)
+        (row,) = list(reader)
+    assert set(COURSE_COLUMNS) <= set(reader.fieldnames)
+    assert int(row["parameters"]) > 0
+    assert (run_dir / "episode.mp4").stat().st_size > 0
