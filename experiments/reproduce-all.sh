@@ -36,3 +36,5 @@ run reproduce fig10 --out "$OUT/table2"
 # beyond the paper (issue 24): the gates corridor seen through depth, IAP and the blind control
 run train quadruped-gates-iap --run-dir "$OUT/gates/quadruped-gates-iap-seed0" --no-progress
 run train quadruped-gates-blind --run-dir "$OUT/gates/quadruped-gates-blind-seed0" --no-progress
+# its strip of depth frames with the selected patches, as Figure 10's (PNG in $OUT/gates)
+run reproduce fig10 --run-dirs "$OUT/gates/quadruped-gates-iap-seed0" --out "$OUT/gates"
