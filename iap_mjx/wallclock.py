@@ -242,6 +242,8 @@ def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str,
 
     command_line = " ".join(["iap-mjx reproduce fig8", *overrides, f"--out {png.parent}", f"--results {path.name}"])
     image = image_link(png, path, "fig8")
+    # the timings measured alone are the figure's x axis: kept beside it, tracked
+    image_link(png.parent / TIMINGS_FILE, path, "fig8")
     body = (
         f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
         f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "

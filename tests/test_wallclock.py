@@ -83,3 +83,5 @@ def test_curves_use_the_measured_seconds_per_iteration_not_the_runs_own(tmp_path
     assert np.allclose(wallclock.wall_seconds(stored["rows"][0]), [47.0, 64.0, 81.0])
     assert (tmp_path / "fig8.png").stat().st_size > 0
     assert "<!-- BEGIN fig8 -->" in (tmp_path / "RESULTS.md").read_text()
+    kept = tmp_path / "experiments" / "fig8" / wallclock.TIMINGS_FILE  # tracked beside the figure
+    assert json.loads(kept.read_text()) == _timings()
