@@ -63,43 +63,49 @@ COURSE_ES = ESConfig(
 )
 COURSE_RUN = RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)
 
-for _name, _high, _what in (
-    ("iap", IAP_HIGH, "IAP high level (ReLU features, 4x4 patches, top 10 -> linear)"),
-    ("cnn", CNN_HIGH, "CNN high level (3 conv 3x3, 2x2 max pool, dense tanh 16)"),
-    ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed image: the control)"),
-):
-    register(
-        Preset(
-            f"quadruped-walls-{_name}",
-            f"quadruped-walls, hierarchical: {_what} -> latent (4) held 10-50 steps -> linear PMTG "
-            "low level; return = metres along the course in 20 s",
-            "quadruped-walls",
-            "hierarchical",
-            COURSE_ENV,
-            _high + HIERARCHY,
-            COURSE_ES,
-            COURSE_RUN,
+
+def register_hierarchies(
+    course: str, env_options: Options, seen: str, highs: tuple[tuple[str, Options, str], ...]
+) -> None:
+    """Registers ``<course>-<name>`` for each ``(name, high level options, what)`` of ``highs``:
+    the hierarchy on ``course`` (``seen``: how the camera is read), the course's ES and budget."""
+    for name, high, what in highs:
+        register(
+            Preset(
+                f"{course}-{name}",
+                f"{course}{seen}, hierarchical: {what} -> latent (4) held 10-50 steps -> linear PMTG "
+                "low level; return = metres along the course in 20 s",
+                course,
+                "hierarchical",
+                env_options,
+                high + HIERARCHY,
+                COURSE_ES,
+                COURSE_RUN,
+            )
         )
-    )
+
+
+register_hierarchies(
+    "quadruped-walls",
+    COURSE_ENV,
+    "",
+    (
+        ("iap", IAP_HIGH, "IAP high level (ReLU features, 4x4 patches, top 10 -> linear)"),
+        ("cnn", CNN_HIGH, "CNN high level (3 conv 3x3, 2x2 max pool, dense tanh 16)"),
+        ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed image: the control)"),
+    ),
+)
 
 GATES_ENV: Options = (("obs_mode", "depth+state"),)
 """The corridor through the first-person camera's depth channel (24x32, scaled to [0, 1] over
 4 m), the state beside it for the low level."""
 
-for _name, _high, _what in (
-    ("iap", IAP_HIGH, "IAP high level over depth patches (ReLU features, 4x4 patches, top 10 -> linear)"),
-    ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed depth image: the control)"),
-):
-    register(
-        Preset(
-            f"quadruped-gates-{_name}",
-            f"quadruped-gates from depth, hierarchical: {_what} -> latent (4) held 10-50 steps -> "
-            "linear PMTG low level; return = metres along the corridor in 20 s",
-            "quadruped-gates",
-            "hierarchical",
-            GATES_ENV,
-            _high + HIERARCHY,
-            COURSE_ES,
-            COURSE_RUN,
-        )
-    )
+register_hierarchies(
+    "quadruped-gates",
+    GATES_ENV,
+    " from depth",
+    (
+        ("iap", IAP_HIGH, "IAP high level over depth patches (ReLU features, 4x4 patches, top 10 -> linear)"),
+        ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed depth image: the control)"),
+    ),
+)

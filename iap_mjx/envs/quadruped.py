@@ -169,7 +169,24 @@ class QuadrupedFlat(DmControlEnv):
         return self.trunk_lowest(data) <= 0.0
 
 
-class QuadrupedWalls(QuadrupedFlat):
+class CourseStatistics:
+    """Keeps a course's per-episode statistics in ``State.metrics``: zeros at reset, then
+    ``course_metrics(before, after)`` (the course's own, ``()`` float32 each, named by
+    ``episode_metrics``) after every control step. Mixed in ahead of :class:`QuadrupedFlat`."""
+
+    episode_metrics: tuple[str, ...] = ()
+
+    def step(self, state, action):
+        after = super().step(state, action)
+        return after.replace(metrics={**after.metrics, **self.course_metrics(state, after)})
+
+    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]):
+        state = super()._first_state(data, task_info)
+        zeros = {name: jnp.zeros((), jnp.float32) for name in self.episode_metrics}
+        return state.replace(metrics={**state.metrics, **zeros})
+
+
+class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
     """The course: a raised platform with drop-offs, ``n_walls`` walls across the path.
 
     The platform spans x in ``[-1, 10]`` m and ``|y| <= 1`` m, its top the ground at z = 0,
@@ -260,15 +277,6 @@ class QuadrupedWalls(QuadrupedFlat):
         return data.mocap_pos[: self.config.n_walls]
 
     # ---- per-episode course statistics ----------------------------------------------------
-
-    def step(self, state, action):
-        after = super().step(state, action)
-        return after.replace(metrics={**after.metrics, **self.course_metrics(state, after)})
-
-    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]):
-        state = super()._first_state(data, task_info)
-        zeros = {name: jnp.zeros((), jnp.float32) for name in self.episode_metrics}
-        return state.replace(metrics={**state.metrics, **zeros})
 
     def course_metrics(self, before, after) -> dict[str, jax.Array]:
         """The episode's course statistics after the control step ``before -> after`` (two

@@ -59,7 +59,7 @@ import numpy as np
 from mujoco import mjx
 
 from iap_mjx.configs.env import QuadrupedGatesConfig
-from iap_mjx.envs.quadruped import QuadrupedFlat
+from iap_mjx.envs.quadruped import CourseStatistics, QuadrupedFlat
 from iap_mjx.robots import a1
 
 #: The robot's half-width (m): hip offset, thigh offset and thigh radius sideways.
@@ -69,7 +69,7 @@ ROBOT_HALF_WIDTH = a1.HIP_OFFSET[1] + a1.THIGH_OFFSET + a1.THIGH_RADIUS
 ROBOT_REACH = 0.65
 
 
-class QuadrupedGates(QuadrupedFlat):
+class QuadrupedGates(CourseStatistics, QuadrupedFlat):
     """The gates corridor (module docstring): ``n_gates`` gates, each followed by a clutter box."""
 
     name = "quadruped-gates"
@@ -219,15 +219,6 @@ class QuadrupedGates(QuadrupedFlat):
         return super()._terminated(data) | ~self.in_corridor(data)
 
     # ---- per-episode course statistics ---------------------------------------------------
-
-    def step(self, state, action):
-        after = super().step(state, action)
-        return after.replace(metrics={**after.metrics, **self.course_metrics(state, after)})
-
-    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]):
-        state = super()._first_state(data, task_info)
-        zeros = {name: jnp.zeros((), jnp.float32) for name in self.episode_metrics}
-        return state.replace(metrics={**state.metrics, **zeros})
 
     def course_metrics(self, before, after) -> dict[str, jax.Array]:
         """The episode's course statistics after the control step ``before -> after`` (two
