@@ -182,16 +182,29 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def in_condition(result: Any, overrides: list[str]) -> Any:
-    """A loaded run whose config's env is moved to the condition ``overrides`` set (checked
-    and built before anything compiles); the run's own env without overrides."""
-    from iap_mjx import envs
+    """A loaded run whose config's env is moved to the condition ``overrides`` set, with the
+    policy rebuilt for that env's observations (an IAP policy's parameters do not depend on
+    the frame's size; a CNN's do), all checked and built before anything compiles; the run
+    itself without overrides. ``ValueError`` if the run's parameters do not fit the policy on
+    the condition's observations."""
+    import jax
+
     from iap_mjx.configs.overrides import apply_condition
+    from iap_mjx.viz import artifacts
 
     if not overrides:
         return result
     config = apply_condition(result.config, overrides)
-    env = envs.make(config.env.name, **dict(config.env.overrides))
-    return dataclasses.replace(result, config=config, env=env)
+    env, policy = artifacts.env_and_policy(config)
+    wanted = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
+    shapes = lambda tree: jax.tree.map(lambda x: tuple(x.shape), tree)  # noqa: E731
+    if jax.tree.structure(wanted) != jax.tree.structure(result.params) or shapes(wanted) != shapes(result.params):
+        raise ValueError(
+            f"the run's {config.policy.kind!r} parameters do not fit its policy on "
+            f"{env.observation_shape} observations ({' '.join(overrides)}); keep the env settings "
+            "that shape what the policy sees (env.height, env.width, env.obs_mode) as trained"
+        )
+    return dataclasses.replace(result, config=config, env=env, policy=policy)
 
 
 def cmd_attended(args: argparse.Namespace) -> int:

@@ -1,5 +1,7 @@
 """Videos: an IAP policy's episode on a pixel env, with the selected patches outlined in red."""
 
+import dataclasses
+
 import imageio.v2 as imageio
 import imageio.v3 as iio
 import jax
@@ -94,32 +96,21 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
 
 @pytest.mark.slow
 def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tmp_path, monkeypatch):
-    """``iap-mjx video`` on a ``dcs-`` run: the frames are the distracted env's (not the plain
-    camera's view of the same state), with the selected patches outlined."""
+    """``iap-mjx video`` on a shipped ``dcs-`` run (``pretrained/dcs``, as a user runs it, in a
+    smaller condition: 48x64 frames, 10-step episodes, small backgrounds): the frames are the
+    distracted env's (not the plain camera's view of the same state), with the selected
+    patches outlined. IAP's parameters do not depend on the frame's size, so the policy trained
+    at 240x320 selects 2x2 patches of the 48x64 frames."""
     from pathlib import Path
 
     from iap_mjx import cli, es
-    from iap_mjx.viz import artifacts
 
-    monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
-    run_dir, out = tmp_path / "run", tmp_path / "dcs.mp4"
-    size = ("env.height=48", "env.width=64")
-    assert (
-        cli.main(
-            [
-                "train",
-                "dcs-cartpole-swingup-quick",
-                *size,
-                "run.iterations=1",
-                "--run-dir",
-                str(run_dir),
-                "--no-progress",
-            ]
-        )
-        == 0
-    )
-    # the whole 10-step episode: the program the run compiled for its own video, from the cache
-    assert cli.main(["video", str(run_dir), "--out", str(out), "--seed", "3"]) == 0
+    root = Path(__file__).resolve().parent.parent
+    monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(root / ".jax_cache"))
+    run_dir, out = root / "pretrained" / "dcs" / "cartpole-swingup-seed0", tmp_path / "dcs.mp4"
+    condition = ["env.height=48", "env.width=64", "env.episode_length=10", "env.background_size=64"]
+    condition.append("env.background_frames=4")
+    assert cli.main(["video", str(run_dir), *condition, "--out", str(out), "--seed", "3"]) == 0
 
     # the env as the issue specifies it, built here rather than from the run's config
     env = envs.make(
@@ -140,8 +131,9 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     plain_view = jax.jit(plain.render)(first.data)
     assert np.abs(np.asarray(first.obs) - np.asarray(plain_view)).mean() > 0.05  # distracted
 
-    result = es.load_run(run_dir)
-    _, policy = artifacts.env_and_policy(result.config)
+    result = cli.in_condition(es.load_run(run_dir), condition)
+    policy = result.policy
+    assert result.config.env.name == "cartpole-swingup" and policy.layer.num_patches == 24 * 32
     record = video.record_episode(
         env, policy, result.params, jax.random.PRNGKey(3), steps=10, obs_stats=result.obs_stats
     )
@@ -199,3 +191,25 @@ def test_small_patches_get_a_ring_that_can_be_seen():
             wy, wx = np.nonzero(white)
             halo = np.hypot(wy + 0.5 - centre_y, wx + 0.5 - centre_x)
             assert np.all((halo > video.MARK_RADIUS - 0.5) & (halo < video.MARK_RADIUS + 3.5)), halo
+
+
+def test_a_condition_the_parameters_do_not_fit_is_refused_before_compiling():
+    """``iap-mjx video``/``attended`` in another condition rebuild the policy for its frames: an
+    IAP run's parameters fit any frame size (the dcs video test above), a CNN's dense layer
+    does not, and the CLI says which settings to keep instead of failing inside a compile."""
+    from pathlib import Path
+
+    from iap_mjx import cli, configs, es
+    from iap_mjx.viz import artifacts
+
+    run_dir = Path(__file__).resolve().parent.parent / "pretrained" / "dcs" / "cartpole-swingup-seed0"
+    result = es.load_run(run_dir)
+    config = dataclasses.replace(result.config, policy=configs.get("dcs-cartpole-swingup-cnn").policy)
+    _, cnn = artifacts.env_and_policy(config)
+    params = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), jax.eval_shape(cnn.init, jax.random.PRNGKey(0)))
+    trained_cnn = dataclasses.replace(result, config=config, policy=cnn, params=params)
+    assert cli.in_condition(trained_cnn, ["env.background_videos=val"]).policy == cnn  # same frames
+    with pytest.raises(ValueError, match=r"env\.height, env\.width"):
+        cli.in_condition(trained_cnn, ["env.height=48", "env.width=64"])
+    smaller = cli.in_condition(result, ["env.height=48", "env.width=64"])
+    assert smaller.policy.layer.num_patches == 24 * 32 and smaller.env.observation_shape == (48, 64, 3)
