@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import copy
 
+import course
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-import spread
 
 from iap_mjx import envs
 from iap_mjx.envs.quadruped import QuadrupedConfig, QuadrupedWallsConfig
@@ -66,53 +66,13 @@ def test_walls_step_native_parity_reward_and_episode_end(walls):
     _check_episode_ends_on_falling_off_or_touching_the_ground(*walls)
 
 
-def _native_qpos(
-    env,
-    model: mujoco.MjModel,
-    start,
-    targets: np.ndarray,
-    *,
-    move_wall: bool,
-    rng: np.random.Generator | None = None,
-    sub_steps: int | None = None,
-    touch_geom: int | None = None,
-) -> tuple[np.ndarray, int]:
-    """Native MuJoCo (float64) on ``model`` from the MJX data ``start`` under PD ``targets``
-    ``(T, 12)``: ``qpos`` after each control step ``(T, nq)`` and how many physics steps had
-    ``touch_geom`` in a contact. ``move_wall``: the env's one colliding wall follows the trunk
-    as the env moves it; ``rng`` nudges the state by one float32 ulp after every physics step;
-    ``sub_steps`` replaces the physics steps per control step."""
-    data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = np.asarray(start.qpos), np.asarray(start.qvel)
-    data.mocap_pos[:] = np.asarray(start.mocap_pos)
-    qpos, touched = [], 0
-    for target in targets:
-        data.ctrl[:] = target
-        for _ in range(env.n_sub_steps if sub_steps is None else sub_steps):
-            mujoco.mj_step(model, data)
-            if rng is not None:
-                spread.nudge_state(data, rng)
-            if touch_geom is not None:
-                touched += sum(touch_geom in (c.geom1, c.geom2) and c.dist < 0 for c in data.contact[: data.ncon])
-        if move_wall:
-            data.mocap_pos[-1] = np.asarray(env.contact_wall_position(data.qpos[0], data.mocap_pos[:-1]))
-        qpos.append(data.qpos.copy())
-    return np.array(qpos), touched
+def _follow(env):
+    """Moves the env's one colliding wall after the trunk, as the env does after each step."""
 
+    def follow(data):
+        data.mocap_pos[-1] = np.asarray(env.contact_wall_position(data.qpos[0], data.mocap_pos[:-1]))
 
-def _check_against_native(
-    env, model, start, targets, ours, *, move_wall: bool, what: str, touch_geom: int | None = None
-) -> np.ndarray:
-    """``ours`` ``(T, nq)`` within 1e-3 plus native MuJoCo's own spread under float32 noise
-    (``tests/spread.py``) of native's run from ``start``, and a native run with 4 physics steps
-    per control step instead of 5 outside it. Returns native's run and its touch count."""
-    run = lambda **kw: _native_qpos(env, model, start, targets, move_wall=move_wall, **kw)  # noqa: E731
-    theirs, touched = run(touch_geom=touch_geom)
-    qpos_spread = spread.spread(theirs, [run(rng=noise)[0] for noise in spread.noise_generators()])
-    spread.assert_within_spread(np.array(ours), theirs, qpos_spread, atol=1e-3, what=what)
-    wrong, _ = run(sub_steps=spread.wrong_sub_steps(env.n_sub_steps))
-    spread.assert_wrong_step_is_caught(wrong, theirs, qpos_spread, atol=1e-3)
-    return theirs, touched
+    return follow
 
 
 def _check_parity_with_native_mujoco(env, reset, step):
@@ -140,7 +100,9 @@ def _check_parity_with_native_mujoco(env, reset, step):
         state = step(state, jnp.asarray(action))
         ours.append(np.asarray(state.data.qpos))
     targets = np.asarray(a1.action_to_targets(actions), np.float64)
-    theirs, _ = _check_against_native(env, env.mj_model, start, targets, ours, move_wall=True, what="quadruped qpos")
+    theirs, _ = course.check_against_native(
+        env, env.mj_model, start, targets, ours, follow=_follow(env), what="quadruped qpos"
+    )
     assert float(np.max(np.asarray(state.done))) == 0.0
     assert theirs[-1, 0] != theirs[0, 0]  # the robot moved
 
@@ -179,8 +141,8 @@ def _check_one_colliding_wall_touches_like_all_walls(env, reset, step):
         state = step(state, jnp.asarray(hold))
         ours.append(np.asarray(state.data.qpos))
     targets = np.tile(np.asarray(a1.HOME_JOINTS, np.float64), (40, 1))
-    _, touched = _check_against_native(
-        env, m, data0, targets, ours, move_wall=False, what="walking into the wall", touch_geom=m.geom("wall1").id
+    _, touched = course.check_against_native(
+        env, m, data0, targets, ours, follow=None, what="walking into the wall", touch_geom=m.geom("wall1").id
     )
     assert touched > 0
 

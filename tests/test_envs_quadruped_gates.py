@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import copy
 
+import course
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-import spread
 
 from iap_mjx import cli, envs
 from iap_mjx.envs.pixels import with_pixels
@@ -117,41 +117,15 @@ def test_gates_step_native_parity_and_obstacle_contacts(gates):
     _check_pushes_touch_like_every_obstacle_colliding(*gates)
 
 
-def _native_qpos(env, model, start, targets, *, move_copies: bool, rng=None, sub_steps=None, touch_geom=None):
-    """Native MuJoCo (float64) on ``model`` from the MJX data ``start`` under PD ``targets``
-    ``(T, 12)``: ``qpos`` after each control step ``(T, nq)`` and the physics steps with
-    ``touch_geom`` in a contact. ``move_copies``: the colliding copies follow the trunk as the
-    env moves them; ``rng`` nudges the state by one float32 ulp after every physics step;
-    ``sub_steps`` replaces the physics steps per control step."""
-    data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = np.asarray(start.qpos), np.asarray(start.qvel)
-    data.mocap_pos[:] = np.asarray(start.mocap_pos)
-    qpos, touched = [], 0
-    for target in targets:
-        data.ctrl[:] = target
-        for _ in range(env.n_sub_steps if sub_steps is None else sub_steps):
-            mujoco.mj_step(model, data)
-            if rng is not None:
-                spread.nudge_state(data, rng)
-            if touch_geom is not None:
-                touched += sum(touch_geom in (c.geom1, c.geom2) and c.dist < 0 for c in data.contact[: data.ncon])
-        if move_copies:
-            positions = np.asarray(env.contact_positions(data.qpos[0], data.mocap_pos.astype(np.float32)))
-            data.mocap_pos[env._contact_rows] = positions
-        qpos.append(data.qpos.copy())
-    return np.array(qpos), touched
+def _follow(env):
+    """Moves the colliding obstacle copies to the nearest obstacles, as the env does after each
+    step."""
 
+    def follow(data):
+        positions = np.asarray(env.contact_positions(data.qpos[0], data.mocap_pos.astype(np.float32)))
+        data.mocap_pos[env._contact_rows] = positions
 
-def _check_against_native(env, model, start, targets, ours, *, move_copies, what, touch_geom=None):
-    """``ours`` ``(T, nq)`` within 1e-3 plus native MuJoCo's own spread under float32 noise, and
-    a native run with 4 physics steps per control step outside that bound."""
-    run = lambda **kw: _native_qpos(env, model, start, targets, move_copies=move_copies, **kw)  # noqa: E731
-    theirs, touched = run(touch_geom=touch_geom)
-    qpos_spread = spread.spread(theirs, [run(rng=noise)[0] for noise in spread.noise_generators()])
-    spread.assert_within_spread(np.array(ours), theirs, qpos_spread, atol=1e-3, what=what)
-    wrong, _ = run(sub_steps=spread.wrong_sub_steps(env.n_sub_steps))
-    spread.assert_wrong_step_is_caught(wrong, theirs, qpos_spread, atol=1e-3)
-    return theirs, touched
+    return follow
 
 
 def _check_parity_with_native_mujoco(env, reset, step):
@@ -173,8 +147,8 @@ def _check_parity_with_native_mujoco(env, reset, step):
     live = int(np.argmax(done)) + 1 if max(done) else STEPS  # the steps up to the ending one
     assert live >= 80
     targets = np.asarray(a1.action_to_targets(actions[:live]), np.float64)
-    theirs, _ = _check_against_native(
-        env, env.mj_model, start, targets, ours[:live], move_copies=True, what="gates qpos"
+    theirs, _ = course.check_against_native(
+        env, env.mj_model, start, targets, ours[:live], follow=_follow(env), what="gates qpos"
     )
     inside = np.abs(theirs[:, 1]) <= env.HALF_WIDTH - ROBOT_HALF_WIDTH
     assert inside[:-1].all() and (live == STEPS or not inside[-1])
@@ -229,13 +203,13 @@ def _check_pushes_touch_like_every_obstacle_colliding(env, reset, step):
             state = step(state, hold)
             ours.append(np.asarray(state.data.qpos))
             collided.append(bool(env.touches_obstacle(state.data)))
-        _, touched = _check_against_native(
+        _, touched = course.check_against_native(
             env,
             m,
             start,
             targets,
             ours,
-            move_copies=False,
+            follow=None,
             what=f"pushed into {obstacle}",
             touch_geom=m.geom(obstacle).id,
         )

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 
+import course
 import jax
 import numpy as np
 import pytest
@@ -15,19 +16,8 @@ import pytest
 from iap_mjx import cli, configs, envs, policies
 
 PRESETS = ("quadruped-gates-iap", "quadruped-gates-blind")
-SHRINK = [
-    "env.episode_length=5",
-    "es.population_size=4",
-    "run.iterations=1",
-    "run.eval_episodes=2",
-    "run.checkpoint_every=0",
-    "run.tensorboard=false",
-]
-COURSE_COLUMNS = [
-    f"{prefix}{name}{suffix}"
-    for name in ("gates_passed", "collisions", "left_corridor", "fell_over", "distance")
-    for prefix, suffix in (("", "_mean"), ("eval_", ""))
-]
+SHRINK = course.SHRINK
+COURSE_COLUMNS = course.course_columns(("gates_passed", "collisions", "left_corridor", "fell_over", "distance"))
 OBSERVATION = {"pixels": (24, 32, 1), "state": (17,)}
 
 

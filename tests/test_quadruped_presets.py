@@ -8,6 +8,7 @@ import csv
 import dataclasses
 import json
 
+import course
 import numpy as np
 import pytest
 
@@ -15,19 +16,8 @@ from iap_mjx import cli, configs, envs, policies
 from iap_mjx.es import train
 
 PRESETS = ("quadruped-walls-iap", "quadruped-walls-cnn", "quadruped-walls-blind")
-SHRINK = [
-    "env.episode_length=5",
-    "es.population_size=4",
-    "run.iterations=1",
-    "run.eval_episodes=2",
-    "run.checkpoint_every=0",
-    "run.tensorboard=false",
-]
-COURSE_COLUMNS = [
-    f"{prefix}{name}{suffix}"
-    for name in ("walls_passed", "fell_off", "wall_contacts", "distance")
-    for prefix, suffix in (("", "_mean"), ("eval_", ""))
-]
+SHRINK = course.SHRINK
+COURSE_COLUMNS = course.course_columns(("walls_passed", "fell_off", "wall_contacts", "distance"))
 
 
 def test_presets_are_the_hierarchies_they_name():
