@@ -197,8 +197,10 @@ def in_condition(result: Any, overrides: list[str]) -> Any:
     config = apply_condition(result.config, overrides)
     env, policy = artifacts.env_and_policy(config)
     wanted = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
-    shapes = lambda tree: jax.tree.map(lambda x: tuple(x.shape), tree)  # noqa: E731
-    if jax.tree.structure(wanted) != jax.tree.structure(result.params) or shapes(wanted) != shapes(result.params):
+    fits = jax.tree.structure(wanted) == jax.tree.structure(result.params) and all(
+        a.shape == b.shape for a, b in zip(jax.tree.leaves(wanted), jax.tree.leaves(result.params))
+    )
+    if not fits:
         raise ValueError(
             f"the run's {config.policy.kind!r} parameters do not fit its policy on "
             f"{env.observation_shape} observations ({' '.join(overrides)}); keep the env settings "
