@@ -91,6 +91,31 @@ def test_interrupted_reproduce_exits_130_saying_how_to_resume(monkeypatch, tmp_p
     assert "the same command resumes" in captured.err
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["reproduce", "fig7", "--tasks", "cartpole-swingup"],  # table1's
+        ["reproduce", "fig8", "--seeds", "2"],  # fig8 trains one seed per method
+        ["reproduce", "table1", "--settings", "1x1"],  # table2's
+        ["reproduce", "fig10", "run.iterations=3"],  # fig10 draws trained runs as they are
+    ],
+)
+def test_reproduce_refuses_the_options_of_another_figure(argv, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.build_parser().parse_args(argv)
+    assert exit_.value.code == 2 and "unrecognized arguments" in capsys.readouterr().err
+
+
+def test_reproduce_parses_each_figures_options_and_overrides_in_any_order():
+    parser = cli.build_parser()
+    args = parser.parse_args(["reproduce", "table1", "--seeds", "2", "run.iterations=3", "--tasks", "a, b"])
+    assert (args.figure, args.seeds, args.overrides, args.tasks) == ("table1", 2, ["run.iterations=3"], ("a", "b"))
+    args = parser.parse_args(["reproduce", "table2", "--settings", "1x1,4x2", "--seed", "1"])
+    assert (args.settings, args.seed, args.overrides, args.out) == (((1, 1), (4, 2)), 1, [], "results")
+    args = parser.parse_args(["reproduce", "fig10", "--run-dirs", "x,y", "--frames", "4"])
+    assert (args.run_dirs, args.frames) == (("x", "y"), 4)
+
+
 def test_show_prints_the_resolved_config_of_a_preset_and_of_a_run(tmp_path, capsys):
     overrides = ["es.population_size=8", "env.height=64", "env.width=64"]
     assert cli.main(["show", "walker-walk-pixels", *overrides]) == 0

@@ -50,8 +50,9 @@ def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "table2", "--settings", "1x1,3x3", "--out", str(tmp_path)]) == 2
     assert "patch size 3, stride 3" in capsys.readouterr().err
-    assert cli.main(["reproduce", "table2", "--settings", "1by1", "--out", str(tmp_path)]) == 2
-    assert "PATCHxSTRIDE" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["reproduce", "table2", "--settings", "1by1", "--out", str(tmp_path)])
+    assert exit_.value.code == 2 and "PATCHxSTRIDE" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
 
 

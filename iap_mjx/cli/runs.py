@@ -1,12 +1,7 @@
-"""The ``iap-mjx`` command line: ``presets``, ``show``, ``train``, ``eval``, ``video``, ...
-
-One small function per command; ``build_parser`` wires them to ``argparse`` subparsers, so a
-new command is a new ``add_parser`` call and a function. JAX is imported only inside the
-commands, after ``main`` has split the CPU into devices and turned on the compilation cache.
-
-It is one module at over 400 lines because the command line is one ``argparse`` tree: most of
-the length is ``build_parser`` (half of it ``reproduce``'s options) and one short function per
-command, the longest of which (``cmd_reproduce``) only hands each figure to its own module.
+"""The commands over presets and run directories: ``presets``, ``show``, ``train``, ``eval``,
+``video``, ``attended`` and ``figures``, one function each, and ``add_commands``, which wires
+them into the ``iap-mjx`` parser. JAX is imported inside the commands, after
+:func:`iap_mjx.cli.main` has split the CPU into devices and turned on the compilation cache.
 """
 
 from __future__ import annotations
@@ -14,15 +9,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import logging
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from iap_mjx import runtime
-
-logger = logging.getLogger("iap_mjx.cli")
+from iap_mjx.cli import arguments
 
 
 def cmd_presets(args: argparse.Namespace) -> int:
@@ -54,8 +46,6 @@ def resolve_target(target: str, overrides: list[str]):
 def cmd_show(args: argparse.Namespace) -> int:
     """Prints the resolved config of a preset (or run directory) with overrides, and what it
     builds: every env setting, the policy's settings and its number of parameters."""
-    import dataclasses
-
     try:
         config = resolve_target(args.target, args.overrides)
         from iap_mjx import es
@@ -248,93 +238,6 @@ def cmd_video(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Reproduces the paper's Figure 1 or 6 (inference time per pass next to return), 7 (patch
-    sweep), 8 (wall-clock), its Table 1 with the generalisation conditions, or its quadruped's
-    Figures 10, 11 and Table 2."""
-    from iap_mjx import patch_sweep, reproduce, table1, wallclock
-
-    try:
-        if args.figure == "fig11":
-            from iap_mjx import fig11
-
-            markdown = fig11.reproduce_fig11(
-                args.out,
-                seeds=args.seeds,
-                overrides=tuple(args.overrides),
-                episodes=args.episodes,
-                train=not args.report_only,
-                results=args.results,
-                export=args.export,
-            )
-        elif args.figure == "table2":
-            from iap_mjx import table2
-
-            settings = parse_settings(args.settings) if args.settings else table2.SETTINGS
-            markdown = table2.reproduce_table2(
-                args.out,
-                settings=settings,
-                seed=args.seed,
-                overrides=tuple(args.overrides),
-                train=not args.report_only,
-                results=args.results,
-            )
-        elif args.figure == "fig10":
-            from iap_mjx import fig10
-
-            if args.overrides:
-                raise ValueError(f"fig10 draws trained runs as they are; remove {' '.join(args.overrides)}")
-            run_dirs = tuple(part.strip() for part in args.run_dirs.split(",")) if args.run_dirs else None
-            markdown = fig10.reproduce_fig10(args.out, run_dirs=run_dirs, frames=args.frames, results=args.results)
-        elif args.figure == "fig8":
-            markdown = wallclock.reproduce_fig8(
-                args.out, overrides=tuple(args.overrides), train=not args.report_only, results=args.results
-            )
-        elif args.figure == "fig7":
-            markdown = patch_sweep.reproduce_fig7(
-                args.out,
-                overrides=tuple(args.overrides),
-                episodes=args.episodes,
-                train=not args.report_only,
-                results=args.results,
-            )
-        elif args.figure == "table1":
-            tasks = tuple(t.strip() for t in args.tasks.split(",")) if args.tasks else table1.TASKS
-            markdown = table1.reproduce_table1(
-                args.out,
-                seeds=args.seeds,
-                overrides=tuple(args.overrides),
-                episodes=args.episodes,
-                train=not args.report_only,
-                tasks=tasks,
-                results=args.results,
-                export=args.export,
-                policy=args.policy,
-            )
-        else:
-            markdown = reproduce.reproduce(
-                args.figure,
-                args.out,
-                seeds=args.seeds,
-                overrides=tuple(args.overrides),
-                passes=args.passes,
-                train=not args.report_only,
-            )
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        # Every run saved a checkpoint of its last finished iteration; rerunning resumes them.
-        print(
-            "\ninterrupted; the same command resumes: finished runs are skipped, the others "
-            "continue from their last checkpoint",
-            file=sys.stderr,
-        )
-        return 130
-    print(markdown)
-    return 0
-
-
 def cmd_figures(args: argparse.Namespace) -> int:
     """Writes a figure set (``mse``: the paper's Figures 3 and 4) as PNGs."""
     from iap_mjx.viz import mse_figures
@@ -344,41 +247,9 @@ def cmd_figures(args: argparse.Namespace) -> int:
     return 0
 
 
-def parse_settings(text: str) -> tuple[tuple[int, int], ...]:
-    """``"1x1,2x2,4x2"`` -> ``((1, 1), (2, 2), (4, 2))``: (patch size, stride) pairs."""
-    settings = []
-    for part in text.split(","):
-        size, _, stride = part.strip().partition("x")
-        if not (size.isdigit() and stride.isdigit()):
-            raise ValueError(f"--settings {text!r}: each setting is PATCHxSTRIDE, e.g. 1x1,2x2,4x4,4x2")
-        settings.append((int(size), int(stride)))
-    return tuple(settings)
-
-
-def _count(text: str) -> int:
-    """An argparse type: an int >= 1."""
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _index(text: str) -> int:
-    """An argparse type: an int >= 0."""
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``iap-mjx`` parser; each subparser sets ``func`` to its command function."""
-    parser = argparse.ArgumentParser(
-        prog="iap-mjx", description="Implicit Attention for Pixels on MJX, trained with ES."
-    )
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    commands = parser.add_subparsers(dest="command", required=True)
-
+def add_commands(commands: Any) -> None:
+    """Adds this module's commands to the ``iap-mjx`` subparsers ``commands``; each sets
+    ``func`` to its command function."""
     presets = commands.add_parser("presets", help="list the named presets")
     presets.set_defaults(func=cmd_presets)
 
@@ -407,8 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument(
         "--coordinator", metavar="HOST:PORT", help="multi-host: the coordinator address (see iap_mjx.es.distributed)"
     )
-    train.add_argument("--num-processes", type=_count, default=1, help="multi-host: processes")
-    train.add_argument("--process-id", type=_index, default=0, help="multi-host: this process")
+    train.add_argument("--num-processes", type=arguments.count, default=1, help="multi-host: processes")
+    train.add_argument("--process-id", type=arguments.index, default=0, help="multi-host: this process")
     train.set_defaults(func=cmd_train)
 
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
@@ -420,7 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the evaluation's condition, e.g. env.distraction=none, env.dynamic=true, "
         "env.background_videos=val (held-out backgrounds)",
     )
-    evaluate.add_argument("--episodes", type=_count, default=8)
+    evaluate.add_argument("--episodes", type=arguments.count, default=8)
     evaluate.add_argument("--seed", type=int, default=12345, help="evaluation seed (distinct from the training seeds)")
     evaluate.set_defaults(func=cmd_eval)
 
@@ -436,14 +307,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
-    video.add_argument("--steps", type=_count, default=None, help="control steps (default: the episode)")
+    video.add_argument("--steps", type=arguments.count, default=None, help="control steps (default: the episode)")
     video.add_argument(
         "--strip",
         default=None,
         metavar="PNG",
         help="instead of a video, a PNG of --frames frames evenly spaced over the episode",
     )
-    video.add_argument("--frames", type=_count, default=6, help="frames in a --strip (default 6)")
+    video.add_argument("--frames", type=arguments.count, default=6, help="frames in a --strip (default 6)")
     video.set_defaults(func=cmd_video)
 
     look = commands.add_parser(
@@ -457,84 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     look.add_argument(
         "overrides", nargs="*", metavar="env.key=value", help="the episodes' condition, e.g. env.background_videos=val"
     )
-    look.add_argument("--episodes", type=_count, default=3)
+    look.add_argument("--episodes", type=arguments.count, default=3)
     look.add_argument("--seed", type=int, default=0, help="episode seed")
     look.set_defaults(func=cmd_attended)
-
-    repro = commands.add_parser(
-        "reproduce",
-        help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
-        "Table 1, or the quadruped's Figures 10, 11 and Table 2",
-        description="fig1/fig6: times one forward pass of every attention variant and trains each "
-        "preset on --seeds seeds. fig7: on dcs-cartpole-swingup, one seed per cell of patch "
-        "size {2, 4, 8} x selected patches {5, 10, 20}, then d_qk {2, 4, 8} at the best cell. fig8: "
-        "brute force, IAP ReLU and hybrid on dcs-cartpole-swingup against wall-clock seconds, "
-        "each method's seconds per iteration measured first (leave the machine alone). "
-        "table1: trains dcs-<task> for every Distracting Control "
-        "task and seed, then evaluates each finished run in four conditions (training "
-        "backgrounds, held-out backgrounds, dynamic, no distraction); --policy cnn does the same "
-        "for the convolutional baseline. fig11: trains quadruped-walls-iap, -cnn and -blind on "
-        "--seeds seeds, then evaluates each finished run on --episodes courses not seen in "
-        "training (walls passed, falls, wall contacts, distance). table2: quadruped-walls-iap at "
-        "each --settings patch size and stride, one --seed, reporting the maximum episode return. "
-        "fig10: a PNG strip of the camera with the selected patches along one episode of each of "
-        "--run-dirs (default: table2's patch 1 and 4 runs in --out). key=value overrides "
-        "apply to every preset (e.g. run.iterations=100).",
-    )
-    repro.add_argument("figure", choices=["fig1", "fig6", "fig7", "fig8", "fig10", "fig11", "table1", "table2"])
-    repro.add_argument("overrides", nargs="*", metavar="key=value")
-    repro.add_argument("--out", default="results", help="output directory (default: results)")
-    repro.add_argument("--seeds", type=_count, default=3)
-    repro.add_argument("--passes", type=_count, default=100, help="timed forward passes (fig1, fig6)")
-    repro.add_argument(
-        "--episodes",
-        type=_count,
-        default=20,
-        help="table1, fig7, fig11: evaluation episodes per condition and run (default 20)",
-    )
-    repro.add_argument("--tasks", default=None, help="table1: comma-separated suite tasks (default: all six)")
-    repro.add_argument(
-        "--results",
-        default=None,
-        metavar="RESULTS.md",
-        help="table1, table2, fig7, fig8, fig10, fig11: rewrite this markdown file's section",
-    )
-    repro.add_argument(
-        "--export",
-        default=None,
-        metavar="DIR",
-        help="table1, fig11: copy each run's newest checkpoint, config and metrics to "
-        "DIR/<task>-seed<k> (table1, e.g. pretrained/dcs) or DIR/<preset>-seed<k> (fig11, "
-        "e.g. pretrained/quadruped), tracked by git",
-    )
-    repro.add_argument(
-        "--settings",
-        default=None,
-        metavar="PxS,...",
-        help="table2: comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)",
-    )
-    repro.add_argument("--seed", type=_index, default=0, help="table2: the training seed (default 0)")
-    repro.add_argument(
-        "--run-dirs",
-        default=None,
-        metavar="DIR,...",
-        help="fig10: comma-separated trained quadruped-walls-iap runs (default: "
-        "OUT/table2-p1-s1-seed0,OUT/quadruped-walls-iap-seed0)",
-    )
-    repro.add_argument("--frames", type=_count, default=6, help="fig10: frames per strip (default 6)")
-    repro.add_argument(
-        "--policy",
-        default="iap",
-        choices=["iap", "cnn"],
-        help="table1: iap (dcs-<task>) or cnn, the same-budget convolutional baseline "
-        "(dcs-<task>-cnn), reported beside the IAP runs in --out",
-    )
-    repro.add_argument(
-        "--report-only",
-        action="store_true",
-        help="train nothing: report the runs already in --out, however far they got",
-    )
-    repro.set_defaults(func=cmd_reproduce)
 
     figures = commands.add_parser(
         "figures",
@@ -544,26 +340,5 @@ def build_parser() -> argparse.ArgumentParser:
     )
     figures.add_argument("which", choices=["mse"])
     figures.add_argument("--out", default="figures", help="output directory (default: figures)")
-    figures.add_argument("--draws", type=_count, default=100_000, help="Monte Carlo draws per point")
+    figures.add_argument("--draws", type=arguments.count, default=100_000, help="Monte Carlo draws per point")
     figures.set_defaults(func=cmd_figures)
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point: sets up devices and the compilation cache, then runs the command."""
-    runtime.hoist_large_constants()
-    runtime.set_host_device_count()
-    runtime.enable_compilation_cache()
-    runtime.disable_dm_control_rendering()
-    args = build_parser().parse_args(argv)
-    # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
-    logging.getLogger("iap_mjx").setLevel(logging.DEBUG if args.verbose else logging.INFO)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,0 +1,50 @@
+"""The ``iap-mjx`` command line.
+
+One ``argparse`` tree: :mod:`~iap_mjx.cli.runs` adds the commands over presets and run
+directories (``presets``, ``show``, ``train``, ``eval``, ``video``, ``attended``, ``figures``),
+:mod:`~iap_mjx.cli.reproduce` adds ``reproduce`` with one subcommand per figure, each command a
+small function. A new command is an ``add_parser`` call and a function in one of them. JAX is
+imported only inside the commands, after :func:`main` has split the CPU into devices and turned
+on the compilation cache.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from iap_mjx import runtime
+from iap_mjx.cli import reproduce, runs
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``iap-mjx`` parser; each command's parser sets ``func`` to its command function."""
+    parser = argparse.ArgumentParser(
+        prog="iap-mjx", description="Implicit Attention for Pixels on MJX, trained with ES."
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    commands = parser.add_subparsers(dest="command", required=True)
+    runs.add_commands(commands)
+    reproduce.add_commands(commands)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: sets up devices and the compilation cache, then runs the command."""
+    runtime.hoist_large_constants()
+    runtime.set_host_device_count()
+    runtime.enable_compilation_cache()
+    runtime.disable_dm_control_rendering()
+    args = build_parser().parse_args(argv)
+    # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    logging.getLogger("iap_mjx").setLevel(logging.DEBUG if args.verbose else logging.INFO)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

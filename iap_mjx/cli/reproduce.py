@@ -1,0 +1,276 @@
+"""``iap-mjx reproduce FIGURE``: the paper's figures and tables, one subcommand each.
+
+Each figure's subcommand takes only the options that figure uses, so an option meant for
+another one (``reproduce fig7 --tasks ...``) is refused by the parser instead of ignored, and
+hands them to the module that trains, evaluates and reports it. Every figure is resumable:
+finished runs are skipped, the others continue from their last checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from iap_mjx.cli import arguments
+
+
+def _fig1_or_fig6(args: argparse.Namespace) -> str:
+    from iap_mjx import reproduce
+
+    return reproduce.reproduce(
+        args.figure,
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        passes=args.passes,
+        train=not args.report_only,
+    )
+
+
+def _fig7(args: argparse.Namespace) -> str:
+    from iap_mjx import patch_sweep
+
+    return patch_sweep.reproduce_fig7(
+        args.out,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        results=args.results,
+    )
+
+
+def _fig8(args: argparse.Namespace) -> str:
+    from iap_mjx import wallclock
+
+    return wallclock.reproduce_fig8(
+        args.out, overrides=tuple(args.overrides), train=not args.report_only, results=args.results
+    )
+
+
+def _table1(args: argparse.Namespace) -> str:
+    from iap_mjx import table1
+
+    return table1.reproduce_table1(
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        tasks=args.tasks or table1.TASKS,
+        results=args.results,
+        export=args.export,
+        policy=args.policy,
+    )
+
+
+def _fig11(args: argparse.Namespace) -> str:
+    from iap_mjx import fig11
+
+    return fig11.reproduce_fig11(
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        results=args.results,
+        export=args.export,
+    )
+
+
+def _table2(args: argparse.Namespace) -> str:
+    from iap_mjx import table2
+
+    return table2.reproduce_table2(
+        args.out,
+        settings=args.settings or table2.SETTINGS,
+        seed=args.seed,
+        overrides=tuple(args.overrides),
+        train=not args.report_only,
+        results=args.results,
+    )
+
+
+def _fig10(args: argparse.Namespace) -> str:
+    from iap_mjx import fig10
+
+    return fig10.reproduce_fig10(args.out, run_dirs=args.run_dirs, frames=args.frames, results=args.results)
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Runs the figure's function (``args.reproduce``) and prints its markdown; a bad setting
+    exits 2 before anything trains, Ctrl-C exits 130 with a hint that the command resumes."""
+    try:
+        markdown = args.reproduce(args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        # Every run saved a checkpoint of its last finished iteration; rerunning resumes them.
+        print(
+            "\ninterrupted; the same command resumes: finished runs are skipped, the others "
+            "continue from their last checkpoint",
+            file=sys.stderr,
+        )
+        return 130
+    print(markdown)
+    return 0
+
+
+def add_commands(commands: Any) -> None:
+    """Adds ``reproduce`` and its one subcommand per figure to the ``iap-mjx`` subparsers."""
+    repro = commands.add_parser(
+        "reproduce",
+        help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
+        "Table 1, or the quadruped's Figures 10, 11 and Table 2",
+        description="Trains, evaluates and reports one of the paper's figures or tables; "
+        "`iap-mjx reproduce FIGURE -h` lists that figure's options. Rerunning a command resumes "
+        "it: finished runs are skipped, the others continue from their last checkpoint.",
+    )
+    figures = repro.add_subparsers(dest="figure", required=True, metavar="FIGURE")
+
+    def figure(name: str, summary: str, description: str, function: Any, *, overrides: bool = True):
+        parser = figures.add_parser(name, help=summary, description=f"{summary}: {description}")
+        if overrides:
+            parser.add_argument(
+                "overrides", nargs="*", metavar="key=value", help="applied to every preset, e.g. run.iterations=100"
+            )
+        parser.add_argument("--out", default="results", help="output directory (default: results)")
+        parser.set_defaults(func=cmd_reproduce, reproduce=function)
+        return parser
+
+    def seeds(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--seeds", type=arguments.count, default=3, help="training seeds per preset (default 3)")
+
+    def episodes(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--episodes",
+            type=arguments.count,
+            default=20,
+            help="evaluation episodes per condition and run (default 20)",
+        )
+
+    def results(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--results", default=None, metavar="RESULTS.md", help="rewrite this markdown file's section"
+        )
+
+    def report_only(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--report-only",
+            action="store_true",
+            help="train nothing: report the runs already in --out, however far they got",
+        )
+
+    def export(parser: argparse.ArgumentParser, example: str) -> None:
+        parser.add_argument(
+            "--export",
+            default=None,
+            metavar="DIR",
+            help=f"copy each run's newest checkpoint, config and metrics to {example}, tracked by git",
+        )
+
+    for name in ("fig1", "fig6"):
+        parser = figure(
+            name,
+            "inference time per pass next to return",
+            "times one forward pass of every attention variant and trains each preset on --seeds seeds",
+            _fig1_or_fig6,
+        )
+        seeds(parser)
+        parser.add_argument("--passes", type=arguments.count, default=100, help="timed forward passes (default 100)")
+        report_only(parser)
+
+    parser = figure(
+        "fig7",
+        "the patch sweep",
+        "on dcs-cartpole-swingup, one seed per cell of patch size {2, 4, 8} x selected patches "
+        "{5, 10, 20}, then d_qk {2, 4, 8} at the best cell",
+        _fig7,
+    )
+    episodes(parser)
+    results(parser)
+    report_only(parser)
+
+    parser = figure(
+        "fig8",
+        "return against wall-clock",
+        "brute force, IAP ReLU and hybrid on dcs-cartpole-swingup, each method's seconds per "
+        "iteration measured first (leave the machine alone)",
+        _fig8,
+    )
+    results(parser)
+    report_only(parser)
+
+    parser = figure(
+        "table1",
+        "the Distracting Control Suite, static medium",
+        "trains dcs-<task> for every task and seed, then evaluates each finished run in four "
+        "conditions (training backgrounds, held-out backgrounds, dynamic, no distraction); "
+        "--policy cnn does the same for the convolutional baseline",
+        _table1,
+    )
+    seeds(parser)
+    episodes(parser)
+    parser.add_argument(
+        "--tasks", type=arguments.names, default=None, help="comma-separated suite tasks (default: all six)"
+    )
+    parser.add_argument(
+        "--policy",
+        default="iap",
+        choices=["iap", "cnn"],
+        help="iap (dcs-<task>) or cnn, the same-budget convolutional baseline (dcs-<task>-cnn), "
+        "reported beside the IAP runs in --out",
+    )
+    results(parser)
+    export(parser, "DIR/<task>-seed<k> (e.g. pretrained/dcs)")
+    report_only(parser)
+
+    parser = figure(
+        "fig11",
+        "the quadruped's high levels on the walls course",
+        "trains quadruped-walls-iap, -cnn and -blind on --seeds seeds, then evaluates each finished "
+        "run on --episodes courses not seen in training (walls passed, falls, wall contacts, distance)",
+        _fig11,
+    )
+    seeds(parser)
+    episodes(parser)
+    results(parser)
+    export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
+    report_only(parser)
+
+    parser = figure(
+        "table2",
+        "the quadruped's patch sizes and strides",
+        "quadruped-walls-iap at each --settings patch size and stride, one --seed, reporting the "
+        "maximum episode return",
+        _table2,
+    )
+    parser.add_argument(
+        "--settings",
+        type=arguments.settings,
+        default=None,
+        metavar="PxS,...",
+        help="comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)",
+    )
+    parser.add_argument("--seed", type=arguments.index, default=0, help="the training seed (default 0)")
+    results(parser)
+    report_only(parser)
+
+    parser = figure(
+        "fig10",
+        "the quadruped's camera with the selected patches",
+        "a PNG strip along one episode of each of --run-dirs, drawn from the trained runs as they are",
+        _fig10,
+        overrides=False,
+    )
+    parser.add_argument(
+        "--run-dirs",
+        type=arguments.names,
+        default=None,
+        metavar="DIR,...",
+        help="comma-separated trained quadruped-walls-iap runs (default: "
+        "OUT/table2-p1-s1-seed0,OUT/quadruped-walls-iap-seed0)",
+    )
+    parser.add_argument("--frames", type=arguments.count, default=6, help="frames per strip (default 6)")
+    results(parser)
