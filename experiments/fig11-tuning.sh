@@ -5,7 +5,8 @@
 # five iterations' evaluations, each 8 episodes, then the mean over the two policies) becomes
 # COURSE_ES (iap_mjx/configs/quadruped_presets.py) for every walls and
 # gates preset, seed and figure; the blind control is never tuned on. Each run's config.json
-# and metrics.csv are copied to experiments/fig11-tuning/<run>/ for RESULTS.md.
+# and metrics.csv are copied to experiments/fig11-tuning/<run>/ for RESULTS.md;
+# `python experiments/fig11_tuning_report.py` prints their table and the setting the rule chooses.
 #
 #   bash experiments/fig11-tuning.sh          # from the repository's root, in its venv (~1.5 h alone)
 #
