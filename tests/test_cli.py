@@ -106,6 +106,14 @@ def test_reproduce_refuses_the_options_of_another_figure(argv, capsys):
     assert exit_.value.code == 2 and "unrecognized arguments" in capsys.readouterr().err
 
 
+def test_an_unknown_option_is_refused_by_its_commands_parser_naming_the_options_it_takes(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["eval", "no-such-run", "--bogus", "1"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "iap-mjx eval: error: unrecognized arguments: --bogus" in err
+    assert "usage: iap-mjx eval [-h] [--episodes EPISODES] [--seed SEED]" in err
+
+
 def test_reproduce_parses_each_figures_options_and_overrides_in_any_order():
     parser = cli.build_parser()
     args = parser.parse_args(["reproduce", "table1", "--seeds", "2", "run.iterations=3", "--tasks", "a, b"])

@@ -78,7 +78,8 @@ def test_runs_that_show_no_patches_fail_before_anything_compiles(tmp_path, capsy
     assert "selects no patches" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:  # fig10 draws the runs as trained: no overrides
         cli.main(["reproduce", "fig10", "env.n_walls=2", "--out", str(tmp_path / "out")])
-    assert exit_.value.code == 2 and "unrecognized arguments: env.n_walls=2" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "iap-mjx reproduce fig10: error: unrecognized arguments: env.n_walls=2" in err
 
 
 def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episodes):

@@ -19,7 +19,8 @@ from iap_mjx.cli import reproduce, runs
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``iap-mjx`` parser; each command's parser sets ``func`` to its command function."""
+    """The ``iap-mjx`` parser; each command's parser sets ``func`` to its command function and
+    ``command_parser`` to itself."""
     parser = argparse.ArgumentParser(
         prog="iap-mjx", description="Implicit Attention for Pixels on MJX, trained with ES."
     )
@@ -36,7 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     runtime.set_host_device_count()
     runtime.enable_compilation_cache()
     runtime.disable_dm_control_rendering()
-    args = build_parser().parse_args(argv)
+    args, unknown = build_parser().parse_known_args(argv)
+    if unknown:  # refused by the command's own parser, whose usage lists the options it takes
+        args.command_parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING,

@@ -136,7 +136,7 @@ def add_commands(commands: Any) -> None:
                 "overrides", nargs="*", metavar="key=value", help="applied to every preset, e.g. run.iterations=100"
             )
         parser.add_argument("--out", default="results", help="output directory (default: results)")
-        parser.set_defaults(func=cmd_reproduce, reproduce=function)
+        parser.set_defaults(func=cmd_reproduce, reproduce=function, command_parser=parser)
         return parser
 
     def seeds(parser: argparse.ArgumentParser) -> None:

@@ -251,7 +251,7 @@ def add_commands(commands: Any) -> None:
     """Adds this module's commands to the ``iap-mjx`` subparsers ``commands``; each sets
     ``func`` to its command function."""
     presets = commands.add_parser("presets", help="list the named presets")
-    presets.set_defaults(func=cmd_presets)
+    presets.set_defaults(func=cmd_presets, command_parser=presets)
 
     show = commands.add_parser(
         "show",
@@ -262,7 +262,7 @@ def add_commands(commands: Any) -> None:
     )
     show.add_argument("target", metavar="PRESET", help="a name from `iap-mjx presets`, or a run directory")
     show.add_argument("overrides", nargs="*", metavar="key=value")
-    show.set_defaults(func=cmd_show)
+    show.set_defaults(func=cmd_show, command_parser=show)
 
     train = commands.add_parser(
         "train",
@@ -280,7 +280,7 @@ def add_commands(commands: Any) -> None:
     )
     train.add_argument("--num-processes", type=arguments.count, default=1, help="multi-host: processes")
     train.add_argument("--process-id", type=arguments.index, default=0, help="multi-host: this process")
-    train.set_defaults(func=cmd_train)
+    train.set_defaults(func=cmd_train, command_parser=train)
 
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
     evaluate.add_argument("run_dir")
@@ -293,7 +293,7 @@ def add_commands(commands: Any) -> None:
     )
     evaluate.add_argument("--episodes", type=arguments.count, default=8)
     evaluate.add_argument("--seed", type=int, default=12345, help="evaluation seed (distinct from the training seeds)")
-    evaluate.set_defaults(func=cmd_eval)
+    evaluate.set_defaults(func=cmd_eval, command_parser=evaluate)
 
     video = commands.add_parser(
         "video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)"
@@ -315,7 +315,7 @@ def add_commands(commands: Any) -> None:
         help="instead of a video, a PNG of --frames frames evenly spaced over the episode",
     )
     video.add_argument("--frames", type=arguments.count, default=6, help="frames in a --strip (default 6)")
-    video.set_defaults(func=cmd_video)
+    video.set_defaults(func=cmd_video, command_parser=video)
 
     look = commands.add_parser(
         "attended",
@@ -330,7 +330,7 @@ def add_commands(commands: Any) -> None:
     )
     look.add_argument("--episodes", type=arguments.count, default=3)
     look.add_argument("--seed", type=int, default=0, help="episode seed")
-    look.set_defaults(func=cmd_attended)
+    look.set_defaults(func=cmd_attended, command_parser=look)
 
     figures = commands.add_parser(
         "figures",
@@ -341,4 +341,4 @@ def add_commands(commands: Any) -> None:
     figures.add_argument("which", choices=["mse"])
     figures.add_argument("--out", default="figures", help="output directory (default: figures)")
     figures.add_argument("--draws", type=arguments.count, default=100_000, help="Monte Carlo draws per point")
-    figures.set_defaults(func=cmd_figures)
+    figures.set_defaults(func=cmd_figures, command_parser=figures)
