@@ -98,6 +98,7 @@ def test_interrupted_reproduce_exits_130_saying_how_to_resume(monkeypatch, tmp_p
         ["reproduce", "fig8", "--seeds", "2"],  # fig8 trains one seed per method
         ["reproduce", "table1", "--settings", "1x1"],  # table2's
         ["reproduce", "fig10", "run.iterations=3"],  # fig10 draws trained runs as they are
+        ["reproduce", "table1", "--seed", "1"],  # table2's, not an abbreviation of --seeds
     ],
 )
 def test_reproduce_refuses_the_options_of_another_figure(argv, capsys):
@@ -114,7 +115,7 @@ def test_an_unknown_option_is_refused_by_its_commands_parser_naming_the_options_
     assert "usage: iap-mjx eval [-h] [--episodes EPISODES] [--seed SEED]" in err
 
 
-def test_reproduce_parses_each_figures_options_and_overrides_in_any_order():
+def test_reproduce_parses_each_figures_options_and_overrides_before_or_after_them():
     parser = cli.build_parser()
     args = parser.parse_args(["reproduce", "table1", "--seeds", "2", "run.iterations=3", "--tasks", "a, b"])
     assert (args.figure, args.seeds, args.overrides, args.tasks) == ("table1", 2, ["run.iterations=3"], ("a", "b"))
@@ -122,6 +123,10 @@ def test_reproduce_parses_each_figures_options_and_overrides_in_any_order():
     assert (args.settings, args.seed, args.overrides, args.out) == (((1, 1), (4, 2)), 1, [], "results")
     args = parser.parse_args(["reproduce", "fig10", "--run-dirs", "x,y", "--frames", "4"])
     assert (args.run_dirs, args.frames) == (("x", "y"), 4)
+    for empty in ("", "x,,y"):
+        with pytest.raises(SystemExit) as exit_:
+            parser.parse_args(["reproduce", "fig10", "--run-dirs", empty])
+        assert exit_.value.code == 2
 
 
 def test_show_prints_the_resolved_config_of_a_preset_and_of_a_run(tmp_path, capsys):

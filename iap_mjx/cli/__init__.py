@@ -3,16 +3,16 @@
 One ``argparse`` tree: :mod:`~iap_mjx.cli.runs` adds the commands over presets and run
 directories (``presets``, ``show``, ``train``, ``eval``, ``video``, ``attended``, ``figures``),
 :mod:`~iap_mjx.cli.reproduce` adds ``reproduce`` with one subcommand per figure, each command a
-small function. A new command is an ``add_parser`` call and a function in one of them. JAX is
-imported only inside the commands, after :func:`main` has split the CPU into devices and turned
-on the compilation cache.
+small function. A new command is an ``add_parser`` call (its defaults: ``func``, the function,
+and ``command_parser``, the parser itself, which refuses unknown options with its own usage)
+and a function in one of them. JAX is imported only inside the commands, after :func:`main`
+has split the CPU into devices and turned on the compilation cache.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import sys
 
 from iap_mjx import runtime
 from iap_mjx.cli import reproduce, runs
@@ -37,9 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     runtime.set_host_device_count()
     runtime.enable_compilation_cache()
     runtime.disable_dm_control_rendering()
-    args, unknown = build_parser().parse_known_args(argv)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
     if unknown:  # refused by the command's own parser, whose usage lists the options it takes
-        args.command_parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+        getattr(args, "command_parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING,
@@ -47,7 +48,3 @@ def main(argv: list[str] | None = None) -> int:
     )
     logging.getLogger("iap_mjx").setLevel(logging.DEBUG if args.verbose else logging.INFO)
     return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -34,5 +34,8 @@ def settings(text: str) -> tuple[tuple[int, int], ...]:
 
 
 def names(text: str) -> tuple[str, ...]:
-    """An argparse type: ``"a, b"`` -> ``("a", "b")``."""
-    return tuple(part.strip() for part in text.split(","))
+    """An argparse type: ``"a, b"`` -> ``("a", "b")``; an empty name is refused."""
+    parts = tuple(part.strip() for part in text.split(","))
+    if not all(parts):
+        raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of names, none empty")
+    return parts

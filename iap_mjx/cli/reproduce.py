@@ -1,9 +1,10 @@
 """``iap-mjx reproduce FIGURE``: the paper's figures and tables, one subcommand each.
 
-Each figure's subcommand takes only the options that figure uses, so an option meant for
-another one (``reproduce fig7 --tasks ...``) is refused by the parser instead of ignored, and
-hands them to the module that trains, evaluates and reports it. Every figure is resumable:
-finished runs are skipped, the others continue from their last checkpoint.
+Each figure's subcommand takes only its own options: another figure's (``reproduce fig7
+--tasks ...``) is refused by the parser, not ignored, and no option is taken for an
+abbreviation of another (``--seed`` is table2's, never ``--seeds``). Its function hands them to
+the module that trains, evaluates and reports the figure. Every figure is resumable: finished
+runs are skipped, the others continue from their last checkpoint.
 """
 
 from __future__ import annotations
@@ -98,10 +99,10 @@ def _fig10(args: argparse.Namespace) -> str:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    """Runs the figure's function (``args.reproduce``) and prints its markdown; a bad setting
+    """Runs the figure's function (``args.run_figure``) and prints its markdown; a bad setting
     exits 2 before anything trains, Ctrl-C exits 130 with a hint that the command resumes."""
     try:
-        markdown = args.reproduce(args)
+        markdown = args.run_figure(args)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -130,24 +131,21 @@ def add_commands(commands: Any) -> None:
     figures = repro.add_subparsers(dest="figure", required=True, metavar="FIGURE")
 
     def figure(name: str, summary: str, description: str, function: Any, *, overrides: bool = True):
-        parser = figures.add_parser(name, help=summary, description=f"{summary}: {description}")
+        parser = figures.add_parser(name, help=summary, description=f"{summary}: {description}", allow_abbrev=False)
         if overrides:
             parser.add_argument(
                 "overrides", nargs="*", metavar="key=value", help="applied to every preset, e.g. run.iterations=100"
             )
         parser.add_argument("--out", default="results", help="output directory (default: results)")
-        parser.set_defaults(func=cmd_reproduce, reproduce=function, command_parser=parser)
+        parser.set_defaults(func=cmd_reproduce, run_figure=function, command_parser=parser)
         return parser
 
     def seeds(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--seeds", type=arguments.count, default=3, help="training seeds per preset (default 3)")
 
-    def episodes(parser: argparse.ArgumentParser) -> None:
+    def episodes(parser: argparse.ArgumentParser, what: str) -> None:
         parser.add_argument(
-            "--episodes",
-            type=arguments.count,
-            default=20,
-            help="evaluation episodes per condition and run (default 20)",
+            "--episodes", type=arguments.count, default=20, help=f"evaluation episodes {what} (default 20)"
         )
 
     def results(parser: argparse.ArgumentParser) -> None:
@@ -188,7 +186,7 @@ def add_commands(commands: Any) -> None:
         "{5, 10, 20}, then d_qk {2, 4, 8} at the best cell",
         _fig7,
     )
-    episodes(parser)
+    episodes(parser, "per run, in the training condition")
     results(parser)
     report_only(parser)
 
@@ -211,7 +209,7 @@ def add_commands(commands: Any) -> None:
         _table1,
     )
     seeds(parser)
-    episodes(parser)
+    episodes(parser, "per run and condition")
     parser.add_argument(
         "--tasks", type=arguments.names, default=None, help="comma-separated suite tasks (default: all six)"
     )
@@ -234,7 +232,7 @@ def add_commands(commands: Any) -> None:
         _fig11,
     )
     seeds(parser)
-    episodes(parser)
+    episodes(parser, "per run, each on a course not seen in training")
     results(parser)
     export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
     report_only(parser)

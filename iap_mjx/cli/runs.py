@@ -249,7 +249,7 @@ def cmd_figures(args: argparse.Namespace) -> int:
 
 def add_commands(commands: Any) -> None:
     """Adds this module's commands to the ``iap-mjx`` subparsers ``commands``; each sets
-    ``func`` to its command function."""
+    ``func`` to its command function and ``command_parser`` to its parser."""
     presets = commands.add_parser("presets", help="list the named presets")
     presets.set_defaults(func=cmd_presets, command_parser=presets)
 
