@@ -110,7 +110,7 @@ def main() -> int:
     body = (
         "## The first run: the README's main command\n\n"
         f"Command: `python benchmarks/first_run.py --seeds {options.seeds}`, which runs "
-        f"`iap-mjx {shlex.join(args)}` (seed 0; `run.seed=K` appended for the others) in a fresh "
+        f"`iap-mjx {shlex.join(args)}` (seed 0; `run.seed=K` after the preset for the others) in a fresh "
         "directory with an empty compilation cache, after `pip install`. Measured on "
         f"{report.machine_line()}, started {started}; 1-min load average before/after: "
         f"{load_before:.1f}/{load_after:.1f}.\n\n"
