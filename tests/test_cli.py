@@ -4,6 +4,7 @@ end is ``tests/test_first_run.py`` (the README's command, then ``iap-mjx eval`` 
 from __future__ import annotations
 
 import json
+import shlex
 from pathlib import Path
 
 import pytest
@@ -73,9 +74,18 @@ def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(es, "train", interrupted)
-    code = cli.main(["train", "cheetah-run-state", "iterations=3", "--run-dir", str(tmp_path)])
-    assert code == 130
-    assert f"--run-dir {tmp_path}" in capsys.readouterr().err
+    argv = ["train", "cheetah-run-state", "iterations=3", "es.sigma=0.1", "--run-dir", str(tmp_path / "a b")]
+    assert cli.main(argv) == 130
+    hint = capsys.readouterr().err.split("Resume with: ")[1].strip()
+    # the hinted command parses, nothing left over, to the same preset, overrides and run directory
+    words = shlex.split(hint)
+    assert words[0] == "iap-mjx"
+    again, unknown = cli.build_parser().parse_known_args(words[1:])
+    assert unknown == [] and (again.preset, again.overrides, again.run_dir) == (
+        "cheetah-run-state",
+        ["iterations=3", "es.sigma=0.1"],
+        str(tmp_path / "a b"),
+    )
 
 
 def test_interrupted_reproduce_exits_130_saying_how_to_resume(monkeypatch, tmp_path, capsys):

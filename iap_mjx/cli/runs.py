@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -120,11 +121,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
         step = checkpoint.latest_step(run_dir)
         saved = f"last checkpoint: iteration {step}" if step is not None else "no checkpoint yet"
-        print(
-            f"\ninterrupted; {saved}. Resume with: iap-mjx train {args.preset} "
-            f"--run-dir {run_dir} {' '.join(args.overrides)}".rstrip(),
-            file=sys.stderr,
-        )
+        # the overrides before the options: argparse takes positionals in one run
+        resume = shlex.join(["iap-mjx", "train", args.preset, *args.overrides, "--run-dir", str(run_dir)])
+        print(f"\ninterrupted; {saved}. Resume with: {resume}", file=sys.stderr)
         return 130
     if not primary:
         return 0
