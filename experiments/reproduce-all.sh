@@ -26,14 +26,14 @@ T1="reproduce table1 --seeds 3 --episodes 20 --out $OUT/table1 --export $EXPORT/
 run $T1 --tasks cartpole-swingup,cheetah-run,reacher-easy
 run reproduce fig7 run.iterations=30 --out "$OUT/fig7"
 run reproduce fig8 run.iterations=30 --out "$OUT/fig8"
-run $T1 --tasks ball_in_cup-catch,walker-walk
-run $T1 --policy cnn --tasks cartpole-swingup,cheetah-run
-# finger-spin last: its seed 0 shows no learning signal from pixels (RESULTS.md, table1-analysis)
-run $T1 --tasks finger-spin
 # the course's ES settings, chosen on short runs before Figure 11 (the rule: fig11-tuning.sh's header)
 echo "== $(date -u '+%F %T') experiments/fig11-tuning.sh"
 OUT="$OUT/fig11-tuning" NICE="$NICE" bash experiments/fig11-tuning.sh
 run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
+run $T1 --tasks ball_in_cup-catch,walker-walk
+run $T1 --policy cnn --tasks cartpole-swingup,cheetah-run
+# finger-spin last of the suite: its seed 0 shows no learning signal from pixels (RESULTS.md, table1-analysis)
+run $T1 --tasks finger-spin
 run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/table2"
 run reproduce fig10 --out "$OUT/table2"
 # beyond the paper (issue 24): the gates corridor seen through depth, IAP and the blind control
