@@ -74,7 +74,9 @@ def episode_counts(
     obs_stats: Any = None,
     program: Any = None,
 ) -> list[dict[str, int]]:
-    """Per episode, ``{label: selected pixels showing it}`` over ``episodes`` episodes of
+    """Per episode, ``{label: selected pixels showing it}`` over the steps taken while each
+    episode lived (a fallen quadruped's view of the ground after its episode ended is not
+    counted) of ``episodes`` episodes of
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
     ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
     ``steps`` (default: built here)."""
@@ -88,7 +90,8 @@ def episode_counts(
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
         record = video.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
         counts: dict[str, int] = {}
-        for geom, count in count_geoms(record["geoms"], record["indices"], policy.layer).items():
+        alive = record["alive"]  # the frames the policy saw while its episode lived
+        for geom, count in count_geoms(record["geoms"][alive], record["indices"][alive], policy.layer).items():
             label = geom_label(env.mj_model, geom)
             counts[label] = counts.get(label, 0) + count
         out.append(counts)
