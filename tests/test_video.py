@@ -213,3 +213,34 @@ def test_a_condition_the_parameters_do_not_fit_is_refused_before_compiling():
         cli.runs.in_condition(trained_cnn, ["env.height=48", "env.width=64"])
     smaller = cli.runs.in_condition(result, ["env.height=48", "env.width=64"])
     assert smaller.policy.layer.num_patches == 24 * 32 and smaller.env.observation_shape == (48, 64, 3)
+
+
+def test_video_and_strip_end_with_the_episode_and_count_its_live_rewards(tmp_path):
+    import types
+
+    from iap_mjx.attention.patches import patch_grid
+
+    config = types.SimpleNamespace(patch_size=2, effective_stride=2)
+    layer = types.SimpleNamespace(config=config, grid=patch_grid(4, 4, 2, 2))
+    env = types.SimpleNamespace(obs_mode="pixels")
+    policy = types.SimpleNamespace(select=None, layer=layer)
+    steps = 10
+
+    def program(params, obs_stats, key):  # the episode ends at step 3 (a fall); 6 steps follow it
+        done = np.zeros(steps)
+        done[3] = 1.0
+        return {
+            "frames": np.broadcast_to(np.linspace(0, 1, steps)[:, None, None, None], (steps, 4, 4, 3)),  # distinct
+            "indices": np.zeros((steps, 1), np.int32),
+            "rewards": np.full(steps, 2.0),
+            "done": done,
+        }
+
+    kwargs = dict(key=jax.random.PRNGKey(0), steps=steps, program=program)
+    path, episode_return = video.episode_video(env, policy, None, tmp_path / "e.gif", fps=10, **kwargs)
+    assert episode_return == 8.0  # steps 0-3 live
+    assert len(iio.imread(path, index=None)) == 4
+    path, episode_return = video.episode_strip(env, policy, None, tmp_path / "s.png", frames=4, columns=4, **kwargs)
+    strip = iio.imread(path)
+    tile = video.annotate(np.zeros((4, 4, 3)), np.zeros(1, np.int32), layer, 0.0, scale=2, step=0)
+    assert episode_return == 8.0 and strip.shape[1] == 4 * tile.shape[1] + 3 * 4  # four frames: steps 0-3

@@ -134,6 +134,16 @@ def record_episode(
     return {**record, "alive": alive_steps(record["done"])}
 
 
+def last_live_step(record: dict[str, np.ndarray]) -> int:
+    """The index of a recorded episode's last live step (the one that ends it, or the last)."""
+    return int(np.flatnonzero(record["alive"])[-1])
+
+
+def live_returns(record: dict[str, np.ndarray]) -> np.ndarray:
+    """``(T,)`` the return so far at each step, counting live steps' rewards only."""
+    return np.cumsum(np.where(record["alive"], record["rewards"], 0.0))
+
+
 def alive_steps(done: np.ndarray) -> np.ndarray:
     """``(T,)`` bool: step ``t`` was taken while the episode lived, i.e. no step before it
     ended the episode (``done (T,)``: the state after step ``t`` is terminal). The step that
@@ -216,16 +226,17 @@ def episode_video(
     program: Any = None,
     fps: int | None = None,
 ) -> tuple[Path, float]:
-    """Runs one episode (:func:`record_episode`) and writes its annotated video. Returns
-    ``(path, episode return)``."""
+    """Runs one episode (:func:`record_episode`) and writes its annotated video up to the step
+    that ends it (a fall ends a quadruped's early). Returns ``(path, episode return)``, the
+    return counting the live steps only, as training does."""
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
-    returns = np.cumsum(record["rewards"])
+    returns = live_returns(record)
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
     scale = 3 if has_pixels(env) else 1
     frames = [
-        annotate(frame, None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
-        for t, frame in enumerate(record["frames"])
+        annotate(record["frames"][t], None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
+        for t in range(last_live_step(record) + 1)
     ]
     if fps is None:  # a state env's video in real time (the quadruped's 0.02 s steps: 50 fps)
         timestep = None if has_pixels(env) else getattr(env, "control_timestep", None)
@@ -249,17 +260,18 @@ def episode_strip(
     scale: int = 2,
 ) -> tuple[Path, float]:
     """Runs one episode (:func:`record_episode`) and writes ``frames`` of it, evenly spaced from
-    the first step to the last, annotated as the video's (:func:`annotate`, the step in the
-    caption) and tiled ``columns`` to a row, as a PNG. Returns ``(path, episode return)``."""
+    the first step to the one that ends the episode, annotated as the video's (:func:`annotate`,
+    the step in the caption) and tiled ``columns`` to a row, as a PNG. Returns ``(path, episode
+    return)``, the return counting the live steps only."""
     from PIL import Image
 
     if not isinstance(frames, int) or frames < 1 or not isinstance(columns, int) or columns < 1:
         raise ValueError(f"frames = {frames!r} and columns = {columns!r} must be ints >= 1")
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
-    returns = np.cumsum(record["rewards"])
+    returns = live_returns(record)
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
-    picks = np.unique(np.linspace(0, steps - 1, frames).round().astype(int))
+    picks = np.unique(np.linspace(0, last_live_step(record), frames).round().astype(int))
     tiles = [
         annotate(
             record["frames"][t],
