@@ -100,12 +100,6 @@ def test_shares_and_table_over_episodes():
     assert table[3] == "| cart | 33.3% | 1 of 3 |" and table[4] == "| pole | 16.7% | 1 of 3 |"
 
 
-def test_alive_steps_end_after_the_step_that_ends_the_episode():
-    np.testing.assert_array_equal(video.alive_steps(np.array([0, 0, 1, 0, 1.0])), [1, 1, 1, 0, 0])
-    np.testing.assert_array_equal(video.alive_steps(np.zeros(3)), [1, 1, 1])
-    np.testing.assert_array_equal(video.alive_steps(np.array([1.0, 0, 0])), [1, 0, 0])
-
-
 def test_shares_count_only_the_steps_taken_while_the_episode_lived():
     import mujoco
 
@@ -116,7 +110,7 @@ def test_shares_count_only_the_steps_taken_while_the_episode_lived():
     geoms[1] = -1
 
     def program(params, obs_stats, key):  # an episode that ends at step 1 (a fall): step 2 is after it
-        return {"geoms": geoms, "indices": np.zeros((3, 1), np.int32), "done": np.array([0.0, 1.0, 0.0])}
+        return {"geoms": geoms, "indices": np.zeros((3, 1), np.int32), "alive": np.array([1.0, 1.0, 0.0])}
 
     counts = attended.episode_counts(env, policy, None, episodes=1, steps=3, program=program)
     assert counts == [{"robot": 4, "background": 4}]  # step 2's 4 robot pixels are not counted

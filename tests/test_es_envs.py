@@ -104,6 +104,28 @@ def test_rollout_matches_python_loop_with_early_termination():
     assert min(steps) < env.episode_length  # early termination exercised
 
 
+def test_records_mark_the_live_steps_the_return_counts():
+    env = PointMass(episode_length=15, wall=1.2)
+    policy = MLPPolicy(6, 2, (8,))
+    keys = jax.random.split(jax.random.PRNGKey(3), 6)
+    lengths = []
+    for key in keys:
+        params = policy.init(key)
+        params[-1]["b"] = params[-1]["b"] + 3.0  # some episodes hit the wall early
+        result = run_episode(env, policy, params, key, None, False, record=lambda step: {"r": step.next_state.reward})
+        alive = np.asarray(result.records["alive"])
+        assert alive.shape == (env.episode_length,) and np.all(np.diff(alive) <= 0)  # ones, then zeros
+        assert alive.sum() == float(result.steps)
+        np.testing.assert_allclose(
+            np.sum(np.asarray(result.records["r"]) * alive),
+            python_return(env, policy, params, key),
+            rtol=1e-5,
+            atol=1e-5,
+        )
+        lengths.append(int(alive.sum()))
+    assert min(lengths) < env.episode_length  # early termination exercised
+
+
 def test_nan_rewards_are_masked_and_counted():
     env = PointMass(episode_length=15, nan_wall=1.2)
     policy = LinearPolicy(6, 2)

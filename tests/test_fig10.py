@@ -49,8 +49,7 @@ def episodes(monkeypatch):
             "frames": np.zeros((steps, 24, 32, 3), np.float32),
             "indices": np.tile(first, (steps, 1)),
             "rewards": np.full(steps, 0.01),
-            "done": np.zeros(steps),  # as the real record: an episode that lasts every step
-            "alive": np.ones(steps, bool),
+            "alive": np.ones(steps, bool),  # as the real record: an episode that lasts every step
         }
 
     from iap_mjx import es

@@ -227,13 +227,13 @@ def test_video_and_strip_end_with_the_episode_and_count_its_live_rewards(tmp_pat
     steps = 10
 
     def program(params, obs_stats, key):  # the episode ends at step 3 (a fall); 6 steps follow it
-        done = np.zeros(steps)
-        done[3] = 1.0
+        alive = np.zeros(steps)
+        alive[:4] = 1.0
         return {
             "frames": np.broadcast_to(np.linspace(0, 1, steps)[:, None, None, None], (steps, 4, 4, 3)),  # distinct
             "indices": np.zeros((steps, 1), np.int32),
             "rewards": np.full(steps, 2.0),
-            "done": done,
+            "alive": alive,
         }
 
     kwargs = dict(key=jax.random.PRNGKey(0), steps=steps, program=program)

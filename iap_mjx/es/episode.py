@@ -39,8 +39,9 @@ class EpisodeResult:
     env's per-episode statistics at the episode's end: ``{name: ()}`` for each name in the
     env's ``episode_metrics`` (e.g. the quadruped course's walls passed; empty for envs
     without them, which then add nothing to the program), ``records`` what the ``record``
-    hook of :func:`run_episode` returned at each step, ``{name: (T, ...)}`` (empty without
-    a hook).
+    hook of :func:`run_episode` returned at each step, ``{name: (T, ...)}``, and with it
+    ``"alive": (T,)``, 1.0 for the steps whose reward the return counts (the tally's own: before
+    ``done`` or a non-finite step ended the episode); empty without a hook.
     """
 
     ret: jax.Array
@@ -165,7 +166,7 @@ def run_episode(
       track_obs: accumulate raw-observation sums for the statistics' next update.
       steps: control steps to run.
       record: ``Step -> {name: array}`` kept from every step, returned stacked over time in
-        ``EpisodeResult.records`` (``(steps, ...)`` each).
+        ``EpisodeResult.records`` (``(steps, ...)`` each) beside ``"alive"``, which step lived.
 
     Returns the episode's :class:`EpisodeResult`.
     """
@@ -182,7 +183,7 @@ def run_episode(
         env_state, policy_state, tally = carry
         taken, policy_state = episode_step(env, policy, params, obs_stats, env_state, policy_state)
         tally, steps_alive = tally.add(taken, track_obs)
-        records = record(taken) if record is not None else {}
+        records = {**record(taken), "alive": steps_alive} if record is not None else {}
         return (taken.next_state, policy_state, tally), (steps_alive, records)
 
     carry = batched_like((state, policy_state, tally), key)

@@ -73,8 +73,9 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
         the geom map of its frame: ``viz.attended``).
 
     Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
-    (T, l) int or absent, "rewards": (T,), "done": (T,)}`` (``done``: the step ended the
-    episode, or it had ended before) and ``extra``'s entries ``(T, ...)``.
+    (T, l) int or absent, "rewards": (T,), "alive": (T,)}`` (``alive``: the episode's own
+    record of the steps its return counts, :func:`iap_mjx.es.episode.run_episode`) and
+    ``extra``'s entries ``(T, ...)``.
     """
     from iap_mjx.es.episode import Step, run_episode
 
@@ -93,7 +94,6 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
             if selects:
                 kept["indices"] = policy.select(params, step.seen, step.policy_state).indices
             kept["rewards"] = step.next_state.reward
-            kept["done"] = step.next_state.done
             return kept
 
         return run_episode(env, policy, params, key, obs_stats, steps=steps, record=record).records
@@ -125,13 +125,13 @@ def record_episode(
 
     Returns:
       ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "rewards": (T,),
-      "done": (T,), "alive": (T,) bool}``: ``alive`` marks the steps taken before the episode
-      ended (:func:`alive_steps`); the program runs all ``steps``, ended or not.
+      "alive": (T,) bool}``: ``alive`` marks the steps whose reward the episode's return
+      counts (up to the one that ends it); the program runs all ``steps``, ended or not.
     """
     if program is None:
         program = episode_program(env, policy, steps=steps)
     record = jax.tree_util.tree_map(np.asarray, program(params, obs_stats, key))
-    return {**record, "alive": alive_steps(record["done"])}
+    return {**record, "alive": record["alive"] > 0}
 
 
 def last_live_step(record: dict[str, np.ndarray]) -> int:
@@ -142,14 +142,6 @@ def last_live_step(record: dict[str, np.ndarray]) -> int:
 def live_returns(record: dict[str, np.ndarray]) -> np.ndarray:
     """``(T,)`` the return so far at each step, counting live steps' rewards only."""
     return np.cumsum(np.where(record["alive"], record["rewards"], 0.0))
-
-
-def alive_steps(done: np.ndarray) -> np.ndarray:
-    """``(T,)`` bool: step ``t`` was taken while the episode lived, i.e. no step before it
-    ended the episode (``done (T,)``: the state after step ``t`` is terminal). The step that
-    ends an episode (a fall, the time limit) is alive; the ones after it are not."""
-    ended_before = np.concatenate([[0.0], np.cumsum(np.asarray(done, np.float64))[:-1]])
-    return ended_before == 0
 
 
 def annotate(
