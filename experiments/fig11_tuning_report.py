@@ -20,7 +20,8 @@ LAST = 5  # evaluations averaged per run
 
 def read(run: Path) -> dict:
     """One run's settings and what the rule reads of its ``metrics.csv``."""
-    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    with open(run / "metrics.csv") as file:
+        rows = list(csv.DictReader(file))
     config = json.loads((run / "config.json").read_text())
     es = config["es"]
     last = rows[-LAST:]
