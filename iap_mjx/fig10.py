@@ -4,10 +4,11 @@ episode, for a small and a large patch size.
 For each trained ``quadruped-walls-iap`` run (by default Table 2's runs in ``out``: patch size 1,
 stride 1, and the preset's own 4x4, :mod:`iap_mjx.table2`), one episode of its final centre on a
 course not seen in training (keys of :data:`iap_mjx.run_eval.EVAL_SEED`) is written as a PNG
-strip: ``frames`` frames of the first-person camera evenly spaced over the episode, scaled up,
-the patches the high level selects in red (``iap_mjx.viz.video.episode_strip``; the high level
-is evaluated at every step, though its command is taken only when the one held runs out, so a
-frame shows what it would pick were it asked then).
+strip: ``frames`` frames evenly spaced over the episode, each the course seen from the camera
+that follows the robot with the first-person camera inset, scaled up, the patches the high level
+selects in red (``iap_mjx.viz.video.episode_strip``; the high level is evaluated at every step,
+though its command is taken only when the one held runs out, so a frame shows what it would
+pick were it asked then).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from iap_mjx.viz.sections import image_link, write_section
 
 logger = logging.getLogger(__name__)
 
-SCALE = 6  # the 24x32 camera as 144x192 tiles: a 1-pixel patch a 6-pixel square (ringed), a 4-pixel one 24
+SCALE = 6  # the 24x32 camera inset at 144x192: a 1-pixel patch a 6-pixel square (ringed), a 4-pixel one 24
 DEFAULT_RUNS = ("table2-p1-s1-seed0", "quadruped-walls-iap-seed0")  # Table 2's smallest and the preset's patches
 
 
@@ -125,8 +126,9 @@ def write_results(path: Path, markdown: str, *, run_dirs: tuple[Path, ...], fram
     body = (
         f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
         f"Command: `{command}`. One episode of each run's final centre on a course not seen in training "
-        f"(seed {EVAL_SEED}); {frames} frames of the first-person camera evenly spaced over it, {SCALE}x, the "
-        f"selected patches in red (the high level's choice were it asked at that step; it is asked when the "
-        f"command it holds runs out).\n\n{markdown}\n"
+        f"(seed {EVAL_SEED}); {frames} frames evenly spaced over it, each the course from the camera that follows "
+        f"the robot, the first-person camera inset at {SCALE}x with the selected patches in red (the high "
+        f"level's choice were it asked at that step; it is asked when the command it holds runs out).\n\n"
+        f"{markdown}\n"
     )
     write_section(path, "fig10", body, title="# Results")

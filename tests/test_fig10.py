@@ -1,6 +1,7 @@
 """``iap-mjx reproduce fig10``: runs that cannot show selected patches fail before anything
-compiles; each run's strip is the camera scaled up with the high level's patches in red, named by
-its patch size and stride, and the section shows both. The episode itself is
+compiles; each run's strip is the course seen from the camera that follows the robot with its
+camera inset, scaled up with the high level's patches in red, named by its patch size and
+stride, and the section shows both. The episode itself is
 ``viz.video.record_episode``'s (tested in test_video.py; the quadruped's compiles for minutes), so
 here it is a hand-made record drawn by the real strip code."""
 
@@ -10,9 +11,11 @@ import shutil
 import types
 
 import jax
+import mujoco
 import numpy as np
 import pytest
 from fake_runs import fake_run
+from mujoco import mjx
 from PIL import Image
 
 from iap_mjx import cli, configs, fig10, run_eval, table2
@@ -27,6 +30,17 @@ def _run(out, preset, overrides=()):
     config = configs.apply_overrides(configs.get(preset), ("run.iterations=2", *overrides))
     fake_run(out / f"{preset}-{'-'.join(overrides) or 'own'}", config, 2, [1.0, 2.0])
     return out / f"{preset}-{'-'.join(overrides) or 'own'}"
+
+
+def scene_pose(env):
+    """The scene camera's poses (``video.state_camera``) of the course at its model's own
+    state, as a recorded episode keeps them at each step."""
+    data = mujoco.MjData(env.mj_model)
+    mujoco.mj_forward(env.mj_model, data)
+    return {
+        name: np.asarray(value)
+        for name, value in video.state_camera(env).poses(mjx.put_data(env.mj_model, data)).items()
+    }
 
 
 @pytest.fixture
@@ -48,6 +62,7 @@ def episodes(monkeypatch):
         return {
             "frames": np.zeros((steps, 24, 32, 3), np.float32),
             "indices": np.tile(first, (steps, 1)),
+            "scene": {name: np.repeat(pose[None], steps, axis=0) for name, pose in scene_pose(env).items()},
             "rewards": np.full(steps, 0.01),
             "alive": np.ones(steps, bool),  # as the real record: an episode that lasts every step
         }
@@ -83,22 +98,39 @@ def test_runs_that_show_no_patches_fail_before_anything_compiles(tmp_path, capsy
     assert exit_.value.code == 2 and "iap-mjx reproduce fig10: error: unrecognized arguments: env.n_walls=2" in err
 
 
-def test_strips_show_the_camera_scaled_with_the_selected_patches(tmp_path, episodes):
+def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_inset(tmp_path, episodes):
     small = _run(tmp_path, "quadruped-walls-iap", table2.setting_overrides(1, 1))
     large = _run(tmp_path, "quadruped-walls-iap")
     results = tmp_path / "RESULTS.md"
     markdown = fig10.reproduce_fig10(tmp_path, run_dirs=(small, large), frames=3, results=results)
     unseen = np.asarray(jax.random.PRNGKey(run_eval.EVAL_SEED)).tolist()
     assert episodes == [unseen] * 2  # a course not seen in training, the same for both
+    (height, width), margin = video.SCENE_VIDEO_SIZE, video.INSET_MARGIN
+    view_h, view_w = 16 + 24 * fig10.SCALE, 32 * fig10.SCALE  # the camera, scaled, under its caption
+    top, left = margin, width - margin - view_w  # the view's corner in each tile: top right
+    env = fig10.check((small,))[small][1]
+    # the strip's three frames of one pose, rendered by the same program (a batch of 3)
+    scene = video.render_scene(env, {name: np.repeat(pose[None], 3, axis=0) for name, pose in scene_pose(env).items()})[
+        0
+    ]
+    assert scene.std() > 10  # a picture of the course, not a blank
     tiles = {}
     for name in ("fig10-p1-s1.png", "fig10-p4-s4.png"):
         image = np.asarray(Image.open(tmp_path / name).convert("RGB"))
-        assert image.shape == (16 + 24 * fig10.SCALE, 3 * 32 * fig10.SCALE + 2 * 4, 3)  # 3 tiles, 2 white gaps
-        tiles[name] = image[16:, : 32 * fig10.SCALE]
+        assert image.shape == (height, 3 * width + 2 * 4, 3)  # 3 tiles, 2 white gaps
+        first = image[:, :width]
+        outside = np.ones((height, width), bool)
+        outside[top - 2 : top + view_h + 2, left - 2 : left + view_w + 2] = False
+        np.testing.assert_array_equal(first[outside], scene[outside])  # the course around the inset
+        ring = first[top - 2 : top + view_h + 2, left - 2 : left + view_w + 2].copy()
+        ring[2:-2, 2:-2] = 255
+        assert (ring == 255).all()  # the inset's white frame
+        tiles[name] = first[top + 16 : top + view_h, left : left + view_w]
     red = np.array(video.RED)
     patch = 4 * fig10.SCALE
     large_tile = tiles["fig10-p4-s4.png"]
     assert (large_tile[patch, patch] == red).all() and (large_tile[2 * patch - 1, 2 * patch - 1] == red).all()
+    assert (large_tile[patch + 1, patch + 1] == 255).all()  # a white line inside the red one
     assert (large_tile[patch + 2, patch + 2] == 0).all()  # inside the outline: the camera's black
     small_tile, scale = tiles["fig10-p1-s1.png"], fig10.SCALE
     for row, col in SMALL:  # each 1-pixel patch a scale-pixel square outlined, ringed red inside white

@@ -133,7 +133,7 @@ def test_tile_culling_and_its_fallback_equal_dense_tracing(cull_pairs_per_tile, 
     dense = Camera(model, height=48, width=40, cull_pairs_per_tile=0)
     culled = Camera(model, height=48, width=40, cull_pairs_per_tile=cull_pairs_per_tile, batch_chunk=2, tile=8)
     assert culled.tracer.culled_groups, "walker's capsules should be culled"
-    frames = jax.vmap(culled.tracer.geom_frames)(jax.vmap(culled._poses)(batch))
+    frames = jax.vmap(culled.tracer.geom_frames)(jax.vmap(culled.poses)(batch))
     _, overflow = jax.jit(jax.vmap(culled.tracer.culled_keys))(frames)
     assert bool(np.all(overflow)) == overflows, "the test should reach the intended path"
     want = jax.jit(jax.vmap(dense.trace))(batch)
@@ -200,7 +200,7 @@ def test_lights_are_placed_as_mj_camlight_places_them():
         data.qpos[:] = np.concatenate([quat / np.linalg.norm(quat), rng.uniform(-1, 1, 1)])
         mujoco.mj_forward(model, data)
         position, direction = (
-            np.asarray(a) for a in cam.shader.lights_in_camera_frame(cam._poses(mjx.put_data(model, data)))
+            np.asarray(a) for a in cam.shader.lights_in_camera_frame(cam.poses(mjx.put_data(model, data)))
         )
         rot = data.cam_xmat[0].reshape(3, 3)
         np.testing.assert_allclose(position, (data.light_xpos - data.cam_xpos[0]) @ rot, atol=1e-5)

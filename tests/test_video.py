@@ -165,8 +165,8 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
 
 def test_small_patches_get_a_ring_that_can_be_seen():
     """2x2 patches at 3x are 6-pixel squares: each also gets a red ring of radius
-    ``MARK_RADIUS`` around its centre inside a white one; 4x4 patches (12 pixels) get the
-    outline only."""
+    ``MARK_RADIUS`` around its centre inside a white one; 4x4 patches (12 pixels) get the red
+    outline with a white line just inside it (seen on a red wall too), nothing beyond."""
     from iap_mjx.attention import AttentionConfig, IAPAttention
 
     frame = np.full((24, 32, 3), 0.5, np.float32)
@@ -182,7 +182,11 @@ def test_small_patches_get_a_ring_that_can_be_seen():
         assert outside.any() == ringed, patch  # red beyond the patch's own square: the ring
         white = np.all(drawn == video.WHITE, axis=-1)
         white[:16] = False  # the caption
-        assert white.any() == ringed
+        wy, wx = np.nonzero(white)
+        beyond = np.maximum(np.abs(wy + 0.5 - centre_y), np.abs(wx + 0.5 - centre_x))  # from the centre, square
+        assert (beyond > half).any() == ringed  # white beyond the patch's square: the ring's halo
+        if not ringed:  # white all along the square one pixel inside the red outline, nowhere else
+            assert np.all(beyond == half - 1.5) and len(wy) == 4 * (patch * 3 - 3)  # pixel centres
         if ringed:  # red all round the centre at the ring's radius, white just outside it
             distance = np.hypot(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
             assert np.all((distance > video.MARK_RADIUS - 2.5) & (distance < video.MARK_RADIUS + 1)), distance
@@ -244,3 +248,75 @@ def test_video_and_strip_end_with_the_episode_and_count_its_live_rewards(tmp_pat
     strip = iio.imread(path)
     tile = video.annotate(np.zeros((4, 4, 3)), np.zeros(1, np.int32), layer, 0.0, scale=2, step=0)
     assert episode_return == 8.0 and strip.shape[1] == 4 * tile.shape[1] + 3 * 4  # four frames: steps 0-3
+
+
+def test_a_pixel_env_with_a_scene_camera_shows_each_step_from_it_with_the_view_inset(tmp_path):
+    """A course's robot sees a small first-person camera; its videos and strips show the scene
+    from the env's ``video_camera_id`` at each drawn step, the annotated view in the top-right
+    corner. A cartpole stands in for the course (its camera 0 the scene camera) and the episode
+    is a hand-made record whose scene poses are the camera's own of six states, the cart moving."""
+    import types
+
+    import mujoco
+    from mujoco import mjx
+
+    from iap_mjx.attention.patches import patch_grid
+
+    model = envs.make("cartpole-swingup").mj_model
+    env = types.SimpleNamespace(obs_mode="pixels", video_camera_id=0, mj_model=model)
+    assert video.has_scene(env) and not video.has_scene(types.SimpleNamespace(obs_mode="pixels"))
+    size, steps = (72, 96), 6
+    camera = video.state_camera(env, size)
+    states = []
+    for t in range(steps):
+        data = mujoco.MjData(model)
+        data.qpos[0] = 0.3 * t - 0.75
+        mujoco.mj_forward(model, data)
+        states.append(mjx.put_data(model, data))
+    poses = {
+        name: np.stack([np.asarray(camera.poses(state)[name]) for state in states]) for name in camera.poses(states[0])
+    }
+    layer = types.SimpleNamespace(
+        config=types.SimpleNamespace(patch_size=2, effective_stride=2), grid=patch_grid(4, 4, 2, 2)
+    )
+    policy = types.SimpleNamespace(select=None, layer=layer)
+    record = {
+        "frames": np.broadcast_to(np.linspace(0, 1, steps)[:, None, None, None], (steps, 4, 4, 3)),
+        "indices": np.arange(steps)[:, None] % 4,
+        "scene": poses,
+        "rewards": np.full(steps, 0.5),
+        "alive": np.ones(steps),
+    }
+    kwargs = dict(key=jax.random.PRNGKey(0), steps=steps, program=lambda params, obs_stats, key: record)
+
+    # the scene at each step is the camera's render of that step's state (a vmapped render
+    # rounds a few edge pixels differently from a single one)
+    scenes = video.render_scene(env, poses, size)
+    assert scenes.shape == (steps, *size, 3) and scenes.dtype == np.uint8
+    for t in (0, 5):
+        single = np.clip(np.asarray(jax.jit(camera.render)(states[t])[0]), 0, 1) * 255
+        gap = np.abs(scenes[t] - single)
+        assert np.mean(gap > 1) < 1e-3, t  # beyond the uint8 truncation: a few edge pixels at most
+    assert np.abs(scenes[0].astype(float) - scenes[5]).mean() > 1  # the cart moved
+
+    # a strip of steps 0, 2 (2.5 rounded to even) and 5: each tile its scene, the view inset
+    path, _ = video.episode_strip(
+        env, policy, None, tmp_path / "s.png", frames=3, columns=3, scale=2, scene_size=size, **kwargs
+    )
+    strip = iio.imread(path)
+    assert strip.shape == (size[0], 3 * size[1] + 2 * 4, 3)
+    for column, t in enumerate((0, 2, 5)):
+        tile = strip[:, column * (size[1] + 4) : column * (size[1] + 4) + size[1]]
+        view = video.annotate(record["frames"][t], record["indices"][t], layer, 0.5 * (t + 1), scale=2, step=t)
+        np.testing.assert_array_equal(tile, video.inset(scenes[t], view))
+    expected = scenes[2].copy()
+    top, left = video.INSET_MARGIN, size[1] - video.INSET_MARGIN - view.shape[1]
+    expected[top - 2 : top + view.shape[0] + 2, left - 2 : left + view.shape[1] + 2] = 255  # the white frame
+    expected[top : top + view.shape[0], left : left + view.shape[1]] = view
+    np.testing.assert_array_equal(video.inset(scenes[2], view), expected)
+    with pytest.raises(ValueError, match="does not fit"):
+        video.inset(scenes[0][:20], view)
+
+    # the video: every step, the scene at SCENE_VIDEO_SIZE
+    path, _ = video.episode_video(env, policy, None, tmp_path / "e.gif", fps=10, **kwargs)
+    assert iio.imread(path, index=None).shape == (steps, *video.SCENE_VIDEO_SIZE, 3)

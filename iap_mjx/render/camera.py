@@ -221,21 +221,39 @@ class Camera:
     ) -> tuple[jax.Array, jax.Array, jax.Array]:
         """:meth:`render`'s rgb and depth, and the hit geom's MuJoCo id ``(H, W)`` int32
         (``-1`` where nothing is hit) from the same trace (one program, not two)."""
-        background = self._checked_background(background)
-        geom_rgb = self._checked_geom_rgb(geom_rgb)
-        sky_texture, sky_frame = _sky_stack_and_row(sky_texture)
-        return self._chunked_over_batch(True)(self._poses(data), background, geom_rgb, sky_texture, sky_frame)
+        inputs = self._checked_inputs(background, geom_rgb, sky_texture)
+        return self._chunked_over_batch(True)(self.poses(data), *inputs)
+
+    def render_poses(self, poses: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        """:meth:`render` (the model's colours and sky) of a state given by its :meth:`poses`:
+        what an episode records to render some of its steps afterwards, a few hundred floats
+        a step where its ``mjx.Data`` holds thousands."""
+        rgb, depth, _ = self._chunked_over_batch(True)(poses, *self._checked_inputs(None, None, None))
+        return rgb, depth
 
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
         empty = jnp.zeros((0,), jnp.float32)
         _, depth, ids = self._chunked_over_batch(False)(
-            self._poses(data), empty, empty, jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32)
+            self.poses(data), empty, empty, jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32)
         )
         return depth, ids
 
     # -- the inputs of render, as the program takes them -------------------------------------
+
+    def _checked_inputs(
+        self,
+        background: jax.Array | None,
+        geom_rgb: jax.Array | None,
+        sky_texture: jax.Array | tuple[jax.Array, jax.Array] | None,
+    ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+        """:meth:`render`'s optional inputs as the program takes them: background, colours,
+        sky stack and the row shown (empty arrays for none)."""
+        background = self._checked_background(background)
+        geom_rgb = self._checked_geom_rgb(geom_rgb)
+        sky_texture, sky_frame = _sky_stack_and_row(sky_texture)
+        return background, geom_rgb, sky_texture, sky_frame
 
     def _checked_background(self, background: jax.Array | None) -> jax.Array:
         """``background`` checked, or an empty array for none (the sky is drawn)."""
@@ -259,10 +277,10 @@ class Camera:
 
     # -- one image, and a batch of them -----------------------------------------------------
 
-    def _poses(self, data: mjx.Data) -> dict[str, jax.Array]:
-        """The few per-state arrays the renderer reads: the camera's pose, the drawn geoms'
-        poses, and the positions, orientations and subtree centres of mass of the lights'
-        bodies (and their targets')."""
+    def poses(self, data: mjx.Data) -> dict[str, jax.Array]:
+        """The few per-state arrays the renderer reads (:meth:`render_poses`): the camera's
+        pose, the drawn geoms' poses ``(G, 3)``, ``(G, 9)``, and the positions, orientations
+        and subtree centres of mass of the lights' bodies (and their targets')."""
         sc = self.scene
         cam = self.config.camera_id
         gids = jnp.asarray(sc.geom_ids)

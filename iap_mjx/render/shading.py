@@ -28,7 +28,7 @@ class Shader:
 
     ``padded`` arguments are the trace's depth and geom index with a one-pixel border
     (``tracing.pad_by_one_pixel``); ``poses`` are the per-state arrays the camera reads
-    (``Camera._poses``); ``frames`` are ``Tracer.geom_frames``'s."""
+    (``Camera.poses``); ``frames`` are ``Tracer.geom_frames``'s."""
 
     def __init__(
         self, scene: scene_lib.Scene, config: Any, x: np.ndarray, y: np.ndarray, pixel_pitch: tuple[float, float]

@@ -3,10 +3,14 @@ for a state agent, the env's own camera.
 
 One episode runs compiled (``lax.scan``); the host then upscales each frame, outlines the
 top-l patches the attention layer picked (as the paper's Figures 9-10) and writes the return
-so far, and saves an MP4 (H.264 through PyAV, in this process: nothing is forked) or a GIF. A state env has no image in its
-observations, so its frames are rendered by the ray-cast camera from its ``video_camera_id``
-(a model camera, e.g. the quadruped's trunk-tracking one; default camera 0) at
-``STATE_VIDEO_SIZE``.
+so far, and saves an MP4 (H.264 through PyAV, in this process: nothing is forked) or a GIF. A
+state env has no image in its observations, so its frames are rendered by the ray-cast camera
+from its ``video_camera_id`` (a model camera, e.g. the quadruped's trunk-tracking one; default
+camera 0) at ``STATE_VIDEO_SIZE``. A pixel env that names a ``video_camera_id`` (the
+quadruped's courses, whose observation is the robot's own small camera) is shown from that
+camera at ``SCENE_VIDEO_SIZE``, the robot's view with its patches inset in the top-right
+corner: the episode records the scene camera's poses at each step and the host renders the
+frames it draws from them.
 """
 
 from __future__ import annotations
@@ -27,6 +31,9 @@ WHITE = (255, 255, 255)
 MARK_BELOW = 12  # pixels: a patch drawn smaller than this also gets a ring around it
 MARK_RADIUS = 8  # pixels, the ring's outer radius
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
+SCENE_VIDEO_SIZE = (360, 480)  # (height, width) of the scene around a pixel env's inset view
+INSET_MARGIN = 8  # pixels between the inset view and the frame's edges
+RENDER_CHUNK = 50  # scene frames rendered per call: a bounded batch, one compiled shape
 
 
 def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
@@ -40,6 +47,12 @@ def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
 def has_pixels(env: Any) -> bool:
     """Whether ``env`` observes pixels (else a video renders the env's own camera)."""
     return getattr(env, "obs_mode", "state") != "state"
+
+
+def has_scene(env: Any) -> bool:
+    """Whether ``env`` observes pixels and names a camera to show its scene from
+    (``video_camera_id``): its videos show that scene with the observed view inset."""
+    return has_pixels(env) and hasattr(env, "video_camera_id")
 
 
 def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
@@ -67,13 +80,14 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
       env: an env following the Env protocol: a pixel env (its newest frame is recorded) or a
         state env (frames from :func:`state_camera`).
       policy: the policy; if it has ``select`` (IAP) and the env has pixels, the selected
-        patches are recorded.
+        patches are recorded. An env with a scene (:func:`has_scene`) also records the scene
+        camera's poses (:meth:`iap_mjx.render.Camera.poses`) for :func:`render_scene`.
       steps: control steps to record.
       extra: ``state -> {name: array}`` recorded too, from the state the policy sees (e.g.
         the geom map of its frame: ``viz.attended``).
 
     Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
-    (T, l) int or absent, "rewards": (T,), "alive": (T,)}`` (``alive``: the episode's own
+    (T, l) int or absent, "scene": {name: (T, ...)} or absent, "rewards": (T,), "alive": (T,)}`` (``alive``: the episode's own
     record of the steps its return counts, :func:`iap_mjx.es.episode.run_episode`) and
     ``extra``'s entries ``(T, ...)``.
     """
@@ -83,6 +97,7 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
     pixels = has_pixels(env)
     selects = pixels and hasattr(policy, "select")
     camera = None if pixels else state_camera(env)
+    scene = state_camera(env) if has_scene(env) else None  # its poses do not depend on the size
 
     def frame(state):
         return newest_rgb(state.obs, channels) if pixels else camera.render(state.data)[0]
@@ -93,6 +108,8 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
             kept = {"frames": frame(step.state), **(extra(step.state) if extra is not None else {})}
             if selects:
                 kept["indices"] = policy.select(params, step.seen, step.policy_state).indices
+            if scene is not None:
+                kept["scene"] = scene.poses(step.state.data)
             kept["rewards"] = step.next_state.reward
             return kept
 
@@ -124,8 +141,8 @@ def record_episode(
         policy and steps (default: compiled here).
 
     Returns:
-      ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "rewards": (T,),
-      "alive": (T,) bool}``: ``alive`` marks the steps whose reward the episode's return
+      ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "scene": {name: (T,
+      ...)} or absent, "rewards": (T,), "alive": (T,) bool}``: ``alive`` marks the steps whose reward the episode's return
       counts (up to the one that ends it); the program runs all ``steps``, ended or not.
     """
     if program is None:
@@ -144,6 +161,74 @@ def live_returns(record: dict[str, np.ndarray]) -> np.ndarray:
     return np.cumsum(np.where(record["alive"], record["rewards"], 0.0))
 
 
+def render_scene(env: Any, poses: dict[str, np.ndarray], size: tuple[int, int] = SCENE_VIDEO_SIZE) -> np.ndarray:
+    """``(N, H, W, 3)`` uint8: the scene camera's (:func:`state_camera`, ``size``) frames of
+    ``N`` recorded steps' poses (a record's ``"scene"`` at those steps), rendered at most
+    ``RENDER_CHUNK`` at a time by one compiled program (the last chunk padded)."""
+    camera = state_camera(env, size)
+    render = jax.jit(jax.vmap(lambda pose: camera.render_poses(pose)[0]))
+    count = len(next(iter(poses.values())))
+    chunk_size = min(RENDER_CHUNK, count)
+    chunks = []
+    for start in range(0, count, chunk_size):
+        chunk = {name: value[start : start + chunk_size] for name, value in poses.items()}
+        filled = len(next(iter(chunk.values())))
+        padded = {
+            name: np.concatenate([value, np.repeat(value[-1:], chunk_size - filled, axis=0)])
+            for name, value in chunk.items()
+        }
+        rgb = np.asarray(render(padded))[:filled]
+        chunks.append((np.clip(rgb, 0, 1) * 255).astype(np.uint8))
+    return np.concatenate(chunks)
+
+
+def inset(scene: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """``view`` (an annotated observation, uint8) pasted in ``scene``'s (uint8 ``(H, W, 3)``)
+    top-right corner inside a 2-pixel white frame, ``INSET_MARGIN`` pixels from the edges;
+    ``ValueError`` if it does not fit."""
+    height, width = view.shape[:2]
+    if height + 2 * INSET_MARGIN > scene.shape[0] or width + 2 * INSET_MARGIN > scene.shape[1]:
+        raise ValueError(f"an inset of {view.shape[:2]} pixels does not fit a {scene.shape[:2]} frame")
+    out = scene.copy()
+    top, left = INSET_MARGIN, scene.shape[1] - INSET_MARGIN - width
+    out[top - 2 : top + height + 2, left - 2 : left + width + 2] = 255
+    out[top : top + height, left : left + width] = view
+    return out
+
+
+def draw_steps(
+    env: Any,
+    policy: Any,
+    record: dict[str, np.ndarray],
+    steps: np.ndarray,
+    *,
+    scale: int,
+    numbered: bool,
+    scene_size: tuple[int, int] = SCENE_VIDEO_SIZE,
+) -> list[np.ndarray]:
+    """The drawn frames (uint8) of a record's ``steps``: each observation annotated
+    (:func:`annotate`, ``numbered``: the step in the caption), inset in the scene at
+    ``scene_size`` where the record has one (:func:`has_scene`)."""
+    returns = live_returns(record)
+    layer = getattr(policy, "layer", None)
+    indices = record.get("indices")
+    views = [
+        annotate(
+            record["frames"][t],
+            None if indices is None else indices[t],
+            layer,
+            float(returns[t]),
+            scale=scale,
+            step=int(t) if numbered else None,
+        )
+        for t in steps
+    ]
+    if "scene" not in record:
+        return views
+    scenes = render_scene(env, {name: value[steps] for name, value in record["scene"].items()}, scene_size)
+    return [inset(scene, view) for scene, view in zip(scenes, views)]
+
+
 def annotate(
     frame: np.ndarray,
     indices: np.ndarray | None,
@@ -155,10 +240,11 @@ def annotate(
 ) -> np.ndarray:
     """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text.
 
-    Each selected patch is outlined in red; one drawn smaller than ``MARK_BELOW`` pixels (a 2x2
-    patch at 3x is 6 pixels) also gets a 2-pixel red ring of radius ``MARK_RADIUS`` around its
-    centre, inside a white ring, so that it can be seen at a glance on any background (a red
-    ring alone vanishes on the suite's red retina photograph).
+    Each selected patch is outlined in red, a white line just inside the red one (a red line
+    alone vanishes on the quadruped course's red walls); one drawn smaller than ``MARK_BELOW``
+    pixels (a 2x2 patch at 3x is 6 pixels) has no room inside and instead gets a 2-pixel red ring
+    of radius ``MARK_RADIUS`` around its centre, inside a white ring, so that it can be seen at a
+    glance on any background (a red ring alone vanishes on the suite's red retina photograph).
     """
     from PIL import Image, ImageDraw
 
@@ -172,8 +258,11 @@ def annotate(
         _, cols = layer.grid
         for index in indices:
             top, left = (int(index) // cols) * stride * scale, (int(index) % cols) * stride * scale
-            draw.rectangle([left, 16 + top, left + patch * scale - 1, 16 + top + patch * scale - 1], outline=RED)
-            if patch * scale < MARK_BELOW:
+            right, bottom = left + patch * scale - 1, 16 + top + patch * scale - 1
+            draw.rectangle([left, 16 + top, right, bottom], outline=RED)
+            if patch * scale >= MARK_BELOW:  # a white line inside the red one: seen on red walls too
+                draw.rectangle([left + 1, 17 + top, right - 1, bottom - 1], outline=WHITE)
+            else:
                 x, y = left + patch * scale / 2, 16 + top + patch * scale / 2
                 halo = MARK_RADIUS + 2
                 draw.ellipse([x - halo, y - halo, x + halo, y + halo], outline=WHITE, width=2)
@@ -223,13 +312,8 @@ def episode_video(
     return counting the live steps only, as training does."""
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
-    layer = getattr(policy, "layer", None)
-    indices = record.get("indices")
-    scale = 3 if has_pixels(env) else 1
-    frames = [
-        annotate(record["frames"][t], None if indices is None else indices[t], layer, float(returns[t]), scale=scale)
-        for t in range(last_live_step(record) + 1)
-    ]
+    scale = 4 if has_scene(env) else 3 if has_pixels(env) else 1
+    frames = draw_steps(env, policy, record, np.arange(last_live_step(record) + 1), scale=scale, numbered=False)
     if fps is None:  # a state env's video in real time (the quadruped's 0.02 s steps: 50 fps)
         timestep = None if has_pixels(env) else getattr(env, "control_timestep", None)
         repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
@@ -250,10 +334,12 @@ def episode_strip(
     obs_stats: Any = None,
     program: Any = None,
     scale: int = 2,
+    scene_size: tuple[int, int] = SCENE_VIDEO_SIZE,
 ) -> tuple[Path, float]:
     """Runs one episode (:func:`record_episode`) and writes ``frames`` of it, evenly spaced from
     the first step to the one that ends the episode, annotated as the video's (:func:`annotate`,
-    the step in the caption) and tiled ``columns`` to a row, as a PNG. Returns ``(path, episode
+    the step in the caption; an env with a scene: inset in it, :func:`draw_steps`) and tiled
+    ``columns`` to a row, as a PNG. Returns ``(path, episode
     return)``, the return counting the live steps only."""
     from PIL import Image
 
@@ -261,20 +347,8 @@ def episode_strip(
         raise ValueError(f"frames = {frames!r} and columns = {columns!r} must be ints >= 1")
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
-    layer = getattr(policy, "layer", None)
-    indices = record.get("indices")
     picks = np.unique(np.linspace(0, last_live_step(record), frames).round().astype(int))
-    tiles = [
-        annotate(
-            record["frames"][t],
-            None if indices is None else indices[t],
-            layer,
-            float(returns[t]),
-            scale=scale,
-            step=int(t),
-        )
-        for t in picks
-    ]
+    tiles = draw_steps(env, policy, record, picks, scale=scale, numbered=True, scene_size=scene_size)
     rows = [tiles[i : i + columns] for i in range(0, len(tiles), columns)]
     blank = np.zeros_like(tiles[0])
     gap = np.full((tiles[0].shape[0], 4, 3), 255, np.uint8)
