@@ -89,7 +89,7 @@ def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):
 
 
 def test_interrupted_reproduce_exits_130_saying_how_to_resume(monkeypatch, tmp_path, capsys):
-    from iap_mjx import table1
+    from iap_mjx.paper import table1
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt

@@ -18,8 +18,10 @@ from fake_runs import fake_run
 from mujoco import mjx
 from PIL import Image
 
-from iap_mjx import cli, configs, fig10, run_eval, table2
+from iap_mjx import cli, configs
 from iap_mjx.es import checkpoint
+from iap_mjx.paper import fig10, table2
+from iap_mjx.paper.evaluations import EVAL_SEED
 from iap_mjx.viz import video
 
 STEPS = 1000  # quadruped-walls' episode
@@ -103,7 +105,7 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
     large = _run(tmp_path, "quadruped-walls-iap")
     results = tmp_path / "RESULTS.md"
     markdown = fig10.reproduce_fig10(tmp_path, run_dirs=(small, large), frames=3, results=results)
-    unseen = np.asarray(jax.random.PRNGKey(run_eval.EVAL_SEED)).tolist()
+    unseen = np.asarray(jax.random.PRNGKey(EVAL_SEED)).tolist()
     assert episodes == [unseen] * 2  # a course not seen in training, the same for both
     (height, width), margin = video.SCENE_VIDEO_SIZE, video.INSET_MARGIN
     view_h, view_w = 16 + 24 * fig10.SCALE, 32 * fig10.SCALE  # the camera, scaled, under its caption

@@ -1,8 +1,8 @@
 """``iap-mjx reproduce fig11``: bad input fails before anything compiles; finished runs are
 evaluated once each on fresh courses (stored in the run directory) and reported with their
 course statistics, parameter counts and the issue's bars; unfinished runs are read as far as
-they got; exports copy the runs. Training and evaluation are ``iap_mjx.reproduce``'s and
-``es.evaluate_run_episodes``'s (tested in test_reproduce.py, test_es_train.py and
+they got; exports copy the runs. Training and evaluation are ``iap_mjx.paper.runs``'s and
+``es.evaluate_run_episodes``'s (tested in test_fig1_fig6.py, test_es_train.py and
 test_quadruped_presets.py); here runs are written by hand and the evaluation is a recorder."""
 
 from __future__ import annotations
@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 from fake_runs import fake_run
 
-from iap_mjx import cli, configs, fig11, run_eval
+from iap_mjx import cli, configs
 from iap_mjx.es import checkpoint
+from iap_mjx.paper import fig11
+from iap_mjx.paper.evaluations import EVAL_FILE, EVAL_SEED
 
 ITERATIONS = ("run.iterations=3",)
 # (policy, seed): the evaluation's mean return and walls passed per episode - 0.5 (below)
@@ -82,7 +84,7 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
     _run(tmp_path, "blind", 0, iterations=2)  # blind seed 1: no run yet
     markdown = fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False)
     assert sorted(evaluations) == [
-        (f"quadruped-walls-{policy}-seed{seed}", 4, run_eval.EVAL_SEED, ())
+        (f"quadruped-walls-{policy}-seed{seed}", 4, EVAL_SEED, ())
         for policy, seed in (("cnn", 0), ("iap", 0), ("iap", 1))
     ]
     lines = markdown.splitlines()
@@ -98,7 +100,7 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
     assert lines[-1] == (
         "Bars: not decided yet (3 of 6 runs finished). Parameters: CNN 7,269, IAP 873 (8.3x; bar: >= 5x)."
     )
-    stored = json.loads((tmp_path / "quadruped-walls-iap-seed1" / run_eval.EVAL_FILE).read_text())
+    stored = json.loads((tmp_path / "quadruped-walls-iap-seed1" / EVAL_FILE).read_text())
     assert stored == {
         "course@3x4s2021": {
             "return": [22.0, 26.0, 22.0, 26.0],
@@ -182,7 +184,7 @@ def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations, capsys
         == 0
     )
     assert "| IAP (`quadruped-walls-iap`) | 873 | 20.0 ± 0.0 |" in capsys.readouterr().out
-    assert evaluations == [("quadruped-walls-iap-seed0", 2, run_eval.EVAL_SEED, ())]
+    assert evaluations == [("quadruped-walls-iap-seed0", 2, EVAL_SEED, ())]
     assert sorted(p.name for p in export.iterdir()) == ["quadruped-walls-blind-seed0", "quadruped-walls-iap-seed0"]
     assert checkpoint.latest_step(export / "quadruped-walls-iap-seed0") == 3
     assert checkpoint.latest_step(export / "quadruped-walls-blind-seed0") == 2

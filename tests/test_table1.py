@@ -1,7 +1,7 @@
 """``iap-mjx reproduce table1``: bad input fails before anything compiles; finished runs are
 evaluated once per condition (stored in the run directory); the table holds the paper's
-baselines and the bar. Training and evaluation themselves are ``iap_mjx.reproduce``'s and
-``es.evaluate_run``'s (tested in test_reproduce.py, test_es_train.py and test_cli.py); here
+baselines and the bar. Training and evaluation themselves are ``iap_mjx.paper.runs``'s and
+``es.evaluate_run``'s (tested in test_fig1_fig6.py, test_es_train.py and test_cli.py); here
 they are replaced by recorders so that the command's own logic runs in seconds."""
 
 from __future__ import annotations
@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 from fake_runs import fake_run
 
-from iap_mjx import cli, configs, run_eval, table1
+from iap_mjx import cli, configs
 from iap_mjx.es import checkpoint
+from iap_mjx.paper import table1
+from iap_mjx.paper.evaluations import EVAL_FILE
 
 
 def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):
@@ -63,13 +65,13 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
     assert "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 3,000 |" in row
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
-    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE).read_text())
+    stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / EVAL_FILE).read_text())
     assert len(stored) == 4
     table1.reproduce_table1(
         tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
     )
     assert len(calls) == 4  # read back, not evaluated again
-    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / run_eval.EVAL_FILE
+    eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / EVAL_FILE
     short = json.loads(eval_path.read_text())
     key = next(k for k in short if k.startswith("none@"))
     short[key] = short[key][:2]  # as an evaluate_run that returned one device's share stored it

@@ -17,9 +17,9 @@ from iap_mjx.cli import arguments
 
 
 def _fig1_or_fig6(args: argparse.Namespace) -> str:
-    from iap_mjx import reproduce
+    from iap_mjx.paper import fig1_fig6
 
-    return reproduce.reproduce(
+    return fig1_fig6.reproduce(
         args.figure,
         args.out,
         seeds=args.seeds,
@@ -30,9 +30,9 @@ def _fig1_or_fig6(args: argparse.Namespace) -> str:
 
 
 def _fig7(args: argparse.Namespace) -> str:
-    from iap_mjx import patch_sweep
+    from iap_mjx.paper import fig7
 
-    return patch_sweep.reproduce_fig7(
+    return fig7.reproduce_fig7(
         args.out,
         overrides=tuple(args.overrides),
         episodes=args.episodes,
@@ -42,15 +42,15 @@ def _fig7(args: argparse.Namespace) -> str:
 
 
 def _fig8(args: argparse.Namespace) -> str:
-    from iap_mjx import wallclock
+    from iap_mjx.paper import fig8
 
-    return wallclock.reproduce_fig8(
+    return fig8.reproduce_fig8(
         args.out, overrides=tuple(args.overrides), train=not args.report_only, results=args.results
     )
 
 
 def _table1(args: argparse.Namespace) -> str:
-    from iap_mjx import table1
+    from iap_mjx.paper import table1
 
     return table1.reproduce_table1(
         args.out,
@@ -66,7 +66,7 @@ def _table1(args: argparse.Namespace) -> str:
 
 
 def _fig11(args: argparse.Namespace) -> str:
-    from iap_mjx import fig11
+    from iap_mjx.paper import fig11
 
     return fig11.reproduce_fig11(
         args.out,
@@ -80,7 +80,7 @@ def _fig11(args: argparse.Namespace) -> str:
 
 
 def _table2(args: argparse.Namespace) -> str:
-    from iap_mjx import table2
+    from iap_mjx.paper import table2
 
     return table2.reproduce_table2(
         args.out,
@@ -93,7 +93,7 @@ def _table2(args: argparse.Namespace) -> str:
 
 
 def _fig10(args: argparse.Namespace) -> str:
-    from iap_mjx import fig10
+    from iap_mjx.paper import fig10
 
     return fig10.reproduce_fig10(args.out, run_dirs=args.run_dirs, frames=args.frames, results=args.results)
 

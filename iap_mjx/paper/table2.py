@@ -4,9 +4,9 @@ walled course.
 ``quadruped-walls-iap`` trains with ``policy.patch_size=p policy.stride=s`` for each setting
 ``(p, s)``, one seed, the same budget (the preset's iterations, or ``overrides`` for all). The
 setting the preset has itself (4x4 patches, stride 4) is its own run,
-``<out>/quadruped-walls-iap-seed<k>``, shared with Figure 11 (:mod:`iap_mjx.fig11`); every other
+``<out>/quadruped-walls-iap-seed<k>``, shared with Figure 11 (:mod:`iap_mjx.paper.fig11`); every other
 trains in ``<out>/table2-p<p>-s<s>-seed<k>``. Runs resume from their checkpoints and are
-skipped once finished (:func:`iap_mjx.reproduce.run_summary`).
+skipped once finished (:func:`iap_mjx.paper.runs.run_summary`).
 
 The table's return is the maximum episode return reached in training, as the paper's: the
 largest ``return_max`` of the run's metrics (per iteration, the best population member's
@@ -135,7 +135,7 @@ def reproduce_table2(
     ``table2.png`` in ``out_dir`` and returns the markdown table; ``results``: a markdown file
     whose ``table2`` section is rewritten with it."""
     from iap_mjx import policies
-    from iap_mjx.reproduce import built_policies, run_summary
+    from iap_mjx.paper.runs import built_policies, run_summary
 
     checked = check(tuple(settings), tuple(overrides), seed)
     built = built_policies({setting: config for setting, (config, _, _) in checked.items()})

@@ -4,7 +4,7 @@ passes on courses it never saw.
 
 Each policy's preset (``quadruped-walls-iap``, ``-cnn``, ``-blind``: the same ES, budget and low
 level) trains on several seeds, each in its own run directory ``<out>/<preset>-seed<k>``
-(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.reproduce.run_summary`).
+(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.paper.runs.run_summary`).
 A finished run's final centre is then evaluated on ``episodes`` episodes of the course, each
 recording the course statistics the env keeps (``QuadrupedWalls.episode_metrics``: walls
 passed, fell off the platform, control steps touching a wall, distance along the course).
@@ -12,9 +12,9 @@ passed, fell off the platform, control steps touching a wall, distance along the
 The evaluation's courses are unseen in training: the walls (their positions along the course,
 sides and gaps) are drawn per episode from the episode's reset key
 (``QuadrupedWalls._place_world``), and the evaluation's keys derive from
-:data:`iap_mjx.run_eval.EVAL_SEED`, which no training run uses; a course is a draw of
+:data:`iap_mjx.paper.evaluations.EVAL_SEED`, which no training run uses; a course is a draw of
 continuous positions, so none of them is, but for probability zero, a course trained on.
-Evaluations are stored in the run directory (``eval.json``, :mod:`iap_mjx.run_eval`), so a
+Evaluations are stored in the run directory (``eval.json``, :mod:`iap_mjx.paper.evaluations`), so a
 report reads them instead of evaluating again.
 
 Writes ``<out>/fig11.json`` and ``<out>/fig11.png`` and returns the markdown table with the
@@ -32,7 +32,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.envs.quadruped import QuadrupedWalls
-from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, stored_evaluation
 from iap_mjx.viz.sections import image_link, mean_std, write_section
 
 logger = logging.getLogger(__name__)
@@ -83,7 +83,7 @@ def run_row(
     """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses;
     with ``export``, its newest checkpoint and files are copied to ``export/<preset>-seed<k>``."""
     from iap_mjx.es import checkpoint
-    from iap_mjx.reproduce import run_summary
+    from iap_mjx.paper.runs import run_summary
 
     name = f"{POLICIES[label]}-seed{seed}"
     summary = run_summary(config, seed, out_dir / name, train=train)
@@ -118,7 +118,7 @@ def reproduce_fig11(
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds = {seeds!r} must be an int >= 1")
     from iap_mjx import policies
-    from iap_mjx.reproduce import built_policies
+    from iap_mjx.paper.runs import built_policies
 
     checked = check(tuple(overrides))
     parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}

@@ -1,6 +1,6 @@
 """``iap-mjx reproduce fig7``: the patch size x l grid, then d_qk at the grid's best cell only
 once the grid is finished; bad input fails before anything compiles. Training and evaluation
-are ``iap_mjx.reproduce``'s and ``es.evaluate_run``'s (tested elsewhere); here finished runs
+are ``iap_mjx.paper.runs``'s and ``es.evaluate_run``'s (tested elsewhere); here finished runs
 are written by hand and the evaluation is a recorder, so the sweep's own logic runs in seconds."""
 
 from __future__ import annotations
@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 from fake_runs import fake_run
 
-from iap_mjx import cli, configs, patch_sweep
+from iap_mjx import cli, configs
+from iap_mjx.paper import fig7
 
 ITERATIONS = ("run.iterations=2",)
 
 
 def _fake_run(out, cell, iterations=2):
-    config = configs.apply_overrides(configs.get(patch_sweep.PRESET), (*ITERATIONS, *patch_sweep.cell_overrides(*cell)))
-    fake_run(out / patch_sweep.run_name(*cell, 0), config, iterations, [10.0 * i for i in range(1, iterations + 1)])
+    config = configs.apply_overrides(configs.get(fig7.PRESET), (*ITERATIONS, *fig7.cell_overrides(*cell)))
+    fake_run(out / fig7.run_name(*cell, 0), config, iterations, [10.0 * i for i in range(1, iterations + 1)])
 
 
 @pytest.fixture
@@ -39,29 +40,29 @@ def evaluations(monkeypatch):
 
 def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
     with pytest.raises(ValueError, match="policy.top_l"):
-        patch_sweep.reproduce_fig7(tmp_path, overrides=("policy.top_l=3",))
+        fig7.reproduce_fig7(tmp_path, overrides=("policy.top_l=3",))
     with pytest.raises(ValueError, match="heigth"):
-        patch_sweep.reproduce_fig7(tmp_path, overrides=("env.heigth=64",))
+        fig7.reproduce_fig7(tmp_path, overrides=("env.heigth=64",))
     with pytest.raises(ValueError, match="episodes"):
-        patch_sweep.reproduce_fig7(tmp_path, episodes=0)
+        fig7.reproduce_fig7(tmp_path, episodes=0)
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "fig7", "policy.d_qk=2", "--out", str(tmp_path)]) == 2
     assert "policy.d_qk" in capsys.readouterr().err
 
 
 def test_d_qk_row_waits_for_the_whole_grid_then_runs_at_its_best_cell(tmp_path, evaluations):
-    grid = [(p, l) for p in patch_sweep.PATCH_SIZES for l in patch_sweep.TOP_LS]
+    grid = [(p, l) for p in fig7.PATCH_SIZES for l in fig7.TOP_LS]
     for p, l in grid[:-1]:
         _fake_run(tmp_path, (p, l, 4))
     _fake_run(tmp_path, (8, 5, 2))  # a d_qk run exists, but the grid is not finished
-    markdown = patch_sweep.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
+    markdown = fig7.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
     assert "not chosen yet" in markdown
     assert len(evaluations) == 8 and "fig7-p8-l5-d2-seed0" not in evaluations
     _fake_run(tmp_path, (*grid[-1], 4), iterations=1)  # the last cell unfinished
-    assert "not chosen yet" in patch_sweep.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
+    assert "not chosen yet" in fig7.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
     _fake_run(tmp_path, (*grid[-1], 4))
     _fake_run(tmp_path, (2, 5, 8))  # d_qk off the best cell: never read
-    markdown = patch_sweep.reproduce_fig7(
+    markdown = fig7.reproduce_fig7(
         tmp_path, overrides=ITERATIONS, episodes=3, train=False, results=tmp_path / "RESULTS.md"
     )
     assert "Best grid cell (patch size, l): (8, 5)" in markdown
@@ -77,5 +78,5 @@ def test_d_qk_row_waits_for_the_whole_grid_then_runs_at_its_best_cell(tmp_path, 
     assert stored["best"] == [8, 5] and (tmp_path / "fig7.png").stat().st_size > 0
     assert "<!-- BEGIN fig7 -->" in (tmp_path / "RESULTS.md").read_text()
     count = len(evaluations)
-    patch_sweep.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
+    fig7.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
     assert len(evaluations) == count  # evaluations are read back from each run's eval.json

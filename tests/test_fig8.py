@@ -1,6 +1,6 @@
 """``iap-mjx reproduce fig8``: curves on a wall-clock axis built from the timings file, brute
 force at ``p = 2`` projected from the same timings; bad input fails before anything compiles.
-Training is ``iap_mjx.reproduce``'s (tested elsewhere): finished runs are written by hand."""
+Training is ``iap_mjx.paper.runs``'s (tested elsewhere): finished runs are written by hand."""
 
 from __future__ import annotations
 
@@ -9,18 +9,17 @@ import json
 import numpy as np
 import pytest
 
-from iap_mjx import cli, configs, wallclock
+from iap_mjx import cli, configs
 from iap_mjx.es import checkpoint
 from iap_mjx.es.metrics_log import MetricsWriter
+from iap_mjx.paper import fig8
 
 ITERATIONS = ("run.iterations=3",)
 
 
 def _fake_run(out, kernel, patch, returns):
-    config = configs.apply_overrides(
-        configs.get(wallclock.PRESET), (*ITERATIONS, *wallclock.variant_overrides(kernel, patch))
-    )
-    run_dir = out / f"{wallclock.name(kernel, patch)}-seed0"
+    config = configs.apply_overrides(configs.get(fig8.PRESET), (*ITERATIONS, *fig8.variant_overrides(kernel, patch)))
+    run_dir = out / f"{fig8.name(kernel, patch)}-seed0"
     writer = MetricsWriter(run_dir, None, tensorboard=False)
     for i, value in enumerate(returns, start=1):
         writer.write({"iteration": i, "eval_return": value, "run_s": 99.0, "compile_s": 99.0, "env_steps": 1000 * i})
@@ -29,8 +28,8 @@ def _fake_run(out, kernel, patch, returns):
 
 def _timings():
     variants = {
-        wallclock.name(k, p): {"iteration_s": 2.0 * p + (k == "brute"), "compile_s": 30.0, "iterations_timed": 2}
-        for k, p in wallclock.VARIANTS
+        fig8.name(k, p): {"iteration_s": 2.0 * p + (k == "brute"), "compile_s": 30.0, "iterations_timed": 2}
+        for k, p in fig8.VARIANTS
     }
     return {
         "variants": variants,
@@ -47,29 +46,29 @@ def _timings():
 
 def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
     with pytest.raises(ValueError, match="policy.kernel"):
-        wallclock.reproduce_fig8(tmp_path, overrides=("policy.kernel=relu",))
+        fig8.reproduce_fig8(tmp_path, overrides=("policy.kernel=relu",))
     with pytest.raises(ValueError, match="heigth"):
-        wallclock.reproduce_fig8(tmp_path, overrides=("env.heigth=64",))
+        fig8.reproduce_fig8(tmp_path, overrides=("env.heigth=64",))
     with pytest.raises(ValueError, match="machine alone"):
-        wallclock.reproduce_fig8(tmp_path, train=False)  # reporting never measures
+        fig8.reproduce_fig8(tmp_path, train=False)  # reporting never measures
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "fig8", "policy.patch_size=4", "--out", str(tmp_path)]) == 2
     assert "policy.patch_size" in capsys.readouterr().err
 
 
 def test_frames_per_iteration_counts_the_population_and_the_evaluation():
-    config = configs.get(wallclock.PRESET)
+    config = configs.get(fig8.PRESET)
     assert config.es.population_size == 64 and config.run.eval_episodes == 4 and config.es.n_episodes == 1
-    assert wallclock.frames_per_iteration(config) == 68 * 125  # 1000 control steps / action repeat 8
+    assert fig8.frames_per_iteration(config) == 68 * 125  # 1000 control steps / action repeat 8
     twice = configs.apply_overrides(config, ("es.n_episodes=2", "env.episode_length=10"))
-    assert wallclock.frames_per_iteration(twice) == (128 + 4) * 10
+    assert fig8.frames_per_iteration(twice) == (128 + 4) * 10
 
 
 def test_curves_use_the_measured_seconds_per_iteration_not_the_runs_own(tmp_path):
-    (tmp_path / wallclock.TIMINGS_FILE).write_text(json.dumps(_timings()))
+    (tmp_path / fig8.TIMINGS_FILE).write_text(json.dumps(_timings()))
     _fake_run(tmp_path, "brute", 8, [1.0, 2.0, 3.0])
     _fake_run(tmp_path, "hybrid", 2, [5.0, 7.0])  # unfinished: reported as far as it got
-    markdown = wallclock.reproduce_fig8(tmp_path, overrides=ITERATIONS, train=False, results=tmp_path / "RESULTS.md")
+    markdown = fig8.reproduce_fig8(tmp_path, overrides=ITERATIONS, train=False, results=tmp_path / "RESULTS.md")
     rows = {
         line.split(" | ")[0]: line
         for line in markdown.splitlines()
@@ -80,8 +79,8 @@ def test_curves_use_the_measured_seconds_per_iteration_not_the_runs_own(tmp_path
     assert len(rows) == 2
     assert "**4,249x** hybrid's measured 4.0 s" in markdown
     stored = json.loads((tmp_path / "fig8.json").read_text())
-    assert np.allclose(wallclock.wall_seconds(stored["rows"][0]), [47.0, 64.0, 81.0])
+    assert np.allclose(fig8.wall_seconds(stored["rows"][0]), [47.0, 64.0, 81.0])
     assert (tmp_path / "fig8.png").stat().st_size > 0
     assert "<!-- BEGIN fig8 -->" in (tmp_path / "RESULTS.md").read_text()
-    kept = tmp_path / "experiments" / "fig8" / wallclock.TIMINGS_FILE  # tracked beside the figure
+    kept = tmp_path / "experiments" / "fig8" / fig8.TIMINGS_FILE  # tracked beside the figure
     assert json.loads(kept.read_text()) == _timings()

@@ -3,12 +3,13 @@
 import numpy as np
 import pytest
 
-from iap_mjx import cli, reproduce
+from iap_mjx import cli
+from iap_mjx.paper import fig1_fig6, runs
 
 
 def test_unknown_figure_and_bad_override_fail_fast(capsys):
     with pytest.raises(ValueError, match="valid: fig6, fig1"):
-        reproduce.reproduce("fig9", "/tmp/unused")
+        fig1_fig6.reproduce("fig9", "/tmp/unused")
     assert cli.main(["reproduce", "fig6", "es.population_size=7"]) == 2
     assert "es.population_size" in capsys.readouterr().err
 
@@ -24,7 +25,7 @@ def test_table_reports_mean_and_std_over_seeds():
             "iterations": 5,
         }
     ]
-    line = reproduce.table(rows).splitlines()[-1]
+    line = fig1_fig6.table(rows).splitlines()[-1]
     assert "| 2.100 |" in line and "20.0 ± 8.2" in line and "| 3 | 5 |" in line
 
 
@@ -41,22 +42,22 @@ def test_figure_has_bars_crosses_and_one_curve_per_variant(tmp_path):
         }
         for name, seconds in (("IAP", 0.002), ("Brute", 0.01))
     ]
-    bars, curves, crosses = reproduce.figure(rows, title="t").axes  # the bars' twin axis (made last) holds the crosses
+    bars, curves, crosses = fig1_fig6.figure(rows, title="t").axes  # the bars' twin axis (made last) holds the crosses
     assert [patch.get_height() for patch in bars.patches] == [0.002, 0.01]
     np.testing.assert_allclose(np.asarray(crosses.lines[0].get_ydata(), dtype=float), [6.0, 6.0])
     assert [line.get_label() for line in curves.lines] == ["IAP", "Brute"]
     np.testing.assert_allclose(curves.lines[0].get_ydata(), [1.5, 5.0])  # cut to the shortest seed
-    assert reproduce.plot(rows, tmp_path / "fig.png", title="t").stat().st_size > 0
+    assert fig1_fig6.plot(rows, tmp_path / "fig.png", title="t").stat().st_size > 0
 
 
 def test_eval_episodes_zero_is_refused_before_training():
     with pytest.raises(ValueError, match="run.eval_episodes"):
-        reproduce.reproduce("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))
+        fig1_fig6.reproduce("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))
 
 
 def test_misspelt_env_setting_is_refused_before_training(tmp_path):
     with pytest.raises(ValueError, match="heigth"):
-        reproduce.reproduce("fig1", tmp_path, overrides=("env.heigth=64",))
+        fig1_fig6.reproduce("fig1", tmp_path, overrides=("env.heigth=64",))
     assert not list(tmp_path.iterdir())
 
 
@@ -67,12 +68,12 @@ def test_report_only_reads_rows_up_to_the_last_checkpoint_and_trains_nothing(tmp
 
     config = configs.get("cheetah-run-pixels")
     run_dir = tmp_path / "cheetah-run-pixels-seed0"
-    assert reproduce.trained_curve(config, 0, run_dir, train=False) is None  # nothing there yet
+    assert runs.trained_curve(config, 0, run_dir, train=False) is None  # nothing there yet
     writer = MetricsWriter(run_dir, None, tensorboard=False)
     for i in range(1, 5):  # iteration 4 ran but the run was killed before its checkpoint
         writer.write({"iteration": i, "eval_return": 10.0 * i, "run_s": 2.0, "compile_s": 30.0})
     checkpoint.save(run_dir, 3, {"x": np.zeros(2)}, config.to_dict())
-    curve, seconds = reproduce.trained_curve(config, 0, run_dir, train=False)
+    curve, seconds = runs.trained_curve(config, 0, run_dir, train=False)
     assert curve == [10.0, 20.0, 30.0] and seconds == 3 * 2.0 + 30.0
     with pytest.raises(ValueError, match="no runs of fig1"):
-        reproduce.reproduce("fig1", tmp_path / "empty", train=False)
+        fig1_fig6.reproduce("fig1", tmp_path / "empty", train=False)

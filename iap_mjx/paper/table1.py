@@ -3,7 +3,7 @@ what it does not: generalisation of the same policies to other conditions.
 
 For each suite task, ``dcs-<task>`` trains on several seeds, each in its own run directory
 ``<out>/dcs-<task>-seed<k>`` (resumed from its checkpoint, skipped once finished; the
-training loop is :func:`iap_mjx.reproduce.trained_curve`'s). A finished run's final centre is
+training loop is :func:`iap_mjx.paper.runs.trained_curve`'s). A finished run's final centre is
 then evaluated, ``episodes`` episodes per condition, each episode with its own draw:
 
 - ``train``: the training condition (static medium distractions, training backgrounds);
@@ -34,7 +34,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
-from iap_mjx.run_eval import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, stored_evaluation
 from iap_mjx.viz.sections import image_link, mean_std, write_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -131,7 +131,7 @@ def run_row(
     with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     from iap_mjx.es import checkpoint
-    from iap_mjx.reproduce import run_summary
+    from iap_mjx.paper.runs import run_summary
 
     run_dir = out_dir / f"{preset(task, policy)}-seed{seed}"
     summary = run_summary(config, seed, run_dir, train=train)

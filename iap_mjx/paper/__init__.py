@@ -1,0 +1,13 @@
+"""The paper's results, one module per figure or table, each trained through
+``iap-mjx reproduce <figure>`` into resumable run directories (:mod:`iap_mjx.paper.runs`) and
+written as its RESULTS.md section:
+
+- :mod:`~iap_mjx.paper.fig1_fig6`: inference time per forward pass next to return (Figures 1, 6);
+- :mod:`~iap_mjx.paper.fig7`: the attention's shape on the Distracting Control Suite;
+- :mod:`~iap_mjx.paper.fig8`: training curves against wall-clock time, brute force against IAP;
+- :mod:`~iap_mjx.paper.table1`: the Distracting Control Suite, and generalisation beyond it;
+- :mod:`~iap_mjx.paper.fig10`, :mod:`~iap_mjx.paper.fig11`, :mod:`~iap_mjx.paper.table2`: the
+  quadruped's course: what its IAP high level selects, IAP against a CNN and a blind policy,
+  and the patch size and stride;
+- :mod:`~iap_mjx.paper.evaluations`: evaluations of a checkpoint kept beside it.
+"""

@@ -1,0 +1,83 @@
+"""The training runs behind every figure and table: trained (or resumed) in their own run
+directory, read back as a report's row, and their policies built without compiling, so that a
+report is reproduced by running it again and a finished run is never trained twice."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from iap_mjx import configs
+
+
+def trained_curve(
+    config: configs.TrainConfig, seed: int, run_dir: Path, *, train: bool = True
+) -> tuple[list[float], float] | None:
+    """Trains ``config`` with ``seed`` in ``run_dir`` (resuming from its checkpoint, so a
+    finished run is not trained again).
+
+    Returns the centre's evaluation return at the start of iterations ``1..run.iterations``
+    (a run directory trained further is cut there) and the seconds those iterations took:
+    their run times summed over every session, plus the first session's compile. With
+    ``train=False`` nothing is trained: the run's rows up to its last checkpoint are read
+    (``None`` when it has none).
+    """
+    from iap_mjx.es import checkpoint
+    from iap_mjx.es.metrics_log import read_history
+
+    if train:
+        from iap_mjx.es import train as train_es
+
+        config = dataclasses.replace(config, run=dataclasses.replace(config.run, seed=seed))
+        history = train_es(config, run_dir=run_dir, progress=False).history
+    else:
+        step = checkpoint.latest_step(run_dir)
+        if step is None:
+            return None
+        history = read_history(run_dir, up_to=step)
+    history = history[: config.run.iterations]
+    seconds = sum(row["run_s"] for row in history) + (history[0]["compile_s"] if history else 0.0)
+    return [float(row["eval_return"]) for row in history], seconds
+
+
+def run_summary(
+    config: configs.TrainConfig, seed: int, run_dir: Path, *, train: bool = True
+) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+    """:func:`trained_curve`'s run as a report's row, ``{"seed", "curve", "seconds",
+    "iterations", "env_steps", "finished"}`` (``env_steps``: the training steps of its last
+    iteration), and its metrics rows up to that iteration; ``None`` while it has none."""
+    from iap_mjx.es.metrics_log import read_history
+
+    trained = trained_curve(config, seed, run_dir, train=train)
+    if trained is None or not trained[0]:
+        return None
+    curve, seconds = trained
+    history = read_history(run_dir, up_to=len(curve))
+    row = {
+        "seed": seed,
+        "curve": curve,
+        "seconds": seconds,
+        "iterations": len(curve),
+        "env_steps": int(history[-1]["env_steps"]) if history else 0,
+        "finished": len(curve) == config.run.iterations,
+    }
+    return row, history
+
+
+def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
+    """The policy each config builds, constructed (so validated) and nothing compiled; each
+    distinct env is built once (the quadruped's takes seconds)."""
+    from iap_mjx import envs, policies
+
+    built_envs: dict[tuple[str, Any], Any] = {}
+    out = {}
+    for name, config in checked.items():
+        spec = (config.env.name, config.env.overrides)
+        if spec not in built_envs:
+            built_envs[spec] = envs.make(config.env.name, **dict(config.env.overrides))
+        env = built_envs[spec]
+        out[name] = policies.make(
+            config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options)
+        )
+    return out
