@@ -308,15 +308,55 @@ def test_a_pixel_env_with_a_scene_camera_shows_each_step_from_it_with_the_view_i
     for column, t in enumerate((0, 2, 5)):
         tile = strip[:, column * (size[1] + 4) : column * (size[1] + 4) + size[1]]
         view = video.annotate(record["frames"][t], record["indices"][t], layer, 0.5 * (t + 1), scale=2, step=t)
-        np.testing.assert_array_equal(tile, video.inset(scenes[t], view))
+        np.testing.assert_array_equal(tile, video.inset(scenes[t].copy(), view))
     expected = scenes[2].copy()
     top, left = video.INSET_MARGIN, size[1] - video.INSET_MARGIN - view.shape[1]
     expected[top - 2 : top + view.shape[0] + 2, left - 2 : left + view.shape[1] + 2] = 255  # the white frame
     expected[top : top + view.shape[0], left : left + view.shape[1]] = view
-    np.testing.assert_array_equal(video.inset(scenes[2], view), expected)
+    np.testing.assert_array_equal(video.inset(scenes[2].copy(), view), expected)
     with pytest.raises(ValueError, match="does not fit"):
-        video.inset(scenes[0][:20], view)
+        video.inset(scenes[0][:20].copy(), view)
+    # a view too large for the scene at the scale asked is drawn smaller; one too large at any
+    # scale gets a larger scene
+    assert video.fit_inset((24, 32), 6, (360, 480)) == (6, (360, 480))  # 160 x 192 fits 344 x 464
+    assert video.fit_inset((48, 64), 6, (360, 480)) == (6, (360, 480))  # 304 x 384
+    assert video.fit_inset((96, 128), 6, (360, 480)) == (3, (360, 480))  # 304 x 384 at 3x
+    assert video.fit_inset((400, 320), 4, (360, 480)) == (1, (432, 480))  # 416 x 320 at 1x, plus margins
+    assert video.fit_inset((24, 600), 4, (360, 480)) == (1, (360, 616))
 
     # the video: every step, the scene at SCENE_VIDEO_SIZE
     path, _ = video.episode_video(env, policy, None, tmp_path / "e.gif", fps=10, **kwargs)
     assert iio.imread(path, index=None).shape == (steps, *video.SCENE_VIDEO_SIZE, 3)
+
+
+@pytest.mark.slow
+def test_the_recorded_scene_is_the_state_each_frame_shows():
+    """The scene poses an episode records at step ``t`` are those of the state whose
+    observation is ``frames[t]`` (not the next one): the cart's geom in them is where the
+    recorded ``qpos`` of that state puts it. A cartpole seen through its own camera 0 stands in
+    for a course (an env naming a ``video_camera_id``), its cart pushed hard so that it moves."""
+    import mujoco
+
+    env = envs.make("cartpole-swingup", obs_mode="pixels", height=24, width=24, episode_length=6)
+    env.video_camera_id = 0
+    policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=4, top_l=3)
+    params = policy.init(jax.random.PRNGKey(0))
+    params["controller"][0]["b"] = params["controller"][0]["b"] + 3.0
+    program = video.episode_program(env, policy, steps=5, extra=lambda state: {"qpos": state.data.qpos})
+    record = video.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=5, program=program)
+    model = env.mj_model
+    cart = list(video.state_camera(env).geom_ids).index(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "cart"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    offset = data.geom_xpos[cart, 0] - data.qpos[0]  # the cart geom's x less the slider's
+    cart_x = record["scene"]["geom_pos"][:, cart, 0]
+    np.testing.assert_allclose(cart_x, record["qpos"][:, 0] + offset, atol=1e-5)
+    assert np.min(np.abs(np.diff(record["qpos"][:, 0]))) > 1e-4  # a step apart is told apart
+    # and its camera 0 at the observation's size draws the observation itself
+    scenes = video.render_scene(env, record["scene"], (24, 24))
+    gap = np.abs(scenes - np.clip(record["frames"], 0, 1) * 255)
+    assert np.mean(gap > 1) < 1e-3  # beyond the uint8 truncation: a few edge pixels at most
+    # an attention program draws nothing: no scene recorded
+    assert "scene" not in jax.eval_shape(
+        video.episode_program(env, policy, steps=2, scene=False), params, None, jax.random.PRNGKey(0)
+    )

@@ -279,7 +279,7 @@ class Camera:
 
     def poses(self, data: mjx.Data) -> dict[str, jax.Array]:
         """The few per-state arrays the renderer reads (:meth:`render_poses`): the camera's
-        pose, the drawn geoms' poses ``(G, 3)``, ``(G, 9)``, and the positions, orientations
+        pose, the drawn geoms' positions ``(G, 3)`` and orientations ``(G, 3, 3)``, and the positions, orientations
         and subtree centres of mass of the lights' bodies (and their targets')."""
         sc = self.scene
         cam = self.config.camera_id

@@ -60,7 +60,7 @@ def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
     def geom_map(state):
         return {"geoms": env.geom_map(state.data, state.info.get("distraction"))}
 
-    return video.episode_program(env, policy, steps=steps, extra=geom_map)
+    return video.episode_program(env, policy, steps=steps, extra=geom_map, scene=False)
 
 
 def episode_counts(

@@ -15,8 +15,9 @@ frames it draws from them.
 
 from __future__ import annotations
 
+import functools
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +68,9 @@ def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
     return Camera(env.mj_model, camera_id=int(getattr(env, "video_camera_id", 0)), height=size[0], width=size[1])
 
 
-def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any], dict] | None = None) -> Any:
+def episode_program(
+    env: Any, policy: Any, *, steps: int, extra: Callable[[Any], dict] | None = None, scene: bool = True
+) -> Any:
     """The jitted episode ``(params, obs_stats, key) -> record`` that :func:`record_episode` runs.
 
     Params, observation statistics (``None``: raw observations) and the key are arguments, not
@@ -85,11 +88,14 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
       steps: control steps to record.
       extra: ``state -> {name: array}`` recorded too, from the state the policy sees (e.g.
         the geom map of its frame: ``viz.attended``).
+      scene: ``False``: no scene poses, even for an env with a scene (a program that draws
+        nothing, e.g. ``viz.attended``'s).
 
     Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
-    (T, l) int or absent, "scene": {name: (T, ...)} or absent, "rewards": (T,), "alive": (T,)}`` (``alive``: the episode's own
-    record of the steps its return counts, :func:`iap_mjx.es.episode.run_episode`) and
-    ``extra``'s entries ``(T, ...)``.
+    (T, l) int or absent, "scene": {name: (T, ...)} or absent, "rewards": (T,), "alive":
+    (T,)}`` (``scene``: the scene camera's poses of the state each frame shows; ``alive``: the
+    episode's own record of the steps its return counts,
+    :func:`iap_mjx.es.episode.run_episode`) and ``extra``'s entries ``(T, ...)``.
     """
     from iap_mjx.es.episode import Step, run_episode
 
@@ -97,7 +103,7 @@ def episode_program(env: Any, policy: Any, *, steps: int, extra: Callable[[Any],
     pixels = has_pixels(env)
     selects = pixels and hasattr(policy, "select")
     camera = None if pixels else state_camera(env)
-    scene = state_camera(env) if has_scene(env) else None  # its poses do not depend on the size
+    scene = state_camera(env) if scene and has_scene(env) else None  # its poses do not depend on the size
 
     def frame(state):
         return newest_rgb(state.obs, channels) if pixels else camera.render(state.data)[0]
@@ -129,7 +135,7 @@ def compile_episode_program(env: Any, policy: Any, *, steps: int, obs_stats: Any
 
 def record_episode(
     env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int, obs_stats: Any = None, program: Any = None
-) -> dict[str, np.ndarray]:
+) -> dict[str, Any]:
     """Rolls one episode of ``steps`` control steps and records what a video needs.
 
     Args:
@@ -161,72 +167,97 @@ def live_returns(record: dict[str, np.ndarray]) -> np.ndarray:
     return np.cumsum(np.where(record["alive"], record["rewards"], 0.0))
 
 
-def render_scene(env: Any, poses: dict[str, np.ndarray], size: tuple[int, int] = SCENE_VIDEO_SIZE) -> np.ndarray:
+@functools.lru_cache(maxsize=4)
+def _scene_renderer(camera: Any) -> Callable[[dict], jax.Array]:
+    """The jitted batched render of a scene camera's poses, built once per camera (cameras are
+    hashable), so that every video and strip of one env shares its compiled programs."""
+    return jax.jit(jax.vmap(lambda pose: camera.render_poses(pose)[0]))
+
+
+def render_scene(
+    env: Any, poses: dict[str, np.ndarray], size: tuple[int, int] = SCENE_VIDEO_SIZE, *, batch: int | None = None
+) -> np.ndarray:
     """``(N, H, W, 3)`` uint8: the scene camera's (:func:`state_camera`, ``size``) frames of
-    ``N`` recorded steps' poses (a record's ``"scene"`` at those steps), rendered at most
-    ``RENDER_CHUNK`` at a time by one compiled program (the last chunk padded)."""
-    camera = state_camera(env, size)
-    render = jax.jit(jax.vmap(lambda pose: camera.render_poses(pose)[0]))
+    ``N`` recorded steps' poses (a record's ``"scene"`` at those steps), rendered ``batch`` at a
+    time (default ``min(RENDER_CHUNK, N)``), the last batch padded: one compiled shape."""
+    render = _scene_renderer(state_camera(env, size))
     count = len(next(iter(poses.values())))
-    chunk_size = min(RENDER_CHUNK, count)
-    chunks = []
-    for start in range(0, count, chunk_size):
-        chunk = {name: value[start : start + chunk_size] for name, value in poses.items()}
+    batch = min(RENDER_CHUNK, count) if batch is None else batch
+    frames = []
+    for start in range(0, count, batch):
+        chunk = {name: value[start : start + batch] for name, value in poses.items()}
         filled = len(next(iter(chunk.values())))
         padded = {
-            name: np.concatenate([value, np.repeat(value[-1:], chunk_size - filled, axis=0)])
+            name: np.concatenate([value, np.repeat(value[-1:], batch - filled, axis=0)])
             for name, value in chunk.items()
         }
         rgb = np.asarray(render(padded))[:filled]
-        chunks.append((np.clip(rgb, 0, 1) * 255).astype(np.uint8))
-    return np.concatenate(chunks)
+        frames.append((np.clip(rgb, 0, 1) * 255).astype(np.uint8))
+    return np.concatenate(frames)
+
+
+def fit_inset(frame_shape: tuple[int, int], scale: int, scene_size: tuple[int, int]) -> tuple[int, tuple[int, int]]:
+    """``(scale, scene size)`` that hold an observation of ``frame_shape`` ``(h, w)``, annotated
+    (a 16-pixel caption on top), inside a scene frame with :func:`inset`'s margins: ``scale``
+    lowered as far as 1 where the view would not fit ``scene_size``, and the scene enlarged
+    where even that does not fit (a large first-person camera)."""
+    (height, width), (scene_h, scene_w) = frame_shape, scene_size
+    fits = min((scene_h - 2 * INSET_MARGIN - 16) // height, (scene_w - 2 * INSET_MARGIN) // width)
+    scale = max(1, min(scale, fits))
+    return scale, (max(scene_h, 16 + height * scale + 2 * INSET_MARGIN), max(scene_w, width * scale + 2 * INSET_MARGIN))
 
 
 def inset(scene: np.ndarray, view: np.ndarray) -> np.ndarray:
-    """``view`` (an annotated observation, uint8) pasted in ``scene``'s (uint8 ``(H, W, 3)``)
-    top-right corner inside a 2-pixel white frame, ``INSET_MARGIN`` pixels from the edges;
-    ``ValueError`` if it does not fit."""
+    """Pastes ``view`` (an annotated observation, uint8) into ``scene``'s (uint8 ``(H, W, 3)``,
+    changed in place and returned) top-right corner inside a 2-pixel white frame,
+    ``INSET_MARGIN`` pixels from the edges; ``ValueError`` if it does not fit
+    (:func:`fit_inset` chooses sizes that do)."""
     height, width = view.shape[:2]
     if height + 2 * INSET_MARGIN > scene.shape[0] or width + 2 * INSET_MARGIN > scene.shape[1]:
         raise ValueError(f"an inset of {view.shape[:2]} pixels does not fit a {scene.shape[:2]} frame")
-    out = scene.copy()
     top, left = INSET_MARGIN, scene.shape[1] - INSET_MARGIN - width
-    out[top - 2 : top + height + 2, left - 2 : left + width + 2] = 255
-    out[top : top + height, left : left + width] = view
-    return out
+    scene[top - 2 : top + height + 2, left - 2 : left + width + 2] = 255
+    scene[top : top + height, left : left + width] = view
+    return scene
 
 
 def draw_steps(
     env: Any,
     policy: Any,
-    record: dict[str, np.ndarray],
+    record: dict[str, Any],
     steps: np.ndarray,
     *,
     scale: int,
     numbered: bool,
     scene_size: tuple[int, int] = SCENE_VIDEO_SIZE,
-) -> list[np.ndarray]:
-    """The drawn frames (uint8) of a record's ``steps``: each observation annotated
-    (:func:`annotate`, ``numbered``: the step in the caption), inset in the scene at
-    ``scene_size`` where the record has one (:func:`has_scene`)."""
+) -> Iterator[np.ndarray]:
+    """Yields the drawn frames (uint8) of a record's ``steps``: each observation annotated
+    (:func:`annotate` at ``scale``, ``numbered``: the step in the caption) and, where the record
+    has a scene (:func:`has_scene`), inset in the scene rendered at ``scene_size``
+    (:func:`fit_inset` adjusts both so that the view fits). Scene frames are rendered
+    ``RENDER_CHUNK`` at a time as they are drawn, so a whole episode is never held at once."""
     returns = live_returns(record)
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
-    views = [
-        annotate(
-            record["frames"][t],
-            None if indices is None else indices[t],
-            layer,
-            float(returns[t]),
-            scale=scale,
-            step=int(t) if numbered else None,
-        )
-        for t in steps
-    ]
-    if "scene" not in record:
-        return views
-    scenes = render_scene(env, {name: value[steps] for name, value in record["scene"].items()}, scene_size)
-    return [inset(scene, view) for scene, view in zip(scenes, views)]
+    scene = record.get("scene")
+    if scene is not None:
+        scale, scene_size = fit_inset(record["frames"].shape[1:3], scale, scene_size)
+    batch = min(RENDER_CHUNK, len(steps))
+    for start in range(0, len(steps), batch):
+        chunk = steps[start : start + batch]
+        scenes = None
+        if scene is not None:
+            scenes = render_scene(env, {name: value[chunk] for name, value in scene.items()}, scene_size, batch=batch)
+        for i, t in enumerate(chunk):
+            view = annotate(
+                record["frames"][t],
+                None if indices is None else indices[t],
+                layer,
+                float(returns[t]),
+                scale=scale,
+                step=int(t) if numbered else None,
+            )
+            yield view if scenes is None else inset(scenes[i], view)
 
 
 def annotate(
@@ -256,14 +287,17 @@ def annotate(
     if indices is not None and layer is not None:
         patch, stride = layer.config.patch_size, layer.config.effective_stride
         _, cols = layer.grid
-        for index in indices:
-            top, left = (int(index) // cols) * stride * scale, (int(index) % cols) * stride * scale
-            right, bottom = left + patch * scale - 1, 16 + top + patch * scale - 1
-            draw.rectangle([left, 16 + top, right, bottom], outline=RED)
-            if patch * scale >= MARK_BELOW:  # a white line inside the red one: seen on red walls too
-                draw.rectangle([left + 1, 17 + top, right - 1, bottom - 1], outline=WHITE)
-            else:
-                x, y = left + patch * scale / 2, 16 + top + patch * scale / 2
+        boxes = [
+            ((int(index) % cols) * stride * scale, 16 + (int(index) // cols) * stride * scale) for index in indices
+        ]
+        size = patch * scale
+        if size >= MARK_BELOW:  # white lines inside the red ones, all drawn first: overlapping
+            for left, top in boxes:  # patches (stride < patch) keep every red edge whole
+                draw.rectangle([left + 1, top + 1, left + size - 2, top + size - 2], outline=WHITE)
+        for left, top in boxes:
+            draw.rectangle([left, top, left + size - 1, top + size - 1], outline=RED)
+            if size < MARK_BELOW:
+                x, y = left + size / 2, top + size / 2
                 halo = MARK_RADIUS + 2
                 draw.ellipse([x - halo, y - halo, x + halo, y + halo], outline=WHITE, width=2)
                 draw.ellipse([x - MARK_RADIUS, y - MARK_RADIUS, x + MARK_RADIUS, y + MARK_RADIUS], outline=RED, width=2)
@@ -272,26 +306,32 @@ def annotate(
     return np.asarray(canvas)
 
 
-def write_video(path: str | Path, frames: list[np.ndarray], *, fps: int = 30) -> Path:
-    """Writes ``frames`` (``(H, W, 3)`` uint8 each) as MP4 (``.mp4``) or GIF (any other
-    suffix) and returns the path.
+def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: int = 30) -> Path:
+    """Writes ``frames`` (``(H, W, 3)`` uint8 each, all one size) as MP4 (``.mp4``) or GIF (any
+    other suffix) and returns the path.
 
     MP4s are encoded in-process by PyAV's bundled FFmpeg libraries (no ``ffmpeg`` subprocess:
-    forking a process that runs JAX's threads can deadlock); frames are padded to even sizes,
-    which H.264's 4:2:0 chroma needs.
+    forking a process that runs JAX's threads can deadlock), one frame at a time as they come
+    (a 1000-step scene video is never held whole); frames are padded to even sizes, which
+    H.264's 4:2:0 chroma needs. A GIF's frames are gathered first (Pillow writes them at once).
     """
     import imageio.v3 as iio
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    count = 0
     if path.suffix == ".mp4":
-        stack = np.stack(frames)
-        height, width = stack.shape[1:3]
-        stack = np.pad(stack, ((0, 0), (0, height % 2), (0, width % 2), (0, 0)))
-        iio.imwrite(path, stack, plugin="pyav", codec="libx264", fps=fps)
+        with iio.imopen(path, "w", plugin="pyav") as file:
+            file.init_video_stream("libx264", fps=fps)
+            for frame in frames:
+                height, width = frame.shape[:2]
+                file.write_frame(np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0))))
+                count += 1
     else:
-        iio.imwrite(path, np.stack(frames), plugin="pillow", duration=1000 / fps, loop=0)
-    logger.info("wrote %s (%d frames)", path, len(frames))
+        stack = np.stack(list(frames))
+        count = len(stack)
+        iio.imwrite(path, stack, plugin="pillow", duration=1000 / fps, loop=0)
+    logger.info("wrote %s (%d frames)", path, count)
     return path
 
 
@@ -308,14 +348,17 @@ def episode_video(
     fps: int | None = None,
 ) -> tuple[Path, float]:
     """Runs one episode (:func:`record_episode`) and writes its annotated video up to the step
-    that ends it (a fall ends a quadruped's early). Returns ``(path, episode return)``, the
-    return counting the live steps only, as training does."""
+    that ends it (a fall ends a quadruped's early): a pixel env's observations at 3x, or, for
+    one with a scene (:func:`has_scene`), the scene at ``SCENE_VIDEO_SIZE`` with the
+    observation inset at 4x (:func:`draw_steps`); a state env's camera. Returns ``(path,
+    episode return)``, the return counting the live steps only, as training does."""
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
-    scale = 4 if has_scene(env) else 3 if has_pixels(env) else 1
+    scene = "scene" in record
+    scale = 4 if scene else 3 if has_pixels(env) else 1
     frames = draw_steps(env, policy, record, np.arange(last_live_step(record) + 1), scale=scale, numbered=False)
-    if fps is None:  # a state env's video in real time (the quadruped's 0.02 s steps: 50 fps)
-        timestep = None if has_pixels(env) else getattr(env, "control_timestep", None)
+    if fps is None:  # a robot seen from outside in real time (the quadruped's 0.02 s steps: 50 fps)
+        timestep = getattr(env, "control_timestep", None) if scene or not has_pixels(env) else None
         repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
         fps = max(1, round(1.0 / (timestep * repeat))) if timestep else 30
     return write_video(path, frames, fps=fps), float(returns[-1])
@@ -339,8 +382,8 @@ def episode_strip(
     """Runs one episode (:func:`record_episode`) and writes ``frames`` of it, evenly spaced from
     the first step to the one that ends the episode, annotated as the video's (:func:`annotate`,
     the step in the caption; an env with a scene: inset in it, :func:`draw_steps`) and tiled
-    ``columns`` to a row, as a PNG. Returns ``(path, episode
-    return)``, the return counting the live steps only."""
+    ``columns`` to a row, as a PNG. Returns ``(path, episode return)``, the return counting the
+    live steps only."""
     from PIL import Image
 
     if not isinstance(frames, int) or frames < 1 or not isinstance(columns, int) or columns < 1:
@@ -348,7 +391,7 @@ def episode_strip(
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
     picks = np.unique(np.linspace(0, last_live_step(record), frames).round().astype(int))
-    tiles = draw_steps(env, policy, record, picks, scale=scale, numbered=True, scene_size=scene_size)
+    tiles = list(draw_steps(env, policy, record, picks, scale=scale, numbered=True, scene_size=scene_size))
     rows = [tiles[i : i + columns] for i in range(0, len(tiles), columns)]
     blank = np.zeros_like(tiles[0])
     gap = np.full((tiles[0].shape[0], 4, 3), 255, np.uint8)
