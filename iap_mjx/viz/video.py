@@ -4,13 +4,13 @@ for a state agent, the env's own camera.
 One episode runs compiled (``lax.scan``); the host then upscales each frame, outlines the
 top-l patches the attention layer picked (as the paper's Figures 9-10) and writes the return
 so far, and saves an MP4 (H.264 through PyAV, in this process: nothing is forked) or a GIF. A
-state env has no image in its observations, so its frames are rendered by the ray-cast camera
-from its ``video_camera_id`` (a model camera, e.g. the quadruped's trunk-tracking one; default
-camera 0) at ``STATE_VIDEO_SIZE``. A pixel env that names a ``video_camera_id`` (the
-quadruped's courses, whose observation is the robot's own small camera) is shown from that
-camera at ``SCENE_VIDEO_SIZE``, the robot's view with its patches inset in the top-right
-corner: the episode records the scene camera's poses at each step and the host renders the
-frames it draws from them.
+state env has no image in its observations, so it is shown by the ray-cast camera from its
+``video_camera_id`` (a model camera, e.g. the quadruped's trunk-tracking one; default camera
+0) at ``STATE_VIDEO_SIZE``. A pixel env that names a ``video_camera_id`` (the quadruped's
+courses, whose observation is the robot's own small camera) is shown from that camera at
+``SCENE_VIDEO_SIZE``, the robot's view with its patches inset in the top-right corner. Such a
+scene is not rendered inside the episode: the episode records the scene camera's poses at each
+step, and the host renders the steps it draws from them, a chunk at a time.
 """
 
 from __future__ import annotations
@@ -80,21 +80,23 @@ def episode_program(
     ``record`` of each step.
 
     Args:
-      env: an env following the Env protocol: a pixel env (its newest frame is recorded) or a
-        state env (frames from :func:`state_camera`).
+      env: an env following the Env protocol: a pixel env (its newest frame is recorded; one
+        with a scene, :func:`has_scene`, also records the scene camera's poses) or a state env
+        (the poses of :func:`state_camera` alone). Poses (:meth:`iap_mjx.render.Camera.poses`,
+        a few hundred floats a step) are drawn afterwards by :func:`render_scene`, only at the
+        steps drawn, a chunk at a time.
       policy: the policy; if it has ``select`` (IAP) and the env has pixels, the selected
-        patches are recorded. An env with a scene (:func:`has_scene`) also records the scene
-        camera's poses (:meth:`iap_mjx.render.Camera.poses`) for :func:`render_scene`.
+        patches are recorded.
       steps: control steps to record.
       extra: ``state -> {name: array}`` recorded too, from the state the policy sees (e.g.
         the geom map of its frame: ``viz.attended``).
-      scene: ``False``: no scene poses, even for an env with a scene (a program that draws
+      scene: ``False``: no scene poses for a pixel env with a scene (a program that draws
         nothing, e.g. ``viz.attended``'s).
 
-    Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float, "indices":
-    (T, l) int or absent, "scene": {name: (T, ...)} or absent, "rewards": (T,), "alive":
-    (T,)}`` (``scene``: the scene camera's poses of the state each frame shows; ``alive``: the
-    episode's own record of the steps its return counts,
+    Returns a jitted function whose record is ``{"frames": (T, H, W, 3) float (pixel envs),
+    "indices": (T, l) int or absent, "scene": {name: (T, ...)} or absent, "rewards": (T,),
+    "alive": (T,)}`` (``scene``: the scene camera's poses of the state each step shows;
+    ``alive``: the episode's own record of the steps its return counts,
     :func:`iap_mjx.es.episode.run_episode`) and ``extra``'s entries ``(T, ...)``.
     """
     from iap_mjx.es.episode import Step, run_episode
@@ -102,16 +104,15 @@ def episode_program(
     channels = getattr(env, "channels", 3)
     pixels = has_pixels(env)
     selects = pixels and hasattr(policy, "select")
-    camera = None if pixels else state_camera(env)
-    scene = state_camera(env) if scene and has_scene(env) else None  # its poses do not depend on the size
-
-    def frame(state):
-        return newest_rgb(state.obs, channels) if pixels else camera.render(state.data)[0]
+    # a state env's only picture is its scene; the poses do not depend on the size drawn
+    scene = state_camera(env) if not pixels or (scene and has_scene(env)) else None
 
     @jax.jit
     def program(params, obs_stats, key):
         def record(step: Step) -> dict:
-            kept = {"frames": frame(step.state), **(extra(step.state) if extra is not None else {})}
+            kept = dict(extra(step.state)) if extra is not None else {}
+            if pixels:
+                kept["frames"] = newest_rgb(step.state.obs, channels)
             if selects:
                 kept["indices"] = policy.select(params, step.seen, step.policy_state).indices
             if scene is not None:
@@ -147,8 +148,8 @@ def record_episode(
         policy and steps (default: compiled here).
 
     Returns:
-      ``{"frames": (T, H, W, 3) float, "indices": (T, l) int or absent, "scene": {name: (T,
-      ...)} or absent, "rewards": (T,), "alive": (T,) bool}``: ``alive`` marks the steps whose reward the episode's return
+      ``{"frames": (T, H, W, 3) float (pixel envs), "indices": (T, l) int or absent,
+      "scene": {name: (T, ...)} or absent, "rewards": (T,), "alive": (T,) bool}``: ``alive`` marks the steps whose reward the episode's return
       counts (up to the one that ends it); the program runs all ``steps``, ended or not.
     """
     if program is None:
@@ -231,17 +232,18 @@ def draw_steps(
     numbered: bool,
     scene_size: tuple[int, int] = SCENE_VIDEO_SIZE,
 ) -> Iterator[np.ndarray]:
-    """Yields the drawn frames (uint8) of a record's ``steps``: each observation annotated
-    (:func:`annotate` at ``scale``, ``numbered``: the step in the caption) and, where the record
-    has a scene (:func:`has_scene`), inset in the scene rendered at ``scene_size``
-    (:func:`fit_inset` adjusts both so that the view fits). Scene frames are rendered
-    ``RENDER_CHUNK`` at a time as they are drawn, so a whole episode is never held at once."""
+    """Yields the drawn frames (uint8) of a record's ``steps``, each captioned (:func:`annotate`;
+    ``numbered``: the step in the caption): a pixel env's observation at ``scale`` with its
+    patches, inset in the scene rendered at ``scene_size`` where the record has one
+    (:func:`has_scene`; :func:`fit_inset` adjusts both so that the view fits); a state env's
+    scene alone at ``scene_size``. Scene frames are rendered ``RENDER_CHUNK`` at a time as
+    they are drawn, so a whole episode is never held at once."""
     returns = live_returns(record)
     layer = getattr(policy, "layer", None)
     indices = record.get("indices")
-    scene = record.get("scene")
-    if scene is not None:
-        scale, scene_size = fit_inset(record["frames"].shape[1:3], scale, scene_size)
+    views, scene = record.get("frames"), record.get("scene")
+    if views is not None and scene is not None:
+        scale, scene_size = fit_inset(views.shape[1:3], scale, scene_size)
     batch = min(RENDER_CHUNK, len(steps))
     for start in range(0, len(steps), batch):
         chunk = steps[start : start + batch]
@@ -249,13 +251,12 @@ def draw_steps(
         if scene is not None:
             scenes = render_scene(env, {name: value[chunk] for name, value in scene.items()}, scene_size, batch=batch)
         for i, t in enumerate(chunk):
+            step = int(t) if numbered else None
+            if views is None:
+                yield annotate(scenes[i], None, None, float(returns[t]), scale=1, step=step)
+                continue
             view = annotate(
-                record["frames"][t],
-                None if indices is None else indices[t],
-                layer,
-                float(returns[t]),
-                scale=scale,
-                step=int(t) if numbered else None,
+                views[t], None if indices is None else indices[t], layer, float(returns[t]), scale=scale, step=step
             )
             yield view if scenes is None else inset(scenes[i], view)
 
@@ -269,7 +270,8 @@ def annotate(
     scale: int = 3,
     step: int | None = None,
 ) -> np.ndarray:
-    """``frame (H, W, 3)`` in [0, 1] -> ``(scale H + 16, scale W, 3)`` uint8 with patches and text.
+    """``frame (H, W, 3)`` (floats in [0, 1], or uint8) -> ``(scale H + 16, scale W, 3)``
+    uint8 with patches and text.
 
     Each selected patch is outlined in red, a white line just inside the red one (a red line
     alone vanishes on the quadruped course's red walls); one drawn smaller than ``MARK_BELOW``
@@ -279,7 +281,8 @@ def annotate(
     """
     from PIL import Image, ImageDraw
 
-    image = Image.fromarray((np.clip(frame, 0, 1) * 255).astype(np.uint8))
+    pixels = frame if frame.dtype == np.uint8 else (np.clip(frame, 0, 1) * 255).astype(np.uint8)
+    image = Image.fromarray(pixels)
     image = image.resize((frame.shape[1] * scale, frame.shape[0] * scale), Image.NEAREST)
     canvas = Image.new("RGB", (image.width, image.height + 16), (0, 0, 0))
     canvas.paste(image, (0, 16))
@@ -354,11 +357,18 @@ def episode_video(
     episode return)``, the return counting the live steps only, as training does."""
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
-    scene = "scene" in record
-    scale = 4 if scene else 3 if has_pixels(env) else 1
-    frames = draw_steps(env, policy, record, np.arange(last_live_step(record) + 1), scale=scale, numbered=False)
+    scene, views = "scene" in record, "frames" in record
+    frames = draw_steps(
+        env,
+        policy,
+        record,
+        np.arange(last_live_step(record) + 1),
+        scale=4 if scene else 3,
+        numbered=False,
+        scene_size=SCENE_VIDEO_SIZE if views else STATE_VIDEO_SIZE,
+    )
     if fps is None:  # a robot seen from outside in real time (the quadruped's 0.02 s steps: 50 fps)
-        timestep = getattr(env, "control_timestep", None) if scene or not has_pixels(env) else None
+        timestep = getattr(env, "control_timestep", None) if scene else None
         repeat = getattr(getattr(env, "config", None), "action_repeat", 1)
         fps = max(1, round(1.0 / (timestep * repeat))) if timestep else 30
     return write_video(path, frames, fps=fps), float(returns[-1])
