@@ -321,6 +321,12 @@ def test_a_pixel_env_with_a_scene_camera_shows_each_step_from_it_with_the_view_i
     np.testing.assert_array_equal(video.inset(scenes[2].copy(), view), expected)
     with pytest.raises(ValueError, match="does not fit"):
         video.inset(scenes[0][:20].copy(), view)
+    # by default a strip's inset view is drawn at STRIP_SCENE_SCALE (a small camera, legible)
+    path, _ = video.episode_strip(
+        env, policy, None, tmp_path / "one.png", frames=1, columns=1, scene_size=size, **kwargs
+    )
+    view = video.annotate(record["frames"][0], record["indices"][0], layer, 0.5, scale=video.STRIP_SCENE_SCALE, step=0)
+    np.testing.assert_array_equal(iio.imread(path), video.inset(scenes[0].copy(), view))
     # a view too large for the scene at the scale asked is drawn smaller; one too large at any
     # scale gets a larger scene
     assert video.fit_inset((24, 32), 6, (360, 480)) == (6, (360, 480))  # 160 x 192 fits 344 x 464

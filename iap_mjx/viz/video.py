@@ -34,6 +34,7 @@ MARK_RADIUS = 8  # pixels, the ring's outer radius
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
 SCENE_VIDEO_SIZE = (360, 480)  # (height, width) of the scene around a pixel env's inset view
 INSET_MARGIN = 8  # pixels between the inset view and the frame's edges
+STRIP_SCENE_SCALE = 6  # a strip's inset view: the course's 24x32 camera at 144x192, its caption legible
 RENDER_CHUNK = 50  # scene frames rendered per call: a bounded batch, one compiled shape
 
 
@@ -386,14 +387,15 @@ def episode_strip(
     columns: int = 3,
     obs_stats: Any = None,
     program: Any = None,
-    scale: int = 2,
+    scale: int | None = None,
     scene_size: tuple[int, int] = SCENE_VIDEO_SIZE,
 ) -> tuple[Path, float]:
     """Runs one episode (:func:`record_episode`) and writes ``frames`` of it, evenly spaced from
     the first step to the one that ends the episode, annotated as the video's (:func:`annotate`,
     the step in the caption; an env with a scene: inset in it, :func:`draw_steps`) and tiled
-    ``columns`` to a row, as a PNG. Returns ``(path, episode return)``, the return counting the
-    live steps only."""
+    ``columns`` to a row, as a PNG. ``scale``: the observation's (default 2, or 6 inset in a
+    scene, where the course's 24x32 camera would otherwise be too small to read). Returns
+    ``(path, episode return)``, the return counting the live steps only."""
     from PIL import Image
 
     if not isinstance(frames, int) or frames < 1 or not isinstance(columns, int) or columns < 1:
@@ -401,6 +403,8 @@ def episode_strip(
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
     picks = np.unique(np.linspace(0, last_live_step(record), frames).round().astype(int))
+    if scale is None:
+        scale = STRIP_SCENE_SCALE if "scene" in record else 2
     tiles = list(draw_steps(env, policy, record, picks, scale=scale, numbered=True, scene_size=scene_size))
     rows = [tiles[i : i + columns] for i in range(0, len(tiles), columns)]
     blank = np.zeros_like(tiles[0])
