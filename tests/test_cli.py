@@ -123,6 +123,9 @@ def test_an_unknown_option_is_refused_by_its_commands_parser_naming_the_options_
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "iap-mjx eval: error: unrecognized arguments: --bogus" in err
     assert "usage: iap-mjx eval [-h] [--episodes EPISODES] [--seed SEED]" in err
+    with pytest.raises(SystemExit):  # a figure's overrides would take the value: named with its option
+        cli.main(["reproduce", "fig7", "--tasks", "cartpole-swingup", "run.iterations=3"])
+    assert "error: unrecognized arguments: --tasks cartpole-swingup\n" in capsys.readouterr().err
 
 
 def test_reproduce_parses_each_figures_options_and_overrides_before_or_after_them():

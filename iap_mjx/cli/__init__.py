@@ -40,7 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
     if unknown:  # refused by the command's own parser, whose usage lists the options it takes
-        getattr(args, "command_parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
+        # an unknown option's value lands among the overrides: named with it, as the user typed it
+        stray = [item for item in getattr(args, "overrides", None) or () if "=" not in item]
+        getattr(args, "command_parser", parser).error(f"unrecognized arguments: {' '.join(unknown + stray)}")
     # Our own messages at INFO; JAX's, orbax's and absl's chatter only from WARNING (-v: all).
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING,
