@@ -108,7 +108,10 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
     unseen = np.asarray(jax.random.PRNGKey(EVAL_SEED)).tolist()
     assert episodes == [unseen] * 2  # a course not seen in training, the same for both
     (height, width), margin = video.SCENE_VIDEO_SIZE, video.INSET_MARGIN
-    view_h, view_w = 16 + 24 * fig10.SCALE, 32 * fig10.SCALE  # the camera, scaled, under its caption
+    view_h, view_w = (
+        16 + 24 * video.STRIP_SCENE_SCALE,
+        32 * video.STRIP_SCENE_SCALE,
+    )  # the camera, scaled, under its caption
     top, left = margin, width - margin - view_w  # the view's corner in each tile: top right
     env = fig10.check((small,))[small][1]
     # the strip's three frames of one pose, rendered by the same program (a batch of 3)
@@ -129,12 +132,12 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
         assert (ring == 255).all()  # the inset's white frame
         tiles[name] = first[top + 16 : top + view_h, left : left + view_w]
     red = np.array(video.RED)
-    patch = 4 * fig10.SCALE
+    patch = 4 * video.STRIP_SCENE_SCALE
     large_tile = tiles["fig10-p4-s4.png"]
     assert (large_tile[patch, patch] == red).all() and (large_tile[2 * patch - 1, 2 * patch - 1] == red).all()
     assert (large_tile[patch + 1, patch + 1] == 255).all()  # a white line inside the red one
     assert (large_tile[patch + 2, patch + 2] == 0).all()  # inside the outline: the camera's black
-    small_tile, scale = tiles["fig10-p1-s1.png"], fig10.SCALE
+    small_tile, scale = tiles["fig10-p1-s1.png"], video.STRIP_SCENE_SCALE
     for row, col in SMALL:  # each 1-pixel patch a scale-pixel square outlined, ringed red inside white
         top, left, centre = row * scale, col * scale, (row * scale + scale // 2, col * scale + scale // 2)
         assert (small_tile[top, left] == red).all() and (small_tile[centre] == 0).all()

@@ -15,7 +15,7 @@ from fake_runs import fake_run
 from iap_mjx import cli, configs
 from iap_mjx.es import checkpoint
 from iap_mjx.paper import table1
-from iap_mjx.paper.evaluations import EVAL_FILE
+from iap_mjx.paper.evaluations import EVAL_FILE, EVAL_SEED
 
 
 def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):
@@ -61,7 +61,7 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     )
     assert sorted(call[1] for call in calls) == sorted(table1.CONDITIONS.values())
     assert {call[0] for call in calls} == {"dcs-cartpole-swingup-seed0"}  # the finished run only
-    assert all(call[2] == 4 and call[3] == table1.EVAL_SEED for call in calls)
+    assert all(call[2] == 4 and call[3] == EVAL_SEED for call in calls)
     row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
     assert "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 3,000 |" in row
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished

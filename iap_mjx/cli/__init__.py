@@ -1,6 +1,6 @@
 """The ``iap-mjx`` command line.
 
-One ``argparse`` tree: :mod:`~iap_mjx.cli.runs` adds the commands over presets and run
+One ``argparse`` tree: :mod:`~iap_mjx.cli.commands` adds the commands over presets and run
 directories (``presets``, ``show``, ``train``, ``eval``, ``video``, ``attended``, ``figures``),
 :mod:`~iap_mjx.cli.reproduce` adds ``reproduce`` with one subcommand per figure, each command a
 small function. A new command is an ``add_parser`` call (its defaults: ``func``, the function,
@@ -15,7 +15,7 @@ import argparse
 import logging
 
 from iap_mjx import runtime
-from iap_mjx.cli import reproduce, runs
+from iap_mjx.cli import commands, reproduce
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,9 +25,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="iap-mjx", description="Implicit Attention for Pixels on MJX, trained with ES."
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    commands = parser.add_subparsers(dest="command", required=True)
-    runs.add_commands(commands)
-    reproduce.add_commands(commands)
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    commands.add_commands(subparsers)
+    reproduce.add_commands(subparsers)
     return parser
 
 

@@ -8,6 +8,7 @@ of episodes and the seed) to a list of per-episode returns, or to a dict of per-
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 from collections.abc import Callable
@@ -48,3 +49,24 @@ def stored_evaluation(run_dir: Path, key: str, episodes: int, evaluate: Callable
         temporary.write_text(json.dumps(stored, indent=1))
         temporary.replace(path)
     return stored[key]
+
+
+def evaluate_conditions(
+    run_dir: Path, step: int, *, episodes: int, conditions: dict[str, tuple[str, ...]]
+) -> dict[str, list[float]]:
+    """``{name: returns}`` of the run's checkpoint ``step`` under each of ``conditions``
+    (``{name: env overrides}``, e.g. :data:`iap_mjx.paper.table1.CONDITIONS`), ``episodes``
+    episodes drawn from :data:`EVAL_SEED`; read from ``eval.json`` where stored, evaluated (and
+    stored) otherwise."""
+    from iap_mjx import es
+
+    def evaluate(condition: tuple[str, ...]) -> list[float]:
+        returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
+        return [float(r) for r in returns]
+
+    return {
+        name: stored_evaluation(
+            run_dir, evaluation_key(name, step, episodes), episodes, functools.partial(evaluate, condition)
+        )
+        for name, condition in conditions.items()
+    }

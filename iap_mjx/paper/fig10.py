@@ -23,7 +23,6 @@ from iap_mjx.viz.sections import image_link, write_section
 
 logger = logging.getLogger(__name__)
 
-SCALE = 6  # the 24x32 camera inset at 144x192: a 1-pixel patch a 6-pixel square (ringed), a 4-pixel one 24
 DEFAULT_RUNS = ("table2-p1-s1-seed0", "quadruped-walls-iap-seed0")  # Table 2's smallest and the preset's patches
 
 
@@ -93,7 +92,7 @@ def reproduce_fig10(
             steps=env.episode_length,
             frames=frames,
             obs_stats=result.obs_stats,
-            scale=SCALE,
+            scale=video.STRIP_SCENE_SCALE,
         )
         attention = policy.layer.config
         parts.append(
@@ -108,12 +107,21 @@ def reproduce_fig10(
     links = [path if results is None else image_link(path, Path(results), "fig10") for path, _ in parts]
     markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link})" for (path, caption), link in zip(parts, links))
     if results is not None:
-        write_results(Path(results), markdown, run_dirs=tuple(checked), frames=frames, out_dir=out_dir)
+        write_results(
+            Path(results),
+            markdown,
+            run_dirs=tuple(checked),
+            frames=frames,
+            out_dir=out_dir,
+            scale=video.STRIP_SCENE_SCALE,
+        )
     return markdown
 
 
-def write_results(path: Path, markdown: str, *, run_dirs: tuple[Path, ...], frames: int, out_dir: Path) -> None:
-    """The ``fig10`` section of ``path``: the command and the strips."""
+def write_results(
+    path: Path, markdown: str, *, run_dirs: tuple[Path, ...], frames: int, out_dir: Path, scale: int
+) -> None:
+    """The ``fig10`` section of ``path``: the command and the strips (the camera inset at ``scale``x)."""
     command = " ".join(
         [
             "iap-mjx reproduce fig10",
@@ -127,7 +135,7 @@ def write_results(path: Path, markdown: str, *, run_dirs: tuple[Path, ...], fram
         f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
         f"Command: `{command}`. One episode of each run's final centre on a course not seen in training "
         f"(seed {EVAL_SEED}); {frames} frames evenly spaced over it, each the course from the camera that follows "
-        f"the robot, the first-person camera inset at {SCALE}x with the selected patches in red (the high "
+        f"the robot, the first-person camera inset at {scale}x with the selected patches in red (the high "
         f"level's choice were it asked at that step; it is asked when the command it holds runs out).\n\n"
         f"{markdown}\n"
     )

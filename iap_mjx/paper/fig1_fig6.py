@@ -15,15 +15,13 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from pathlib import Path
 from typing import Any
 
-import jax
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.paper.runs import trained_curve
+from iap_mjx.paper.runs import inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
 
@@ -38,24 +36,6 @@ VARIANTS = {
     ],
     "fig1": [("IAP", "cheetah-run-pixels"), ("Brute Force", "cheetah-run-pixels-brute")],
 }
-
-
-def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> float:
-    """Mean wall time of one compiled policy forward pass on one rendered observation."""
-    from iap_mjx.viz.artifacts import env_and_policy
-
-    env, policy = env_and_policy(config)
-    key = jax.random.PRNGKey(0)
-    obs = jax.jit(env.reset)(key).obs
-    params = policy.init(key)
-    policy_state = policy.initial_state(key)
-    forward = jax.jit(policy.apply)
-    jax.block_until_ready(forward(params, obs, policy_state))
-    start = time.perf_counter()
-    for _ in range(passes):
-        out = forward(params, obs, policy_state)
-    jax.block_until_ready(out)
-    return (time.perf_counter() - start) / passes
 
 
 def reproduce(

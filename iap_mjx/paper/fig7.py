@@ -12,7 +12,7 @@ per cell at a budget the caller states in iterations (``run.iterations=...``):
 Each cell trains in ``<out>/fig7-p<p>-l<l>-d<d>-seed<k>`` (resumed, skipped once finished; the
 training loop is :func:`iap_mjx.paper.runs.trained_curve`'s). A cell's return is its final
 centre's mean over ``episodes`` evaluation episodes in the training condition, stored in the
-run's ``eval.json`` (:func:`iap_mjx.paper.table1.evaluate_conditions`). Writes ``fig7.json`` and
+run's ``eval.json`` (:func:`iap_mjx.paper.evaluations.evaluate_conditions`). Writes ``fig7.json`` and
 ``fig7.png`` and returns the markdown table.
 """
 
@@ -73,8 +73,8 @@ def cell_row(
 ) -> dict[str, Any] | None:
     """One cell: its curve and (finished) its final centre's evaluation returns."""
     from iap_mjx.es import checkpoint
+    from iap_mjx.paper.evaluations import evaluate_conditions
     from iap_mjx.paper.runs import trained_curve
-    from iap_mjx.paper.table1 import evaluate_conditions
 
     run_dir = out_dir / run_name(*cell, seed)
     trained = trained_curve(config, seed, run_dir, train=train)

@@ -99,7 +99,7 @@ def measure(
     """Every variant's seconds per iteration and compile seconds (each program compiled, none
     loaded from the persistent cache), then brute force's projected cost per iteration at
     ``p = 2`` from the forward passes of brute force and hybrid at ``p = 2``."""
-    from iap_mjx.paper.fig1_fig6 import inference_seconds
+    from iap_mjx.paper.runs import inference_seconds
 
     if iterations < 2:
         raise ValueError(f"iterations = {iterations}: timing needs >= 2 (the first one compiles)")

@@ -1,10 +1,12 @@
 """The training runs behind every figure and table: trained (or resumed) in their own run
 directory, read back as a report's row, and their policies built without compiling, so that a
-report is reproduced by running it again and a finished run is never trained twice."""
+report is reproduced by running it again and a finished run is never trained twice; and the
+time of one policy forward pass, which Figures 1, 6 and 8 report beside the runs."""
 
 from __future__ import annotations
 
 import dataclasses
+import time
 from pathlib import Path
 from typing import Any
 
@@ -81,3 +83,24 @@ def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
             config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options)
         )
     return out
+
+
+def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> float:
+    """Mean wall time of one compiled policy forward pass on one rendered observation (the mean
+    of ``passes`` passes after compiling)."""
+    import jax
+
+    from iap_mjx.viz.artifacts import env_and_policy
+
+    env, policy = env_and_policy(config)
+    key = jax.random.PRNGKey(0)
+    obs = jax.jit(env.reset)(key).obs
+    params = policy.init(key)
+    policy_state = policy.initial_state(key)
+    forward = jax.jit(policy.apply)
+    jax.block_until_ready(forward(params, obs, policy_state))
+    start = time.perf_counter()
+    for _ in range(passes):
+        out = forward(params, obs, policy_state)
+    jax.block_until_ready(out)
+    return (time.perf_counter() - start) / passes

@@ -24,7 +24,6 @@ beside the IAP runs of the same tasks found in ``out`` (``table1-cnn.json``/``.p
 
 from __future__ import annotations
 
-import functools
 import json
 from pathlib import Path
 from typing import Any
@@ -34,7 +33,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
-from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.paper.evaluations import evaluate_conditions
 from iap_mjx.viz.sections import image_link, mean_std, write_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -97,25 +96,6 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap
     return result
 
 
-def evaluate_conditions(
-    run_dir: Path, step: int, *, episodes: int, conditions: dict[str, tuple[str, ...]] = CONDITIONS
-) -> dict[str, list[float]]:
-    """``{condition: returns}`` of the run's checkpoint ``step``, read from ``eval.json``
-    where stored, evaluated (and stored) otherwise."""
-    from iap_mjx import es
-
-    def evaluate(condition: tuple[str, ...]) -> list[float]:
-        returns = es.evaluate_run(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
-        return [float(r) for r in returns]
-
-    return {
-        name: stored_evaluation(
-            run_dir, evaluation_key(name, step, episodes), episodes, functools.partial(evaluate, condition)
-        )
-        for name, condition in conditions.items()
-    }
-
-
 def run_row(
     task: str,
     config: configs.TrainConfig,
@@ -140,7 +120,7 @@ def run_row(
     row = {"task": task, "policy": policy, "parameters": parameters(config), **summary[0]}
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
-        row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes)
+        row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes, conditions=CONDITIONS)
     if export is not None:
         checkpoint.export_latest(run_dir, export / f"{task}{POLICIES[policy]}-seed{seed}")
     return row
