@@ -4,7 +4,10 @@ end is ``tests/test_first_run.py`` (the README's command, then ``iap-mjx eval`` 
 from __future__ import annotations
 
 import json
+import os
 import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -25,6 +28,20 @@ def test_presets_lists_every_preset(capsys):
     out = capsys.readouterr().out
     for name in configs.names():
         assert name in out
+
+
+def test_a_reader_that_leaves_early_ends_the_command_without_a_traceback():
+    """``iap-mjx presets | head -1``: the pipe's reader is gone (here before the command writes,
+    so the write always fails) and the command exits 1 with nothing on stderr."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "iap_mjx.cli", "presets"], stdout=write_end, stderr=subprocess.PIPE, timeout=120
+        )
+    finally:
+        os.close(write_end)
+    assert done.returncode == 1 and done.stderr == b""
 
 
 def test_unknown_preset_fails_listing_valid_ones(capsys):
