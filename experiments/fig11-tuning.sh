@@ -25,7 +25,8 @@ for high in iap cnn; do
         # shellcheck disable=SC2086  # the overrides are separate words
         nice -n "$NICE" iap-mjx train "quadruped-walls-$high" run.iterations=30 $overrides \
             --run-dir "$OUT/$run" --no-progress
-        echo "== $(date -u '+%F %T') exit $?"
+        status=$?  # read before the echo's $(date) replaces it
+        echo "== $(date -u '+%F %T') exit $status"
         mkdir -p "$KEEP/$run" && cp "$OUT/$run/config.json" "$OUT/$run/metrics.csv" "$KEEP/$run/"
     done
 done

@@ -20,7 +20,8 @@ NICE=${NICE:-10}
 run() {
     echo "== $(date -u '+%F %T') iap-mjx $*"
     nice -n "$NICE" iap-mjx "$@"
-    echo "== $(date -u '+%F %T') exit $?"
+    local status=$?  # read before the echo's $(date) replaces it
+    echo "== $(date -u '+%F %T') exit $status"
 }
 T1="reproduce table1 --seeds 3 --episodes 20 --out $OUT/table1 --export $EXPORT/dcs"
 run $T1 --tasks cartpole-swingup,cheetah-run,reacher-easy

@@ -192,8 +192,8 @@ def sincos(x: jax.Array) -> tuple[jax.Array, jax.Array]:
     Cody-Waite reduction to ``x = n pi + r``, ``|r| <= pi/2``; Taylor polynomials of ``sin r``
     (to ``r^11``) and ``cos r`` (to ``r^12``), then ``(-1)^n`` applied by flipping the sign bit
     (no quadrant selects). Within 2e-7 of the true values for ``|x| < 1e3`` (``jnp.sin``'s
-    error is 3e-8), and several times faster than ``jnp.sin`` plus ``jnp.cos`` on XLA CPU,
-    where they are the cost of the trigonometric features.
+    error is 3e-8), and faster than ``jnp.sin`` plus ``jnp.cos`` on XLA CPU, where they are the
+    cost of the trigonometric features.
     """
     n = jnp.round(x * (1.0 / math.pi))
     r = ((x - n * _PI_HI) - n * _PI_MID) - n * _PI_LO

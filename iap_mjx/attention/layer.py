@@ -25,8 +25,8 @@ from iap_mjx.attention.selection import top_l
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
 ROW_KERNELS = ("relu", "hybrid")  # scored from token rows (tokens minor), in chunks under vmap
-# Patches scored together per chunk under vmap when batch_chunk is None: 2 images at L = 19,200,
-# the chunk whose row-score intermediates stay in cache, where the time per image is lowest.
+# Patches scored together per chunk under vmap when batch_chunk is None: about 2 images at
+# L = 19,200, few enough that the row-score intermediates stay in cache.
 CHUNK_TOKENS = 40_000
 
 
@@ -202,7 +202,7 @@ class IAPAttention:
         Non-overlapping patches: a reshape and one ``(L, c) @ (c, 2d)`` product. Overlapping
         patches: one strided convolution with kernel ``[W_Q | W_K]`` reshaped to
         ``(p, p, C, 2d)``, the same numbers without materialising the overlapping patches
-        (where both apply, XLA's CPU backend runs the reshape and product much faster).
+        (where both apply, the reshape and product: XLA's CPU backend runs them as one plain matmul).
         """
         cfg = self.config
         p, stride, channels = cfg.patch_size, cfg.effective_stride, self.image_shape[2]

@@ -32,9 +32,9 @@ def brute_scores(queries: jax.Array, keys: jax.Array, *, row_normalize: bool = F
     """
     logits = queries @ keys.T
     if row_normalize:
-        # Column sums of the row-softmax as one matvec (1 / row sums) @ exp: XLA CPU's column
-        # reduction of softmax(logits) is pathologically slow at some vmap batch sizes, which
-        # would make brute force a weak baseline.
+        # Column sums of the row-softmax as one matvec (1 / row sums) @ exp: XLA CPU lowers the
+        # column reduction of softmax(logits) badly at some vmap batch sizes, and brute force
+        # must not be a weak baseline.
         unnormalised = jnp.exp(logits - jax.lax.stop_gradient(jnp.max(logits, axis=-1, keepdims=True)))
         return (1.0 / jnp.sum(unnormalised, axis=-1)) @ unnormalised
     return jnp.sum(jnp.exp(logits - jax.lax.stop_gradient(jnp.max(logits))), axis=0)

@@ -37,8 +37,8 @@ class FingerSpin(DmControlEnv):
     One edit of ours: the geoms that can never touch anything lose their collision flags
     (``_NEVER_TOUCHING``), because MJX computes every candidate pair at every step whether it
     touches or not (native MuJoCo's broad phase skips them), and the cylinder pairs run MJX's
-    iterative SDF collision: this makes a step several times faster and changes no contact
-    that can happen. Why they cannot touch, from the XML's rigid geometry (both bodies hinge
+    iterative SDF collision: dropping them removes that work and changes no contact that can
+    happen. Why they cannot touch, from the XML's rigid geometry (both bodies hinge
     about fixed points 0.4 apart at height 0.4): the finger reaches at most
     0.18 + 0.161 + 0.03 = 0.371 from its base and the spinner's capsules 0.132 from its
     hinge, so nothing reaches the ground (z = 0); the proximal capsule (reach 0.2) and its

@@ -21,8 +21,8 @@ The corridor (numbers for the default ``n_gates`` = 3):
   or climbed over) at ``x = 1.5 + 2.5 (i + 0.5) + U(-0.2, 0.2)``, midway to the next gate, and
   ``y = U(-0.55, 0.55)``: at least 0.55 m of floor before and after it along x, and 1.2 m of
   corridor beside it. Not lower: a box below the trunk's top lets the trunk's box strike its
-  top edge, where MJX's box-box contact parts from native MuJoCo's (2.5e-3 m in 40 control
-  steps of a push, measured, against 1e-5 for the column), and a kerb below the trunk's bottom
+  top edge, where MJX's box-box contact parts from native MuJoCo's (the column's side contact
+  agrees with it), and a kerb below the trunk's bottom
   would offer its frictionless top (obstacles are ``condim`` 1) as a floor to slip on.
 - Each gate is two fixed boxes, the segments left and right of the opening; each segment is
   1.1 m long, so that wherever the opening is drawn its outer end lies inside the side wall

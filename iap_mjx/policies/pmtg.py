@@ -2,8 +2,9 @@
 
 A periodic trajectory generator (TG) drives the legs; a policy sets the TG's parameters every
 control step and adds bounded residuals to its joint targets. Written from the equations of the
-authors' group's public PyBullet code (``tg_simple.py``, ``pmtg_wrapper_env.py``; see
-``docs/quadruped.md`` in the design notes), as pure functions:
+authors' group's public PyBullet code (bullet3's ``pybullet_envs/minitaur``:
+``agents/trajectory_generator/tg_simple.py``, ``envs_v2/env_wrappers/pmtg_wrapper_env.py``), as
+pure functions:
 
 - One phase ``phi`` in ``[0, 2 pi)``: ``[0, pi)`` is stance, ``[pi, 2 pi)`` swing. It advances
   by ``2 pi f dt`` per step, scaled by ``(k + 1) / (2 k)`` in stance and ``(k + 1) / 2`` in

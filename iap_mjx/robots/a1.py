@@ -1,11 +1,11 @@
 """An A1-class quadruped and its worlds as MJCF, written from the robot's published figures.
 
 Primitives only (box trunk, capsule thighs and calves, sphere feet), so MJX collides them fast
-and the ray-cast camera draws them; nothing is read from disk or downloaded. The figures
-(``docs``: ``shared/design/quadruped.md``) are the Unitree A1's: trunk 4.713 kg, hips 0.696 kg,
-thighs 1.013 kg, calves 0.226 kg (12.45 kg in all), hips at ``(+-0.183, +-0.047, 0)``, thighs
-``0.08505`` m further out, 0.2 m thighs and calves, 0.02 m feet; joint ranges and the standing
-pose below. Inertias other than the trunk's are ours: each link's mass spread as a uniform
+and the ray-cast camera draws them; nothing is read from disk or downloaded. The figures are
+the Unitree A1's as MuJoCo Menagerie's ``unitree_a1`` model (BSD-3) describes it: trunk 4.713 kg,
+hips 0.696 kg, thighs 1.013 kg, calves 0.226 kg (12.45 kg in all), hips at
+``(+-0.183, +-0.047, 0)``, thighs ``0.08505`` m further out, 0.2 m thighs and calves, 0.02 m
+feet; joint ranges and the standing pose below. Inertias other than the trunk's are ours: each link's mass spread as a uniform
 rod (thigh, calf) or solid sphere (hip) of the link's size, about its centre of mass.
 
 Legs are ordered FR, FL, RR, RL (front/rear, right/left) and each has (abduction, thigh, knee)
