@@ -297,18 +297,3 @@ def test_batch_chunk_must_be_positive():
 def test_effective_stride_is_the_stride_or_else_the_patch_size():
     assert AttentionConfig(patch_size=4).effective_stride == 4
     assert AttentionConfig(patch_size=4, stride=2).effective_stride == 2
-
-
-def test_the_readmes_attention_example_runs_as_written():
-    """The README's "attention layer alone" block, executed as a user pastes it: a batch of
-    frames in, the top-10 patch indices and centres out."""
-    from pathlib import Path
-
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    block = readme.split("The attention layer alone:\n\n```python\n")[1].split("```")[0]
-    namespace: dict = {}
-    exec(block, namespace)
-    selection, images = namespace["selection"], namespace["images"]
-    batch = images.shape[0]
-    assert selection.indices.shape == (batch, 10) and selection.centres.shape == (batch, 10, 2)
-    assert all(len(set(row.tolist())) == 10 for row in np.asarray(selection.indices))  # ten distinct patches
