@@ -79,7 +79,7 @@ def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Fut
     for a state env: a run writes no video of one).
 
     Called before training, the video's compile runs beside the ES iteration's (XLA compiles
-    on one core; this machine class has two), so the video at the end of a run costs its
+    on one core, and a machine has more), so the video at the end of a run costs its
     rollout and encoding only (and, for an env with a scene, the scene renderer, compiled when
     the episode's length is known: ``video.draw_steps``). A daemon thread: an interrupted run
     does not wait for it.
