@@ -63,7 +63,9 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     assert {call[0] for call in calls} == {"dcs-cartpole-swingup-seed0"}  # the finished run only
     assert all(call[2] == 4 and call[3] == EVAL_SEED for call in calls)
     row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
-    assert "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 3,000 |" in row
+    assert (
+        "| 196.0 | 167.0 | 200.0 ± 0.0 | 200.0 | 210.0 ± 0.0 |" in row and "| 1 of 2 | 3 | 24,000 |" in row
+    )  # 3,000 actions x 8
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
     stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / EVAL_FILE).read_text())
     assert len(stored) == 4
@@ -114,6 +116,7 @@ def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
                 "seconds": 1.0,
                 "iterations": 1,
                 "env_steps": 10,
+                "control_steps": 40,
                 "finished": True,
                 "conditions": {name: [value] for name in table1.CONDITIONS},
             }

@@ -60,8 +60,9 @@ class Components:
 
     @property
     def steps_per_iteration(self) -> int:
-        """Training env steps per iteration (members x episodes x horizon): the sample
-        budget, as brax counts it."""
+        """Training env steps per iteration (members x episodes x horizon, ``env.step`` calls,
+        one action each): the sample budget. dm_control's count (PlaNet's, DrQ's) is this times
+        the task's action repeat."""
         es = self.config.es
         return es.population_size * es.n_episodes * self.env.episode_length
 
