@@ -2,7 +2,8 @@
 
 ``es.population_size=64`` sets a field; ``iterations=50`` works too when the field name is
 unique across sections; ``policy.hidden_sizes=64,64`` sets a policy option; ``env.X=...``
-(X not a field of ``EnvConfig``) sets an env override passed to ``iap_mjx.envs.make``. Values are
+(X an ``EnvConfig`` field, not one of ``EnvSpec``'s own, such as ``name``) sets an env override
+passed to ``iap_mjx.envs.make``, validated there against the task's config class. Values are
 Python literals (``0.01``, ``true``, ``64,64``, ``'adam'``); anything else is a string. The
 result is validated as a whole, so a bad value fails here with the field's name.
 """

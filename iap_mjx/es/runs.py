@@ -106,7 +106,11 @@ def evaluate_run(
     policy: Any = None,
 ) -> np.ndarray:
     """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
-    seeds (derived from ``seed``, not the training seeds).
+    seeds, not the training seeds: the episodes' keys are split from
+    ``fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), iteration)``, ``iteration`` the checkpoint's,
+    as the training's own evaluation draws them. Runs evaluated with one ``seed`` at one
+    iteration (Figure 11's finished runs) see the same episodes; another checkpoint of the same
+    run sees others. A video's ``--seed k`` episode (``PRNGKey(k)`` itself) is none of them.
 
     ``overrides``: ``env.<field>=<value>`` settings that change the evaluation's env from the
     run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
