@@ -16,13 +16,13 @@ from mujoco import mjx
 
 @struct.dataclass
 class State:
-    """One env's state between control steps (add a leading batch axis under ``vmap``).
+    """One env's state between env steps (add a leading batch axis under ``vmap``).
 
     Attributes:
       data: the MJX physics state.
       obs: the observation, ``(obs_size,)`` for state observations or ``(H, W, C)`` pixels
         (a dict only for combined modes such as ``"pixels+state"``).
-      reward: ``()`` float32, the reward of the last control step.
+      reward: ``()`` float32, the reward of the last env step (summed over its action repeat).
       done: ``()`` float32, 1.0 once the episode has ended (time limit or a bad state).
       metrics: named ``()`` scalars to average/sum in logs (e.g. ``"nan_terminations"``).
       info: anything else the env carries between steps (step count, RNG key, frame stack).
@@ -37,7 +37,26 @@ class State:
 
 
 class Env(Protocol):
-    """What the ES engine and the policies rely on."""
+    """What the ES engine and the policies rely on.
+
+    One ``step`` is one action: a dm_control task with action repeat ``k`` simulates ``k`` of its
+    control steps in it (``episode_length`` and ``metrics.csv``'s ``env_steps`` count actions).
+
+    Optional members, read with ``getattr`` where present (an env without them still trains):
+
+    - ``max_chunk_size``: the most episodes one device may ``vmap`` at once (``train`` refuses a
+      larger ``run.chunk_size`` on two or more devices; the MJX tasks set it: XLA:CPU deadlocks
+      in MJX's batched Cholesky above it with jaxlib 0.10).
+    - ``episode_metrics``: names of per-episode statistics the final ``State.metrics`` holds
+      (the quadruped course's ``walls_passed`` ...), logged as ``metrics.csv`` columns.
+    - ``State.metrics["nan_terminations"]`` (the env ended a diverged state itself) and
+      ``["contact_saturated"]`` (every MJX contact slot filled): counted per iteration.
+    - For videos (``iap_mjx.viz.video``): ``mj_model`` (a state env is rendered from it),
+      ``obs_mode`` and ``channels`` (a pixel env, :class:`iap_mjx.envs.pixels.PixelEnv`),
+      ``video_camera_id`` (a scene camera to draw the pixel view into), ``control_timestep`` and
+      ``config.action_repeat`` (the frame rate); ``camera_options`` (``CameraConfig`` fields
+      ``with_pixels`` gets from ``envs.make``).
+    """
 
     @property
     def action_size(self) -> int: ...
@@ -47,7 +66,7 @@ class Env(Protocol):
 
     @property
     def episode_length(self) -> int:
-        """Control steps per episode (after action repeat)."""
+        """Env steps (actions) per episode, after action repeat."""
         ...
 
     def reset(self, key: jax.Array) -> State: ...

@@ -30,7 +30,7 @@ from iap_mjx.policies.base import Policy
 class EpisodeResult:
     """What one episode reports (a leading batch axis when batched).
 
-    ``ret`` ``()`` the return, ``steps`` ``()`` control steps before ``done``, ``bad``
+    ``ret`` ``()`` the return, ``steps`` ``()`` env steps before ``done``, ``bad``
     ``()`` 1.0 if a non-finite reward/observation was met or the env flagged
     ``metrics["nan_terminations"]``, ``saturated`` ``()`` 1.0 if the env flagged
     ``metrics["contact_saturated"]`` (every contact slot filled at some step, so a contact
@@ -63,7 +63,7 @@ jax.tree_util.register_dataclass(
 
 @dataclasses.dataclass(frozen=True)
 class Step:
-    """One control step as the policy took it.
+    """One env step (one action) as the policy took it.
 
     ``state`` the env state whose observation the policy saw, ``seen`` that observation as
     the policy saw it (normalised, see :func:`observe`), ``policy_state`` the policy's state
@@ -139,7 +139,7 @@ def observe(obs_stats: ObsStats | None, obs: Any) -> Any:
 def episode_step(
     env: Any, policy: Policy, params: Any, obs_stats: ObsStats | None, state: Any, policy_state: Any
 ) -> tuple[Step, Any]:
-    """One control step from env ``state``: the :class:`Step` taken and the policy's next state."""
+    """One env step from env ``state``: the :class:`Step` taken and the policy's next state."""
     seen = observe(obs_stats, state.obs)
     action, next_policy_state = policy.apply(params, seen, policy_state)
     return Step(state, seen, policy_state, env.step(state, action)), next_policy_state
@@ -156,7 +156,7 @@ def run_episode(
     steps: int | None = None,
     record: Callable[[Step], dict[str, jax.Array]] | None = None,
 ) -> EpisodeResult:
-    """One episode of ``steps`` control steps (default ``env.episode_length``) from
+    """One episode of ``steps`` env steps (default ``env.episode_length``) from
     ``env.reset``, the key split into the reset's and the policy state's.
 
     Args:
@@ -164,7 +164,7 @@ def run_episode(
       key: the episode's PRNG key.
       obs_stats: normalise vector observations before the policy sees them (``None``: raw).
       track_obs: accumulate raw-observation sums for the statistics' next update.
-      steps: control steps to run.
+      steps: env steps (actions) to run.
       record: ``Step -> {name: array}`` kept from every step, returned stacked over time in
         ``EpisodeResult.records`` (``(steps, ...)`` each) beside ``"alive"``, which step lived.
 

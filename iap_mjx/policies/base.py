@@ -23,7 +23,13 @@ PolicyState = Any
 
 
 class Policy(Protocol):
-    """What the ES engine relies on (see the module docstring)."""
+    """What the ES engine relies on (see the module docstring).
+
+    Optional members, read with ``getattr`` where present: ``select(params, obs, policy_state)
+    -> Selection`` and ``layer`` (the ``IAPAttention`` it selects with) make videos, strips and
+    ``iap-mjx attended`` draw the selected patches; ``level_param_counts(params)`` (a hierarchy's
+    parameters per level) is logged beside the total.
+    """
 
     @property
     def action_size(self) -> int: ...
