@@ -306,7 +306,9 @@ def add_commands(commands: Any) -> None:
     )
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
-    video.add_argument("--steps", type=arguments.count, default=None, help="env steps, one action each (default: the episode)")
+    video.add_argument(
+        "--steps", type=arguments.count, default=None, help="env steps, one action each (default: the episode)"
+    )
     video.add_argument(
         "--strip",
         default=None,
