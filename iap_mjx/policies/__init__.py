@@ -1,10 +1,10 @@
-"""Policies: observation -> action (linear and MLP over states; IAP and CNN over pixels; PMTG,
+"""Policies: observation -> action (linear and MLP over states; IAP over pixels; PMTG,
 a trajectory generator modulated by a linear policy, for the quadruped; the hierarchical
-quadruped policy, a camera high level over the PMTG low level; ``convnet``, the convolutional
-baseline of the Distracting Control experiments).
+quadruped policy, a camera high level over the PMTG low level; the convolutional baselines,
+``convnet`` and ``cnn``, in :mod:`~iap_mjx.policies.convnet`, which says what "cnn" names where).
 
 ``make(kind, observation_shape, action_size, **options)`` builds a policy by name;
-``names()`` lists the kinds; ``register(kind, factory)`` adds one (the IAP policies do).
+``names()`` lists the kinds; ``register(kind, factory)`` adds one (a user's own kind too).
 A factory takes ``(observation_shape, action_size, **options)``.
 """
 
@@ -14,9 +14,9 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from iap_mjx.policies.attention import CNNPolicy, IAPPolicy, make_cnn_policy, make_iap_policy
+from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
 from iap_mjx.policies.base import Policy, init_param_count, param_count
-from iap_mjx.policies.convnet import ConvNet, ConvNetPolicy, make_convnet_policy
+from iap_mjx.policies.convnet import CNNPolicy, ConvNet, ConvNetPolicy, make_cnn_policy, make_convnet_policy
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy

@@ -1,4 +1,4 @@
-"""Pixel policies: IAP attention + controller (and its brute-force twin), and a small CNN.
+"""The IAP pixel policy: attention + controller (and its brute-force twin).
 
 IAP policy (paper section 3): the attention layer scores every patch of the image, keeps the
 top ``l``, and the controller sees their centres (``2l`` numbers, optionally the patches'
@@ -14,38 +14,15 @@ every episode and every member of the population).
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
-from iap_mjx.policies.base import check_positive, check_sizes
+from iap_mjx.policies.base import check_positive
 from iap_mjx.policies.controller import Controller
-from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
-
-
-def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
-    """``(pixels (H, W, C), state (n,) or None)`` from an array or a ``{"pixels", "state"}`` dict."""
-    if isinstance(obs, dict):
-        return obs["pixels"], jnp.ravel(obs["state"])
-    return obs, None
-
-
-def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
-    """``((H, W, C), state_size)`` of an env's observation shape (array or pixels+state dict)."""
-    if isinstance(observation_shape, dict):
-        pixels = tuple(observation_shape["pixels"])
-        state_size = int(math.prod(observation_shape["state"]))
-    else:
-        pixels, state_size = tuple(observation_shape), 0
-    if len(pixels) != 3:
-        raise ValueError(
-            f"a pixel policy needs (H, W, C) observations, got {observation_shape!r}; "
-            "make the env with obs_mode='pixels', 'pixels_depth' or 'pixels+state'"
-        )
-    return pixels, state_size
+from iap_mjx.policies.observations import pixel_shape, split_observation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,57 +121,6 @@ class IAPPolicy:
         return self.features(params, obs, projections)[1]
 
 
-@dataclasses.dataclass(frozen=True)
-class CNNPolicy:
-    """A small CNN baseline: strided 3x3 convolutions -> average pool -> dense -> tanh.
-
-    Attributes:
-      image_shape: ``(H, W, C)``; action_size: actions in ``[-1, 1]``.
-      channels: output channels of the convolutions (each stride 2, ``tanh``).
-      hidden_size: the dense layer after pooling.
-      state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
-    """
-
-    image_shape: tuple[int, int, int]
-    action_size: int
-    channels: tuple[int, ...] = (8, 16)
-    hidden_size: int = 32
-    state_size: int = 0
-
-    def __post_init__(self):
-        check_positive("CNNPolicy", "action_size", self.action_size)
-        check_positive("CNNPolicy", "hidden_size", self.hidden_size)
-        check_sizes("CNNPolicy", "channels", self.channels, non_empty=True)
-
-    def init(self, key: jax.Array) -> dict[str, Any]:
-        """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""
-        keys = jax.random.split(key, len(self.channels) + 1)
-        ins = (self.image_shape[2], *self.channels[:-1])
-        conv = [
-            {"w": jax.random.normal(k, (3, 3, c_in, c_out)) / math.sqrt(9 * c_in), "b": jnp.zeros((c_out,))}
-            for k, c_in, c_out in zip(keys, ins, self.channels)
-        ]
-        sizes = (self.channels[-1] + self.state_size, self.hidden_size, self.action_size)
-        return {"conv": conv, "dense": init_dense_layers(keys[-1], sizes)}
-
-    def initial_state(self, key: jax.Array) -> tuple:
-        """Stateless: the empty tuple."""
-        del key
-        return ()
-
-    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
-        """``obs`` -> ``(action (action_size,), policy_state)``."""
-        pixels, state = split_observation(obs)
-        x = pixels[None]
-        for layer in params["conv"]:
-            x = jax.lax.conv_general_dilated(x, layer["w"], (2, 2), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-            x = jnp.tanh(x + layer["b"])
-        features = jnp.mean(x, axis=(0, 1, 2))
-        if self.state_size:
-            features = jnp.concatenate([features, state])
-        return jnp.tanh(apply_dense_layers(params["dense"], features, jnp.tanh)), policy_state
-
-
 def make_iap_policy(observation_shape: Any, action_size: int, **options: Any) -> IAPPolicy:
     """Factory for ``policies.make("iap", ...)``: attention fields go to ``AttentionConfig``."""
     image_shape, state_size = pixel_shape(observation_shape)
@@ -204,11 +130,3 @@ def make_iap_policy(observation_shape: Any, action_size: int, **options: Any) ->
     if isinstance(rest.get("hidden_sizes"), list):
         rest["hidden_sizes"] = tuple(rest["hidden_sizes"])
     return IAPPolicy(image_shape, action_size, attention, state_size=state_size, **rest)
-
-
-def make_cnn_policy(observation_shape: Any, action_size: int, **options: Any) -> CNNPolicy:
-    """Factory for ``policies.make("cnn", ...)``."""
-    image_shape, state_size = pixel_shape(observation_shape)
-    if isinstance(options.get("channels"), list):
-        options["channels"] = tuple(options["channels"])
-    return CNNPolicy(image_shape, action_size, state_size=state_size, **options)

@@ -1,17 +1,21 @@
-"""The CNN high level of the paper's quadruped experiment (its appendix A.2): three convolutions
-of small filters, a pooling layer, a fully connected ``tanh`` layer, and an output clipped to
-``[-1, 1]``.
+"""The convolutional policies, and what "cnn" names where:
 
-The extraction lost the sizes; ours (:class:`ConvNet`'s defaults) on the course's 24x32 RGB
-camera: 3x3 filters with 8, 16 and 16 channels at strides 2, 2 and 1 ("SAME" padding,
-ReLU), so 24x32 -> 12x16x8 -> 6x8x16 -> 6x8x16; a 2x2 max pool -> 3x4x16 = 192 numbers;
-a 16-unit ``tanh`` layer; a linear output clipped to ``[-1, 1]``. The pool is local, not global:
-the flattened 3x4 grid keeps *where* in the image a wall is, which is what steering needs (a
-global average, as :class:`iap_mjx.policies.attention.CNNPolicy` takes, keeps only *what*).
-With 5 outputs (a duration and a 4-d latent command) that is 6,885 parameters.
+- :class:`ConvNet`, the CNN high level of the paper's quadruped experiment (its appendix A.2;
+  the hierarchical policy's ``high_level="cnn"``, preset ``quadruped-walls-cnn``);
+- :class:`ConvNetPolicy`, policy kind ``"convnet"``: the same convolutions and pool as a flat
+  policy on the Distracting Control Suite, its embedding read by IAP's controller (presets
+  ``dcs-<task>-cnn``, ``reproduce table1 --policy cnn``);
+- :class:`CNNPolicy`, policy kind ``"cnn"``: a small CNN with a global average pool (preset
+  ``cheetah-run-pixels-cnn``).
 
-:class:`ConvNetPolicy` (policy kind ``"convnet"``) is the same convolutions and pool as a
-flat policy on the Distracting Control Suite, its embedding read by IAP's controller.
+:class:`ConvNet` is three convolutions of small filters, a pooling layer, a fully connected
+``tanh`` layer, and an output clipped to ``[-1, 1]``. The extraction lost the sizes; ours (its
+defaults) on the course's 24x32 RGB camera: 3x3 filters with 8, 16 and 16 channels at strides
+2, 2 and 1 ("SAME" padding, ReLU), so 24x32 -> 12x16x8 -> 6x8x16 -> 6x8x16; a 2x2 max pool ->
+3x4x16 = 192 numbers; a 16-unit ``tanh`` layer; a linear output clipped to ``[-1, 1]``. The
+pool is local, not global: the flattened 3x4 grid keeps *where* in the image a wall is, which
+is what steering needs (:class:`CNNPolicy`'s global average keeps only *what*). With 5 outputs
+(a duration and a 4-d latent command) that is 6,885 parameters.
 """
 
 from __future__ import annotations
@@ -23,10 +27,10 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.attention import pixel_shape, split_observation
 from iap_mjx.policies.base import check_positive, check_sizes
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
+from iap_mjx.policies.observations import pixel_shape, split_observation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -230,3 +234,62 @@ def make_convnet_policy(observation_shape: Any, action_size: int, **options: Any
         if isinstance(options.get(name), list):
             options[name] = tuple(options[name])
     return ConvNetPolicy(image_shape, action_size, state_size=state_size, **options)
+
+
+@dataclasses.dataclass(frozen=True)
+class CNNPolicy:
+    """A small CNN baseline: strided 3x3 convolutions -> average pool -> dense -> tanh.
+
+    Attributes:
+      image_shape: ``(H, W, C)``; action_size: actions in ``[-1, 1]``.
+      channels: output channels of the convolutions (each stride 2, ``tanh``).
+      hidden_size: the dense layer after pooling.
+      state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
+    """
+
+    image_shape: tuple[int, int, int]
+    action_size: int
+    channels: tuple[int, ...] = (8, 16)
+    hidden_size: int = 32
+    state_size: int = 0
+
+    def __post_init__(self):
+        check_positive("CNNPolicy", "action_size", self.action_size)
+        check_positive("CNNPolicy", "hidden_size", self.hidden_size)
+        check_sizes("CNNPolicy", "channels", self.channels, non_empty=True)
+
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""
+        keys = jax.random.split(key, len(self.channels) + 1)
+        ins = (self.image_shape[2], *self.channels[:-1])
+        conv = [
+            {"w": jax.random.normal(k, (3, 3, c_in, c_out)) / math.sqrt(9 * c_in), "b": jnp.zeros((c_out,))}
+            for k, c_in, c_out in zip(keys, ins, self.channels)
+        ]
+        sizes = (self.channels[-1] + self.state_size, self.hidden_size, self.action_size)
+        return {"conv": conv, "dense": init_dense_layers(keys[-1], sizes)}
+
+    def initial_state(self, key: jax.Array) -> tuple:
+        """Stateless: the empty tuple."""
+        del key
+        return ()
+
+    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
+        """``obs`` -> ``(action (action_size,), policy_state)``."""
+        pixels, state = split_observation(obs)
+        x = pixels[None]
+        for layer in params["conv"]:
+            x = jax.lax.conv_general_dilated(x, layer["w"], (2, 2), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
+            x = jnp.tanh(x + layer["b"])
+        features = jnp.mean(x, axis=(0, 1, 2))
+        if self.state_size:
+            features = jnp.concatenate([features, state])
+        return jnp.tanh(apply_dense_layers(params["dense"], features, jnp.tanh)), policy_state
+
+
+def make_cnn_policy(observation_shape: Any, action_size: int, **options: Any) -> CNNPolicy:
+    """Factory for ``policies.make("cnn", ...)``."""
+    image_shape, state_size = pixel_shape(observation_shape)
+    if isinstance(options.get("channels"), list):
+        options["channels"] = tuple(options["channels"])
+    return CNNPolicy(image_shape, action_size, state_size=state_size, **options)

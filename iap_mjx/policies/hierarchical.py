@@ -52,9 +52,10 @@ import numpy as np
 from flax import struct
 
 from iap_mjx.attention import AttentionConfig
-from iap_mjx.policies.attention import IAPPolicy, pixel_shape
+from iap_mjx.policies.attention import IAPPolicy
 from iap_mjx.policies.base import check_choice, check_positive, param_count
 from iap_mjx.policies.convnet import ConvNet
+from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, TGConfig
 
 HIGH_LEVELS = ("iap", "cnn")

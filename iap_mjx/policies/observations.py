@@ -1,0 +1,32 @@
+"""Pixel observations as the pixel policies read them: an image ``(H, W, C)``, or a
+``{"pixels", "state"}`` dict (``obs_mode="pixels+state"`` / ``"depth+state"``)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+
+def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
+    """``(pixels (H, W, C), state (n,) or None)`` from an array or a ``{"pixels", "state"}`` dict."""
+    if isinstance(obs, dict):
+        return obs["pixels"], jnp.ravel(obs["state"])
+    return obs, None
+
+
+def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
+    """``((H, W, C), state_size)`` of an env's observation shape (array or pixels+state dict)."""
+    if isinstance(observation_shape, dict):
+        pixels = tuple(observation_shape["pixels"])
+        state_size = int(math.prod(observation_shape["state"]))
+    else:
+        pixels, state_size = tuple(observation_shape), 0
+    if len(pixels) != 3:
+        raise ValueError(
+            f"a pixel policy needs (H, W, C) observations, got {observation_shape!r}; "
+            "make the env with obs_mode='pixels', 'pixels_depth' or 'pixels+state'"
+        )
+    return pixels, state_size
