@@ -136,7 +136,7 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     plain_view = jax.jit(plain.render)(first.data)
     assert np.abs(np.asarray(first.obs) - np.asarray(plain_view)).mean() > 0.05  # distracted
 
-    result = cli.commands.in_condition(es.load_run(run_dir), condition)
+    result = es.in_condition(es.load_run(run_dir), condition)
     policy = result.policy
     assert result.config.env.name == "cartpole-swingup" and policy.layer.num_patches == 24 * 32
     record = video.record_episode(
@@ -208,19 +208,18 @@ def test_a_condition_the_parameters_do_not_fit_is_refused_before_compiling():
     does not, and the CLI says which settings to keep instead of failing inside a compile."""
     from pathlib import Path
 
-    from iap_mjx import cli, configs, es
-    from iap_mjx.viz import artifacts
+    from iap_mjx import configs, es
 
     run_dir = Path(__file__).resolve().parent.parent / "pretrained" / "dcs" / "cartpole-swingup-seed0"
     result = es.load_run(run_dir)
     config = dataclasses.replace(result.config, policy=configs.get("dcs-cartpole-swingup-cnn").policy)
-    _, cnn = artifacts.env_and_policy(config)
+    _, cnn = es.make_env_and_policy(config)
     params = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), jax.eval_shape(cnn.init, jax.random.PRNGKey(0)))
     trained_cnn = dataclasses.replace(result, config=config, policy=cnn, params=params)
-    assert cli.commands.in_condition(trained_cnn, ["env.background_videos=val"]).policy == cnn  # same frames
+    assert es.in_condition(trained_cnn, ["env.background_videos=val"]).policy == cnn  # same frames
     with pytest.raises(ValueError, match=r"env\.height, env\.width"):
-        cli.commands.in_condition(trained_cnn, ["env.height=48", "env.width=64"])
-    smaller = cli.commands.in_condition(result, ["env.height=48", "env.width=64"])
+        es.in_condition(trained_cnn, ["env.height=48", "env.width=64"])
+    smaller = es.in_condition(result, ["env.height=48", "env.width=64"])
     assert smaller.policy.layer.num_patches == 24 * 32 and smaller.env.observation_shape == (48, 64, 3)
 
 

@@ -110,7 +110,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     print(f"run directory: {run_dir}", file=sys.stderr)
     try:
         primary = jax.process_index() == 0  # several processes share one run directory: one writes
-        env, policy = artifacts.env_and_policy(config)  # built once: the run trains and films these
+        env, policy = es.make_env_and_policy(config)  # built once: the run trains and films these
         video_program = artifacts.compile_video_in_background(env, policy) if primary else None
         result = es.train(config, run_dir=run_dir, progress=not args.no_progress, env=env, policy=policy)
     except ValueError as error:
@@ -170,34 +170,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def in_condition(result: Any, overrides: list[str]) -> Any:
-    """A loaded run whose config's env is moved to the condition ``overrides`` set, with the
-    policy rebuilt for that env's observations (an IAP policy's parameters do not depend on
-    the frame's size; a CNN's do), all checked and built before anything compiles; the run
-    itself without overrides. ``ValueError`` if the run's parameters do not fit the policy on
-    the condition's observations."""
-    import jax
-
-    from iap_mjx.configs.overrides import apply_condition
-    from iap_mjx.viz import artifacts
-
-    if not overrides:
-        return result
-    config = apply_condition(result.config, overrides)
-    env, policy = artifacts.env_and_policy(config)
-    wanted = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
-    fits = jax.tree.structure(wanted) == jax.tree.structure(result.params) and all(
-        a.shape == b.shape for a, b in zip(jax.tree.leaves(wanted), jax.tree.leaves(result.params))
-    )
-    if not fits:
-        raise ValueError(
-            f"the run's {config.policy.kind!r} parameters do not fit its policy on "
-            f"{env.observation_shape} observations ({' '.join(overrides)}); keep the env settings "
-            "that shape what the policy sees (env.height, env.width, env.obs_mode) as trained"
-        )
-    return dataclasses.replace(result, config=config, env=env, policy=policy)
-
-
 def cmd_attended(args: argparse.Namespace) -> int:
     """Prints what an attention policy's selected patches show, share per geom, over episodes
     of a run's latest checkpoint (in the run's env or the condition its overrides set)."""
@@ -205,7 +177,7 @@ def cmd_attended(args: argparse.Namespace) -> int:
     from iap_mjx.viz import attended
 
     try:
-        result = in_condition(es.load_run(args.run_dir), args.overrides)
+        result = es.in_condition(es.load_run(args.run_dir), args.overrides)
         counts = attended.episode_counts(
             result.env, result.policy, result.params, episodes=args.episodes, seed=args.seed, obs_stats=result.obs_stats
         )
@@ -223,7 +195,7 @@ def cmd_video(args: argparse.Namespace) -> int:
     from iap_mjx.viz import artifacts
 
     try:
-        result = in_condition(es.load_run(args.run_dir), args.overrides)
+        result = es.in_condition(es.load_run(args.run_dir), args.overrides)
         if args.strip:
             path, episode_return = artifacts.write_strip(result, args.strip, seed=args.seed, frames=args.frames)
             print(json.dumps({"strip": str(path), "return": episode_return}))

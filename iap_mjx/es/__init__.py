@@ -4,8 +4,8 @@
 :mod:`iap_mjx.configs`). ``OpenES`` and ``EvosaxStrategy`` are the strategies.
 """
 
-from iap_mjx.es.components import TrainState, build
-from iap_mjx.es.runs import TrainResult, evaluate_run, evaluate_run_episodes, load_run
+from iap_mjx.es.components import TrainState, build, make_env_and_policy
+from iap_mjx.es.runs import TrainResult, evaluate_run, evaluate_run_episodes, in_condition, load_run
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
 from iap_mjx.es.train import train
@@ -21,6 +21,8 @@ __all__ = [
     "estimate_gradient",
     "evaluate_run",
     "evaluate_run_episodes",
+    "in_condition",
     "load_run",
+    "make_env_and_policy",
     "train",
 ]

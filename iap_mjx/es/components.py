@@ -118,12 +118,10 @@ def make_strategy(es: ESConfig, num_dims: int, iterations: int) -> Strategy:
     )
 
 
-def build(config: TrainConfig, *, env: Any = None, policy: Any = None, devices: Any = None) -> Components:
-    """Builds env, policy, strategy and the compiled-to-be evaluators for ``config``.
-
-    ``env``/``policy`` override the ones the config names (tests, notebooks); ``devices``
-    overrides ``jax.devices()`` for the population mesh.
-    """
+def make_env_and_policy(config: TrainConfig, *, env: Any = None, policy: Any = None) -> tuple[Any, Any]:
+    """The env and policy ``config`` names, built (nothing compiled): the policy sized to the
+    env's observations and actions. A given ``env`` or ``policy`` is used instead (your own
+    env: the config's policy kind is sized to it)."""
     from iap_mjx import policies
 
     if env is None:
@@ -137,6 +135,16 @@ def build(config: TrainConfig, *, env: Any = None, policy: Any = None, devices: 
             env.action_size,
             **dict(config.policy.options),
         )
+    return env, policy
+
+
+def build(config: TrainConfig, *, env: Any = None, policy: Any = None, devices: Any = None) -> Components:
+    """Builds env, policy, strategy and the compiled-to-be evaluators for ``config``.
+
+    ``env``/``policy`` override the ones the config names (:func:`make_env_and_policy`: your
+    own env, tests, notebooks); ``devices`` overrides ``jax.devices()`` for the population mesh.
+    """
+    env, policy = make_env_and_policy(config, env=env, policy=policy)
     if config.es.normalize_observations and not (
         isinstance(env.observation_shape, tuple) and len(env.observation_shape) == 1
     ):

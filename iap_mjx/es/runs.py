@@ -1,7 +1,8 @@
 """What a run yields: a :class:`TrainResult` (the centre's params, a policy function ready to
 act, the history), from a finished ``TrainState`` or from a run directory's latest checkpoint,
 and evaluations of a run's checkpointed centre on fresh seeds (``(episodes,)`` returns, and the
-env's per-episode statistics), optionally under changed env settings.
+env's per-episode statistics), optionally under changed env settings (a condition:
+``env.background_videos=val`` ...; :func:`in_condition` moves a loaded run there).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import TrainConfig
 from iap_mjx.es import checkpoint
 from iap_mjx.es.bookkeeping import restore_state
-from iap_mjx.es.components import Components, TrainState, build, init_state
+from iap_mjx.es.components import Components, TrainState, build, init_state, make_env_and_policy
 from iap_mjx.es.episode import observe
 from iap_mjx.es.iteration import make_centre_evaluation
 from iap_mjx.es.metrics_log import read_history
@@ -94,6 +95,29 @@ def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> Tra
     parts = build(config, env=env, policy=policy)
     state = restore_state(parts, run_dir, init_state(parts))
     return result_from_state(parts, state, read_history(run_dir), run_dir)
+
+
+def in_condition(result: TrainResult, overrides: Sequence[str]) -> TrainResult:
+    """A loaded run whose config's env is moved to the condition ``overrides`` set, with the
+    policy rebuilt for that env's observations (an IAP policy's parameters do not depend on
+    the frame's size; a CNN's do), all checked and built before anything compiles; the run
+    itself without overrides. ``ValueError`` if the run's parameters do not fit the policy on
+    the condition's observations."""
+    if not overrides:
+        return result
+    config = apply_condition(result.config, overrides)
+    env, policy = make_env_and_policy(config)
+    wanted = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
+    fits = jax.tree.structure(wanted) == jax.tree.structure(result.params) and all(
+        a.shape == b.shape for a, b in zip(jax.tree.leaves(wanted), jax.tree.leaves(result.params))
+    )
+    if not fits:
+        raise ValueError(
+            f"the run's {config.policy.kind!r} parameters do not fit its policy on "
+            f"{env.observation_shape} observations ({' '.join(overrides)}); keep the env settings "
+            "that shape what the policy sees (env.height, env.width, env.obs_mode) as trained"
+        )
+    return dataclasses.replace(result, config=config, env=env, policy=policy)
 
 
 def evaluate_run(

@@ -30,8 +30,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, A
     """``{run_dir: (config, env, policy)}`` for runs with a checkpoint whose hierarchical policy
     selects patches of the camera (an IAP high level, eyes open), built and nothing compiled;
     ``ValueError`` naming the run otherwise."""
-    from iap_mjx.es import checkpoint
-    from iap_mjx.viz.artifacts import env_and_policy
+    from iap_mjx.es import checkpoint, make_env_and_policy
 
     if not run_dirs or len(set(run_dirs)) != len(run_dirs):
         raise ValueError(f"fig10 needs distinct run directories, got {[str(run_dir) for run_dir in run_dirs]}")
@@ -40,7 +39,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, A
         if checkpoint.latest_step(run_dir) is None:
             raise ValueError(f"{run_dir}: no checkpoint (train it first: iap-mjx reproduce table2)")
         config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
-        env, policy = env_and_policy(config)
+        env, policy = make_env_and_policy(config)
         if config.policy.kind != "hierarchical" or not hasattr(policy, "select"):
             raise ValueError(
                 f"{run_dir}: its {config.policy.kind!r} policy selects no patches of the camera "

@@ -90,9 +90,9 @@ def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> floa
     of ``passes`` passes after compiling)."""
     import jax
 
-    from iap_mjx.viz.artifacts import env_and_policy
+    from iap_mjx.es import make_env_and_policy
 
-    env, policy = env_and_policy(config)
+    env, policy = make_env_and_policy(config)
     key = jax.random.PRNGKey(0)
     obs = jax.jit(env.reset)(key).obs
     params = policy.init(key)

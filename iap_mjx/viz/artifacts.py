@@ -16,17 +16,9 @@ from typing import Any
 
 import jax
 
-from iap_mjx import envs, policies
 from iap_mjx.viz import curves, video
 
 logger = logging.getLogger(__name__)
-
-
-def env_and_policy(config: Any) -> tuple[Any, Any]:
-    """The env and policy a ``TrainConfig`` names, built (for a run not trained yet)."""
-    env = envs.make(config.env.name, **dict(config.env.overrides))
-    policy = policies.make(config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
-    return env, policy
 
 
 has_pixels = video.has_pixels
