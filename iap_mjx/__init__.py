@@ -1,10 +1,13 @@
 """iap-mjx: Implicit Attention for Pixels on MJX, trained with evolution strategies on a CPU.
 
 Layers, lowest first (a lower layer never imports a higher one):
-``configs`` (frozen configuration dataclasses and the preset table: plain data) and ``chunks``
-(a batch as a loop over chunks: jax only) ->
-``attention`` (feature maps, patches, scores) and ``render`` (ray-cast camera) ->
-``envs`` (MJX ports of dm_control tasks) -> ``policies`` -> ``es`` (training) -> ``cli``.
+``configs`` (frozen configuration dataclasses and the preset table: plain data), ``chunks`` and
+``loops`` (a batch as a loop over chunks; loop carries batched before the loop: jax only) ->
+``attention`` (feature maps, patches, scores), ``render`` (ray-cast camera) and ``robots`` (the
+quadruped's MJCF) -> ``envs`` (MJX ports of dm_control tasks, the quadruped's courses) ->
+``policies`` -> ``es`` (training) -> ``viz`` (videos, strips, curves) -> ``paper`` (one module
+per figure or table) -> ``cli``. ``runtime`` is process set-up that entry points (the CLI, the
+tests, benchmarks, the notebook) call before JAX starts; library code never does.
 (``PolicySpec`` looks up the policy kinds when it is validated: its one upward lookup.)
 """
 

@@ -18,3 +18,53 @@ def test_ruff(command):
         [sys.executable, "-m", "ruff", *command, "."], cwd=ROOT, capture_output=True, text=True, check=False
     )
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+# The package's layers as iap_mjx/__init__.py lists them, lowest first; a module may import its
+# own layer and those below, never one above.
+LAYERS = {
+    **dict.fromkeys(("configs", "chunks", "loops", "_mjx", "runtime"), 0),
+    **dict.fromkeys(("attention", "render", "robots"), 1),
+    "envs": 2,
+    "policies": 3,
+    "es": 4,
+    "viz": 5,
+    "paper": 6,
+    "cli": 7,
+}
+# PolicySpec looks up the policy kinds when it is validated (the package docstring says so).
+ALLOWED_UPWARD = {("configs/training.py", "policies")}
+
+
+def upward_imports(root: Path) -> set[tuple[str, str]]:
+    """``(module path below root, layer imported)`` for every import of a higher layer."""
+    import ast
+
+    found = set()
+    for path in root.rglob("*.py"):
+        relative = path.relative_to(root)
+        layer = relative.parts[0].removesuffix(".py")
+        if layer not in LAYERS:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):  # import iap_mjx.es.train
+                modules = [alias.name.split(".") for alias in node.names]
+                names = [parts[1] for parts in modules if parts[0] == "iap_mjx" and len(parts) > 1]
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "iap_mjx":
+                parts = node.module.split(".")
+                names = [alias.name for alias in node.names] if len(parts) == 1 else [parts[1]]
+            else:
+                continue
+            found |= {(relative.as_posix(), name) for name in names if LAYERS.get(name, -1) > LAYERS[layer]}
+    return found
+
+
+def test_a_lower_layer_never_imports_a_higher_one():
+    assert upward_imports(ROOT / "iap_mjx") == ALLOWED_UPWARD
+
+
+def test_the_layer_check_sees_an_upward_import(tmp_path):
+    (tmp_path / "envs").mkdir()
+    (tmp_path / "envs" / "bad.py").write_text("def f():\n    from iap_mjx.es import train\n")
+    (tmp_path / "es.py").write_text("from iap_mjx import envs, viz\nimport iap_mjx.cli.commands\n")
+    assert upward_imports(tmp_path) == {("envs/bad.py", "es"), ("es.py", "viz"), ("es.py", "cli")}

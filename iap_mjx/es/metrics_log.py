@@ -5,7 +5,8 @@ TensorBoard events.
 Columns: ``env_steps`` counts training steps so far (population x episodes x horizon, the
 sample budget), each an ``env.step`` call, one action: a dm_control task with action repeat
 ``k`` simulates ``k`` of its control steps per env step, and PlaNet, DrQ and the Distracting
-Control Suite count those (``iap_mjx.paper.table1.control_steps``); ``return_*`` are over the population's fitness (mean return per member);
+Control Suite count those (``iap_mjx.paper.table1.control_steps``); ``return_*`` are over the
+population's fitness (mean return per member);
 ``eval_return``/``eval_return_std`` over the centre's evaluation episodes at the start of the
 iteration; ``parameters`` is the policy's number of trainable scalars (the same in every row);
 ``nan_episodes`` counts episodes that met a bad state; ``contact_saturated_episodes``
