@@ -98,9 +98,10 @@ class CompiledCalls:
         if count not in self.programs:
             config = self.parts.config
             logger.info(
-                "compiling the ES iteration (%s members x %s env steps; a program "
+                "compiling the ES iteration (%s members x %s episodes x %s env steps; a program "
                 "compiled once is loaded from the compilation cache afterwards)",
-                config.es.population_size * config.es.n_episodes,
+                config.es.population_size,
+                config.es.n_episodes,
                 self.parts.env.episode_length,
             )
             replicated = NamedSharding(self.parts.mesh, PartitionSpec())

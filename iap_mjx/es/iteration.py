@@ -27,9 +27,10 @@ def _stats_or_none(parts: Components, stats: ObsStats) -> ObsStats | None:
     return stats if parts.config.es.normalize_observations else None
 
 
-def _eval_keys(state: TrainState, episodes: int | None = None) -> jax.Array:
+def _eval_keys(state: TrainState, episodes: int) -> jax.Array:
+    """``(episodes,)`` keys of the centre's evaluation episodes at ``state``'s iteration."""
     key = jax.random.fold_in(jax.random.fold_in(state.key, EVAL_STREAM), state.iteration)
-    return jax.random.split(key, episodes) if episodes is not None else key
+    return jax.random.split(key, episodes)
 
 
 def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState, dict]]:
@@ -40,7 +41,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
     """
     es = parts.config.es
     population_size, n_episodes = es.population_size, es.n_episodes
-    members = population_size * n_episodes
+    member_episodes = population_size * n_episodes
     eval_episodes = parts.config.run.eval_episodes
 
     def iteration(state: TrainState):
@@ -54,10 +55,10 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
                 jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
             ]
         )
-        keys = jnp.concatenate([jax.random.split(episode_key, members), _eval_keys(state, eval_episodes)])
+        keys = jnp.concatenate([jax.random.split(episode_key, member_episodes), _eval_keys(state, eval_episodes)])
         everything = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
-        result = jax.tree_util.tree_map(lambda x: x[:members], everything)
-        eval_returns = everything.ret[members:]
+        result = jax.tree_util.tree_map(lambda x: x[:member_episodes], everything)
+        eval_returns = everything.ret[member_episodes:]
         returns = result.ret.reshape(population_size, n_episodes)
         bad = result.bad.reshape(population_size, n_episodes)
         fitness = jnp.where(jnp.any(bad > 0, axis=1), jnp.nan, jnp.mean(returns, axis=1))
@@ -83,7 +84,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         for name, values in result.metrics.items():  # the env's per-episode statistics, if any
             metrics[f"{name}_mean"] = jnp.mean(values)
             if eval_episodes:
-                metrics[f"eval_{name}"] = jnp.mean(everything.metrics[name][members:])
+                metrics[f"eval_{name}"] = jnp.mean(everything.metrics[name][member_episodes:])
         if isinstance(parts.strategy, OpenES):
             metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
@@ -102,16 +103,15 @@ def make_train_call(parts: Components, count: int):
     return call
 
 
-def make_centre_evaluation(parts: Components, episodes: int, *, with_metrics: bool = False):
-    """``state -> returns (episodes,)`` of the centre params on the evaluation seeds; with
-    ``with_metrics``, ``{"return": (episodes,), name: (episodes,) ...}`` with the env's
-    per-episode statistics (``EpisodeResult.metrics``) too."""
+def make_centre_evaluation(parts: Components, episodes: int):
+    """``state -> {"return": (episodes,), name: (episodes,) ...}``: the centre params' returns
+    on the evaluation seeds and the env's per-episode statistics (``EpisodeResult.metrics``)."""
 
     def evaluate(state: TrainState):
-        keys = jax.random.split(_eval_keys(state), episodes)
+        keys = _eval_keys(state, episodes)
         centre = parts.strategy.mean(state.strategy_state)
         flat = jnp.broadcast_to(centre, (episodes, centre.shape[0]))
         result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
-        return {"return": result.ret, **result.metrics} if with_metrics else result.ret
+        return {"return": result.ret, **result.metrics}
 
     return evaluate

@@ -174,5 +174,5 @@ def evaluate_run_episodes(
     # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
     replicated = NamedSharding(parts.mesh, PartitionSpec())
-    results = jax.jit(make_centre_evaluation(parts, episodes, with_metrics=True), out_shardings=replicated)(state)
+    results = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=replicated)(state)
     return checkpoint.to_host(results)
