@@ -42,6 +42,18 @@ class PixelEnv:
     Everything not about observations (``mj_model``, ``mjx_model``, ``config``,
     ``action_size``, ``episode_length``, ``state_observation``, ...) is the wrapped env's.
 
+    Args:
+      env: an env following ``iap_mjx.envs.base.Env`` with ``mj_model`` (``mujoco.MjModel``).
+      obs_mode: ``"pixels"``, ``"pixels_depth"``, ``"pixels+state"`` or ``"depth+state"``.
+      camera_id, height, width: the model camera and image size (default 100x100, camera 0,
+        as the IAP paper's Cheetah-Run experiment).
+      frame_stack: frames stacked along channels, oldest first.
+      distraction: Distracting Control Suite perturbations (``None``: none); ``videos``
+        the background videos they need (``iap_mjx.envs.backgrounds.load``).
+      depth_max: ``"depth+state"`` only: metres of depth mapped onto ``[0, 1]`` (``None``:
+        ``DEPTH_MAX``).
+      camera_config: further ``iap_mjx.render.CameraConfig`` fields (shading, sky, ...).
+
     Attributes:
       env: the wrapped (state-observation) env.
       camera: the ``iap_mjx.render.Camera`` used.
@@ -179,41 +191,5 @@ class PixelEnv:
         return obs["pixels"] if self.with_state else obs
 
 
-def with_pixels(
-    env: Any,
-    obs_mode: str = "pixels",
-    camera_id: int = 0,
-    height: int = 100,
-    width: int = 100,
-    frame_stack: int = 1,
-    distraction: DistractionConfig | None = None,
-    videos: Any = None,
-    depth_max: float | None = None,
-    **camera_config: Any,
-) -> PixelEnv:
-    """Wraps ``env`` (which must expose ``mj_model``) so its observations are camera images.
-
-    Args:
-      env: an env following ``iap_mjx.envs.base.Env`` with ``mj_model`` (``mujoco.MjModel``).
-      obs_mode: ``"pixels"``, ``"pixels_depth"``, ``"pixels+state"`` or ``"depth+state"``.
-      camera_id, height, width: the model camera and image size (default 100x100, camera 0,
-        as the IAP paper's Cheetah-Run experiment).
-      frame_stack: frames stacked along channels, oldest first.
-      distraction: Distracting Control Suite perturbations (``None``: none); ``videos``
-        the background videos they need (``iap_mjx.envs.backgrounds.load``).
-      depth_max: ``"depth+state"`` only: metres of depth mapped onto ``[0, 1]`` (``None``:
-        ``DEPTH_MAX``).
-      camera_config: further ``iap_mjx.render.CameraConfig`` fields (shading, sky, ...).
-    """
-    return PixelEnv(
-        env,
-        obs_mode=obs_mode,
-        camera_id=camera_id,
-        height=height,
-        width=width,
-        frame_stack=frame_stack,
-        distraction=distraction,
-        videos=videos,
-        depth_max=depth_max,
-        **camera_config,
-    )
+with_pixels = PixelEnv
+"""``with_pixels(env, obs_mode=..., ...)``: ``env`` seen through the camera (:class:`PixelEnv`)."""
