@@ -94,7 +94,7 @@ class _Idle:
         if self.iap is None:
             used = sum(jnp.mean(x) for x in jax.tree_util.tree_leaves(obs))
         else:
-            projections = policy_state[0] if self.iap.controller == "lstm" else policy_state
+            projections, _ = policy_state
             used = jnp.sum(self.iap.features(params, obs, projections)[0])
         return jnp.zeros((self.action_size,)) + 0.0 * used, policy_state
 

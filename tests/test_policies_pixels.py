@@ -41,14 +41,15 @@ def test_iap_policy_acts_under_jit_and_vmap(options):
 def test_iap_policy_feeds_the_selected_patch_centres():
     policy = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, with_patches=True)
     params = policy.init(jax.random.PRNGKey(0))
-    projections = policy.initial_state(jax.random.PRNGKey(0))
+    state = policy.initial_state(jax.random.PRNGKey(0))
+    projections, _ = state
     image = images(1)[0]
     features, selection = policy.features(params, image, projections)
     patches, centres = extract_patches(image, 4)
     np.testing.assert_array_equal(features[:6], centres[selection.indices].reshape(-1))
     np.testing.assert_array_equal(features[6:], patches[selection.indices].reshape(-1))
     # The controller is affine in these features: the action is tanh(features @ w + b).
-    action, _ = policy.apply(params, image, projections)
+    action, _ = policy.apply(params, image, state)
     layer = params["controller"][0]
     np.testing.assert_allclose(action, jnp.tanh(features @ layer["w"] + layer["b"]), rtol=1e-5)
 
@@ -70,10 +71,10 @@ def test_lstm_controller_carries_memory_across_steps():
 
 def test_projections_are_fixed_unless_redrawn():
     fixed = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3)
-    a, b = fixed.initial_state(jax.random.PRNGKey(1)), fixed.initial_state(jax.random.PRNGKey(2))
+    (a, _), (b, _) = fixed.initial_state(jax.random.PRNGKey(1)), fixed.initial_state(jax.random.PRNGKey(2))
     np.testing.assert_array_equal(a.omega, b.omega)
     redrawn = policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, redraw_projections=True)
-    a, b = redrawn.initial_state(jax.random.PRNGKey(1)), redrawn.initial_state(jax.random.PRNGKey(2))
+    (a, _), (b, _) = redrawn.initial_state(jax.random.PRNGKey(1)), redrawn.initial_state(jax.random.PRNGKey(2))
     assert not np.allclose(a.omega, b.omega)
 
 

@@ -84,14 +84,12 @@ class IAPPolicy:
         return {"attention": self.layer.init(attention_key), "controller": self.head.init(controller_key)}
 
     def initial_state(self, key: jax.Array):
-        """The episode's random projections (fixed seed unless ``redraw_projections``); with an
-        LSTM controller, ``(projections, (h, c))`` with a zero carry."""
+        """``(projections, carry)``: the episode's random projections (fixed seed unless
+        ``redraw_projections``) and the controller's zero carry (an LSTM's ``(h, c)``; ``()``
+        for a stateless controller)."""
         if not self.attention.redraw_projections:
             key = jax.random.PRNGKey(self.projection_seed)
-        projections = self.layer.draw_projections(key)
-        if self.controller == "lstm":
-            return projections, self.head.initial_carry()
-        return projections
+        return self.layer.draw_projections(key), self.head.initial_carry()
 
     def features(self, params: dict[str, Any], obs: Any, projections) -> tuple[jax.Array, Any]:
         """The controller's input ``(feature_size,)`` and the layer's ``Selection``."""
@@ -105,11 +103,7 @@ class IAPPolicy:
         return jnp.concatenate(parts), selection
 
     def apply(self, params: dict[str, Any], obs: Any, policy_state):
-        """One control step: ``obs`` -> ``(action (action_size,), policy_state)``."""
-        if self.controller != "lstm":
-            features, _ = self.features(params, obs, policy_state)
-            action, _ = self.head.apply(params["controller"], features, ())
-            return action, policy_state
+        """One env step: ``obs`` -> ``(action (action_size,), policy_state)``."""
         projections, carry = policy_state
         features, _ = self.features(params, obs, projections)
         action, carry = self.head.apply(params["controller"], features, carry)
@@ -117,7 +111,7 @@ class IAPPolicy:
 
     def select(self, params: dict[str, Any], obs: Any, policy_state):
         """The attention layer's ``Selection`` for ``obs`` (for videos and figures)."""
-        projections = policy_state[0] if self.controller == "lstm" else policy_state
+        projections, _ = policy_state
         return self.features(params, obs, projections)[1]
 
 

@@ -67,8 +67,8 @@ class HierarchyState:
     """One episode's policy state (a leading batch axis under ``vmap``).
 
     Attributes:
-      high: the high level's own per-episode state (IAP's random projections, empty for ReLU
-        features; ``()`` for the CNN).
+      high: the high level's own per-episode state (IAP's ``(projections, carry)``: no arrays
+        for ReLU features and a linear controller; ``()`` for the CNN).
       latent: ``(latent_size,)`` float32, the command held.
       counter: ``()`` int32, control steps the command still holds; 0: ask the high level.
       phase: ``()`` float32, the low level's TG phase.
