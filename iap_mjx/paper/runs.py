@@ -70,18 +70,14 @@ def run_summary(
 def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
     """The policy each config builds, constructed (so validated) and nothing compiled; each
     distinct env is built once (the quadruped's takes seconds)."""
-    from iap_mjx import envs, policies
+    from iap_mjx.es import make_env_and_policy
 
     built_envs: dict[tuple[str, Any], Any] = {}
     out = {}
     for name, config in checked.items():
         spec = (config.env.name, config.env.overrides)
-        if spec not in built_envs:
-            built_envs[spec] = envs.make(config.env.name, **dict(config.env.overrides))
-        env = built_envs[spec]
-        out[name] = policies.make(
-            config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options)
-        )
+        env, out[name] = make_env_and_policy(config, env=built_envs.get(spec))
+        built_envs[spec] = env
     return out
 
 

@@ -116,9 +116,8 @@ def run_row(
     export: Path | None = None,
     policy: str = "iap",
 ) -> dict[str, Any] | None:
-    """One run: its curve, env steps (``control_steps``: :func:`control_steps`), seconds, and
-    (finished runs) every condition's returns;
-    with ``export``, its newest checkpoint and files are copied to
+    """One run: its curve, env steps (``control_steps``, :func:`control_steps`), seconds, and
+    (finished runs) every condition's returns; with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     from iap_mjx.es import checkpoint
     from iap_mjx.paper.runs import run_summary
