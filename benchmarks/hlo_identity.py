@@ -31,6 +31,8 @@ The lowered text is taken without debug information (``Lowered.as_text(debug_inf
 ``loc(...)`` source locations); any ``loc(...)`` left is removed before hashing. Names of private
 functions in it come from Python function names (``func.func private @_where``), so a rename
 of such a function changes the lowered hash alone: ``--compiled`` and ``outputs/`` then decide.
+Each program is lowered on a cleared trace cache, so its hash does not depend on which other
+parts or presets the invocation names.
 
     python benchmarks/hlo_identity.py --out after.json                 # this checkout's hashes
     python benchmarks/hlo_identity.py --against before.json            # compare with a record
@@ -166,6 +168,7 @@ def attention_programs():
             def attention_layer(params, projections, images, layer=layer):
                 return jax.vmap(layer)(params, projections, images)
 
+            jax.clear_caches()  # see ``collect``
             yield f"attention/{kernel}/{size}", jax.jit(attention_layer).lower(params, projections, images)
 
 
@@ -249,6 +252,7 @@ def camera_programs():
     for name, fn, args in camera_cases():
         args = args if isinstance(args, tuple) else (args,)
         shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
+        jax.clear_caches()  # see ``collect``
         yield f"camera/{name}", jax.jit(fn).lower(*shapes)
 
 
@@ -287,6 +291,7 @@ def training_programs(presets=PRESETS):
 
     build, init_state, make_train_call = training_functions()
     for preset in presets:
+        jax.clear_caches()  # see ``collect``
         config = configs.get(preset)
         parts = build(config)
         state = init_state(parts)
@@ -323,7 +328,12 @@ def output_hashes() -> dict[str, str]:
 
 
 def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = PRESETS) -> dict[str, str]:
-    """Every hash of ``parts``, as ``{entry: sha256}``."""
+    """Every hash of ``parts``, as ``{entry: sha256}``.
+
+    Each program is lowered after ``jax.clear_caches()``: a program traced earlier in the
+    process leaves its jaxprs in the trace cache, and a later program that reuses them shares
+    their private functions, which changes its text. With the cache cleared, an entry's hash does
+    not depend on which parts and presets were named before it."""
     import iap_mjx
 
     expected_root = os.environ.get(EXPECTED_ROOT_VAR)
