@@ -7,7 +7,8 @@ Layers, lowest first (a lower layer never imports a higher one):
 quadruped's MJCF) -> ``envs`` (MJX ports of dm_control tasks, the quadruped's courses) ->
 ``policies`` -> ``es`` (training) -> ``viz`` (videos, strips, curves) -> ``paper`` (one module
 per figure or table) -> ``cli``. ``runtime`` is process set-up that entry points (the CLI, the
-tests, benchmarks, the notebook) call before JAX starts; library code never does.
+tests, benchmarks, the notebook) call before JAX starts; library code calls none of it but
+the scoped ``persistent_cache_off``.
 (``PolicySpec`` looks up the policy kinds when it is validated: its one upward lookup.)
 """
 

@@ -219,6 +219,23 @@ def test_observation_statistics_merge_equals_whole_batch_moments():
     np.testing.assert_allclose(z, (everything[0] - everything.mean(0)) / everything.std(0), rtol=1e-3)
 
 
+@pytest.mark.parametrize(
+    ("kind", "shape", "valid"),
+    [
+        ("linear", (17,), "zero_init"),
+        ("iap", (16, 16, 3), "top_l"),
+        ("cnn", (16, 16, 3), "channels"),
+        ("convnet", (16, 16, 3), "channels"),
+        ("pmtg", (40,), "residual_range"),
+    ],
+)
+def test_misspelt_policy_option_names_the_valid_ones(kind, shape, valid):
+    from iap_mjx import policies
+
+    with pytest.raises(ValueError, match=rf"\['top_ll'\] do not fit policy '{kind}'; valid: \[.*'{valid}'"):
+        policies.make(kind, shape, 6, top_ll=5)
+
+
 def test_policies_shapes_counts_and_registry():
     from iap_mjx import policies
 
@@ -231,7 +248,9 @@ def test_policies_shapes_counts_and_registry():
     assert action.shape == (6,) and state == () and float(jnp.max(jnp.abs(action))) <= 1.0
     with pytest.raises(ValueError, match="unknown policy kind"):
         policies.make("transformer", (17,), 6)
-    with pytest.raises(ValueError, match="policy.options"):
+    with pytest.raises(
+        ValueError, match=r"\['width'\] do not fit policy 'mlp'; valid: \['activation', 'hidden_sizes'\]"
+    ):
         policies.make("mlp", (17,), 6, width=3)
     with pytest.raises(ValueError, match="hidden_sizes"):
         policies.make("mlp", (17,), 6, hidden_sizes=(0,))

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
-from iap_mjx.policies.base import Policy, init_param_count, param_count
+from iap_mjx.policies.base import Policy, check_options, constructor_options, init_param_count, param_count
 from iap_mjx.policies.convnet import CNNPolicy, ConvNet, ConvNetPolicy, make_cnn_policy, make_convnet_policy
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
 from iap_mjx.policies.linear import LinearPolicy
@@ -51,15 +51,18 @@ def _flat_size(observation_shape: Any) -> int:
     return int(math.prod(observation_shape))
 
 
-register(
-    "linear",
-    lambda shape, action_size, **options: LinearPolicy(_flat_size(shape), action_size, **options),
-)
-register(
-    "mlp",
-    lambda shape, action_size, **options: MLPPolicy(_flat_size(shape), action_size, **options),
-)
+def _flat_factory(kind: str, cls: type) -> Callable[..., Policy]:
+    """The factory of a policy on a flat state vector: ``cls(obs_size, action_size, **options)``."""
 
+    def factory(observation_shape: Any, action_size: int, **options: Any) -> Policy:
+        check_options(kind, options, constructor_options(cls, "obs_size", "action_size"))
+        return cls(_flat_size(observation_shape), action_size, **options)
+
+    return factory
+
+
+register("linear", _flat_factory("linear", LinearPolicy))
+register("mlp", _flat_factory("mlp", MLPPolicy))
 register("iap", make_iap_policy)
 register("cnn", make_cnn_policy)
 register("convnet", make_convnet_policy)

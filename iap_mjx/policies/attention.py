@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
-from iap_mjx.policies.base import check_positive
+from iap_mjx.policies.base import check_options, check_positive, constructor_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.observations import pixel_shape, split_observation
 
@@ -119,6 +119,11 @@ def make_iap_policy(observation_shape: Any, action_size: int, **options: Any) ->
     """Factory for ``policies.make("iap", ...)``: attention fields go to ``AttentionConfig``."""
     image_shape, state_size = pixel_shape(observation_shape)
     attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
+    check_options(
+        "iap",
+        options,
+        attention_fields | constructor_options(IAPPolicy, "image_shape", "action_size", "attention", "state_size"),
+    )
     attention = AttentionConfig(**{k: v for k, v in options.items() if k in attention_fields})
     rest = {k: v for k, v in options.items() if k not in attention_fields}
     if isinstance(rest.get("hidden_sizes"), list):

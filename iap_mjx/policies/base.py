@@ -13,6 +13,8 @@ over by ``jit``. The ES engine relies on three pure functions:
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Iterable, Mapping
 from typing import Any, Protocol
 
 import jax
@@ -65,6 +67,21 @@ def check_choice(owner: str, field: str, value: Any, valid: Any) -> None:
     """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not among ``valid``."""
     if value not in valid:
         raise ValueError(f"{owner}.{field} = {value!r} is not valid; choose one of {sorted(valid)}")
+
+
+def constructor_options(cls: type, *set_by_factory: str) -> set[str]:
+    """The constructor arguments of ``cls`` that a ``policy.*`` option can set: all but
+    ``set_by_factory``, those its factory passes itself (shapes, sizes, sub-configs)."""
+    return set(inspect.signature(cls).parameters) - set(set_by_factory)
+
+
+def check_options(kind: str, options: Mapping[str, Any], valid: Iterable[str]) -> None:
+    """Raises ``ValueError`` naming the options of policy ``kind`` that are not among ``valid``,
+    and the valid ones: a misspelt ``policy.*`` setting fails before anything is built."""
+    valid = set(valid)
+    unknown = sorted(set(options) - valid)
+    if unknown:
+        raise ValueError(f"policy options {unknown} do not fit policy {kind!r}; valid: {sorted(valid)}")
 
 
 def check_positive(owner: str, field: str, value: Any) -> None:

@@ -27,7 +27,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.base import check_positive, check_sizes
+from iap_mjx.policies.base import check_options, check_positive, check_sizes, constructor_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 from iap_mjx.policies.observations import pixel_shape, split_observation
@@ -229,6 +229,7 @@ class ConvNetPolicy:
 
 def make_convnet_policy(observation_shape: Any, action_size: int, **options: Any) -> ConvNetPolicy:
     """Factory for ``policies.make("convnet", ...)``."""
+    check_options("convnet", options, constructor_options(ConvNetPolicy, "image_shape", "action_size", "state_size"))
     image_shape, state_size = pixel_shape(observation_shape)
     for name in ("channels", "strides", "hidden_sizes"):
         if isinstance(options.get(name), list):
@@ -289,6 +290,7 @@ class CNNPolicy:
 
 def make_cnn_policy(observation_shape: Any, action_size: int, **options: Any) -> CNNPolicy:
     """Factory for ``policies.make("cnn", ...)``."""
+    check_options("cnn", options, constructor_options(CNNPolicy, "image_shape", "action_size", "state_size"))
     image_shape, state_size = pixel_shape(observation_shape)
     if isinstance(options.get("channels"), list):
         options["channels"] = tuple(options["channels"])

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from iap_mjx.policies.base import check_choice, check_positive
+from iap_mjx.policies.base import check_choice, check_options, check_positive, constructor_options
 from iap_mjx.robots import a1
 
 TWO_PI = 2.0 * math.pi
@@ -318,6 +318,7 @@ def make_pmtg_policy(observation_shape: Any, action_size: int, **options: Any) -
     if not (isinstance(observation_shape, tuple) and len(observation_shape) == 1):
         raise ValueError(f"the pmtg policy needs a state vector observation, got shape {observation_shape!r}")
     tg_fields = {f.name for f in dataclasses.fields(TGConfig)}
+    check_options("pmtg", options, tg_fields | constructor_options(PMTGPolicy, "obs_size", "action_size", "tg"))
     tg = TGConfig(**{k: v for k, v in options.items() if k in tg_fields})
     rest = {k: v for k, v in options.items() if k not in tg_fields}
     return PMTGPolicy(int(observation_shape[0]), action_size, tg=tg, **rest)
