@@ -232,7 +232,9 @@ def test_observation_statistics_merge_equals_whole_batch_moments():
 def test_misspelt_policy_option_names_the_valid_ones(kind, shape, valid):
     from iap_mjx import policies
 
-    with pytest.raises(ValueError, match=rf"\['top_ll'\] do not fit policy '{kind}'; valid: \[.*'{valid}'"):
+    with pytest.raises(
+        ValueError, match=rf"policy\.options \['top_ll'\] do not fit policy '{kind}'; valid: \[.*'{valid}'"
+    ):
         policies.make(kind, shape, 6, top_ll=5)
 
 
@@ -249,7 +251,8 @@ def test_policies_shapes_counts_and_registry():
     with pytest.raises(ValueError, match="unknown policy kind"):
         policies.make("transformer", (17,), 6)
     with pytest.raises(
-        ValueError, match=r"\['width'\] do not fit policy 'mlp'; valid: \['activation', 'hidden_sizes'\]"
+        ValueError,
+        match=r"policy\.options \['width'\] do not fit policy 'mlp'; valid: \['activation', 'hidden_sizes'\]",
     ):
         policies.make("mlp", (17,), 6, width=3)
     with pytest.raises(ValueError, match="hidden_sizes"):

@@ -81,7 +81,7 @@ def check_options(kind: str, options: Mapping[str, Any], valid: Iterable[str]) -
     valid = set(valid)
     unknown = sorted(set(options) - valid)
     if unknown:
-        raise ValueError(f"policy options {unknown} do not fit policy {kind!r}; valid: {sorted(valid)}")
+        raise ValueError(f"policy.options {unknown} do not fit policy {kind!r}; valid: {sorted(valid)}")
 
 
 def check_positive(owner: str, field: str, value: Any) -> None:
