@@ -107,10 +107,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from iap_mjx.viz import artifacts
 
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(args.preset)
-    print(f"run directory: {run_dir}", file=sys.stderr)
     try:
         primary = jax.process_index() == 0  # several processes share one run directory: one writes
         env, policy = es.make_env_and_policy(config)  # built once: the run trains and films these
+        print(f"run directory: {run_dir}", file=sys.stderr)  # named once every setting is checked
         video_program = artifacts.compile_video_in_background(env, policy) if primary else None
         result = es.train(config, run_dir=run_dir, progress=not args.no_progress, env=env, policy=policy)
     except ValueError as error:
