@@ -168,7 +168,6 @@ def attention_programs():
             def attention_layer(params, projections, images, layer=layer):
                 return jax.vmap(layer)(params, projections, images)
 
-            jax.clear_caches()  # see ``collect``
             yield f"attention/{kernel}/{size}", jax.jit(attention_layer).lower(params, projections, images)
 
 
@@ -252,7 +251,6 @@ def camera_programs():
     for name, fn, args in camera_cases():
         args = args if isinstance(args, tuple) else (args,)
         shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
-        jax.clear_caches()  # see ``collect``
         yield f"camera/{name}", jax.jit(fn).lower(*shapes)
 
 
@@ -291,7 +289,6 @@ def training_programs(presets=PRESETS):
 
     build, init_state, make_train_call = training_functions()
     for preset in presets:
-        jax.clear_caches()  # see ``collect``
         config = configs.get(preset)
         parts = build(config)
         state = init_state(parts)
@@ -334,6 +331,8 @@ def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = P
     process leaves its jaxprs in the trace cache, and a later program that reuses them shares
     their private functions, which changes its text. With the cache cleared, an entry's hash does
     not depend on which parts and presets were named before it."""
+    import jax
+
     import iap_mjx
 
     expected_root = os.environ.get(EXPECTED_ROOT_VAR)
@@ -347,11 +346,13 @@ def collect(parts: tuple[str, ...], compiled: bool, presets: tuple[str, ...] = P
     ):
         if part not in parts:
             continue
-        for name, lowered in programs():
+        jax.clear_caches()
+        for name, lowered in programs():  # each lowered when the loop asks for it
             hashes[f"lowered/{name}"] = sha256(lowered_text(lowered))
             if compiled:
                 hashes[f"compiled/{name}"] = sha256(compiled_text(lowered))
             print(f"  hashed {name}", file=sys.stderr, flush=True)
+            jax.clear_caches()  # before the next program is traced
     if "camera" in parts:
         hashes.update(camera_output_hashes())
     if "outputs" in parts:

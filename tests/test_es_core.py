@@ -227,6 +227,7 @@ def test_observation_statistics_merge_equals_whole_batch_moments():
         ("cnn", (16, 16, 3), "channels"),
         ("convnet", (16, 16, 3), "channels"),
         ("pmtg", (40,), "residual_range"),
+        ("hierarchical", {"pixels": (24, 32, 3), "state": (40,)}, "duration_range"),
     ],
 )
 def test_misspelt_policy_option_names_the_valid_ones(kind, shape, valid):

@@ -53,7 +53,7 @@ from flax import struct
 
 from iap_mjx.attention import AttentionConfig
 from iap_mjx.policies.attention import IAPPolicy
-from iap_mjx.policies.base import check_choice, check_positive, param_count
+from iap_mjx.policies.base import check_choice, check_options, check_positive, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, TGConfig
@@ -304,13 +304,8 @@ def make_hierarchical_policy(
     attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
     tg_fields = {f.name for f in dataclasses.fields(TGConfig)}
     high_fields = attention_fields | _IAP_FIELDS if high_level == "iap" else _CNN_FIELDS
-    unknown = sorted(set(options) - high_fields - tg_fields - _HIERARCHY_FIELDS - _LOW_FIELDS)
-    if unknown:
-        raise ValueError(
-            f"policy options {unknown} do not fit the hierarchical policy with high_level="
-            f"{high_level!r}; valid: high_level, latent_size and "
-            f"{sorted(high_fields | tg_fields | _HIERARCHY_FIELDS | _LOW_FIELDS)}"
-        )
+    valid = high_fields | tg_fields | _HIERARCHY_FIELDS | _LOW_FIELDS | {"high_level", "latent_size"}
+    check_options("hierarchical", options, valid)  # valid: high_level's own fields
     pick = lambda names: {k: v for k, v in options.items() if k in names}  # noqa: E731
     imu = IMU_SIZE if options.get("high_level_imu") else 0
     outputs = 1 + latent_size
