@@ -222,7 +222,7 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     with pytest.raises(Built):
         runs.evaluate_run("run", overrides=("env.distraction=none",))
     assert envs.check(built[-1].env.name, **dict(built[-1].env.overrides)).distraction_config() is None
-    with pytest.raises(ValueError, match="env only"):
+    with pytest.raises(ValueError, match=r"set the env \(env.<field>=<value>\) or policy.blind=<value>"):
         runs.evaluate_run("run", overrides=("es.sigma=0.1",))
     with pytest.raises(ValueError, match="background_videos = 'test': valid train, val"):
         runs.evaluate_run("run", overrides=("env.background_videos=test",))
@@ -231,4 +231,4 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
 
 def test_eval_refuses_a_condition_that_is_not_an_env_setting(tmp_path, capsys):
     assert cli.main(["eval", str(tmp_path), "run.seed=3"]) == 2
-    assert "env only" in capsys.readouterr().err
+    assert "set the env (env.<field>=<value>) or policy.blind=<value>, got ['run.seed=3']" in capsys.readouterr().err

@@ -40,13 +40,16 @@ def _run(out, policy, seed, iterations=3):
 def evaluations(monkeypatch):
     """Recorded calls; run (policy, seed) of ``RUNS`` gives per episode returns ``base -+ 2``,
     walls passed ``w + 1, w`` alternately, one fall in four, ``3 + seed`` wall contacts and
-    ``base / 2`` metres."""
+    ``base / 2`` metres; with its eyes closed (``policy.blind=true``) ``base - 4 - seed``
+    and ``w - seed``."""
     calls = []
 
     def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=()):
         calls.append((run_dir.name, episodes, seed, tuple(overrides)))
         policy, run_seed = run_dir.name.split("-")[2], int(run_dir.name[-1])
         base, walls = RUNS[policy, run_seed]
+        if tuple(overrides) == fig11.EYES_CLOSED:
+            base, walls = base - 4.0 - run_seed, walls - run_seed
         alternate = np.arange(episodes) % 2
         return {
             "return": base - 2.0 + 4.0 * alternate,
@@ -84,8 +87,9 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
     _run(tmp_path, "blind", 0, iterations=2)  # blind seed 1: no run yet
     markdown = fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False)
     assert sorted(evaluations) == [
-        (f"quadruped-walls-{policy}-seed{seed}", 4, EVAL_SEED, ())
+        (f"quadruped-walls-{policy}-seed{seed}", 4, EVAL_SEED, condition)
         for policy, seed in (("cnn", 0), ("iap", 0), ("iap", 1))
+        for condition in ((), ("policy.blind=true",))
     ]
     lines = markdown.splitlines()
     assert lines[2] == (
@@ -97,21 +101,27 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
         "12.00 ± 0.00 | 1 of 2 | 3 | 3,000 |"
     )
     assert lines[4] == "| blind (`quadruped-walls-blind`) | 873 | - | - | - | - | - | 0 of 2 | 2 | 2,000 |"
+    # the seeing runs with their eyes closed: IAP seeds 0 and 1 lose 4 and 5 in return, 0 and 1 walls
+    assert lines[9:13] == [
+        "|---|---:|---:|---:|---:|---|",
+        "| IAP | 22.0 ± 2.0 | 17.5 ± 1.5 | 2.00 ± 0.50 | 1.50 ± 0.00 | +0.00, +1.00 |",
+        "| CNN | 24.0 ± 0.0 | 20.0 ± 0.0 | 1.50 ± 0.00 | 1.50 ± 0.00 | +0.00 |",
+        "",
+    ]
     assert lines[-1] == (
         "Bars: not decided yet (3 of 6 runs finished). Parameters: CNN 7,269, IAP 873 (8.3x; bar: >= 5x)."
     )
     stored = json.loads((tmp_path / "quadruped-walls-iap-seed1" / EVAL_FILE).read_text())
-    assert stored == {
-        "course@3x4s2021": {
-            "return": [22.0, 26.0, 22.0, 26.0],
-            "walls_passed": [3.0, 2.0, 3.0, 2.0],
-            "fell_off": [0.0, 0.0, 0.0, 1.0],
-            "wall_contacts": [4.0] * 4,
-            "distance": [12.0] * 4,
-        }
+    assert stored["course@3x4s2021"] == {
+        "return": [22.0, 26.0, 22.0, 26.0],
+        "walls_passed": [3.0, 2.0, 3.0, 2.0],
+        "fell_off": [0.0, 0.0, 0.0, 1.0],
+        "wall_contacts": [4.0] * 4,
+        "distance": [12.0] * 4,
     }
+    assert stored["course-eyes-closed@3x4s2021"]["walls_passed"] == [2.0, 1.0, 2.0, 1.0]
     assert fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False) == markdown
-    assert len(evaluations) == 3  # read back from eval.json, not evaluated again
+    assert len(evaluations) == 6  # read back from eval.json, not evaluated again
 
     _run(tmp_path, "cnn", 1)
     _run(tmp_path, "blind", 0)
@@ -121,7 +131,7 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, e
         "# Results\n\n<!-- BEGIN fig11 -->\nold\n<!-- END fig11 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n"
     )
     markdown = fig11.reproduce_fig11(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, train=False, results=results)
-    assert len(evaluations) == 6
+    assert len(evaluations) == 10  # the blind runs are not evaluated with their eyes closed: they have none
     assert markdown.splitlines()[-3:] == [
         "IAP against CNN: final return 22.0 ± 2.0 against 23.0 ± 1.0 (bar: IAP's mean >= the CNN's mean minus its "
         "seed-std, 22.0), with 8.3x fewer parameters (873 against 7,269; bar: >= 5x): met.",
@@ -184,7 +194,9 @@ def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations, capsys
         == 0
     )
     assert "| IAP (`quadruped-walls-iap`) | 873 | 20.0 ± 0.0 |" in capsys.readouterr().out
-    assert evaluations == [("quadruped-walls-iap-seed0", 2, EVAL_SEED, ())]
+    assert evaluations == [
+        ("quadruped-walls-iap-seed0", 2, EVAL_SEED, condition) for condition in ((), fig11.EYES_CLOSED)
+    ]
     assert sorted(p.name for p in export.iterdir()) == ["quadruped-walls-blind-seed0", "quadruped-walls-iap-seed0"]
     assert checkpoint.latest_step(export / "quadruped-walls-iap-seed0") == 3
     assert checkpoint.latest_step(export / "quadruped-walls-blind-seed0") == 2

@@ -236,3 +236,30 @@ def test_low_level_from_a_file_with_its_normalisation_folded_in(tmp_path):
     np.savez(tmp_path / "bad.npz", w=folded_w[:5], b=folded_b)
     with pytest.raises(ValueError, match="low_level_init"):
         policies.make("hierarchical", OBS, 12, low_level_init=str(tmp_path / "bad.npz"))
+
+
+def test_a_trained_policy_evaluates_with_its_eyes_closed():
+    """The condition ``policy.blind=true`` (Figure 11's eyes-closed evaluation) gives a shipped
+    seeing run's parameters to the blind hierarchy: two different images, one command; the
+    same parameters with their eyes open answer the two differently."""
+    from pathlib import Path
+
+    from iap_mjx import es
+
+    run = Path(__file__).resolve().parent.parent / "pretrained" / "quadruped" / "quadruped-walls-iap-seed0"
+    seeing = es.load_run(run)
+    closed = es.in_condition(seeing, ["policy.blind=true"])
+    assert isinstance(seeing.policy, AttentiveHierarchicalPolicy) and seeing.policy.blind is False
+    assert closed.policy.blind is True and dict(closed.config.policy.options)["blind"] is True
+    assert closed.config.env == seeing.config.env and closed.config.es == seeing.config.es
+    rng = np.random.default_rng(2)
+    obs = [
+        {"pixels": jnp.asarray(rng.uniform(size=OBS["pixels"]), jnp.float32), "state": jnp.zeros(17)} for _ in range(2)
+    ]
+    state = seeing.policy.initial_state(jax.random.PRNGKey(0))
+    latents = {
+        name: [np.asarray(result.policy.apply(seeing.params, o, state)[1].latent) for o in obs]
+        for name, result in (("seeing", seeing), ("closed", closed))
+    }
+    assert not np.allclose(*latents["seeing"])
+    np.testing.assert_array_equal(*latents["closed"])

@@ -142,8 +142,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluates a run's latest checkpoint on fresh seeds, in the run's env or in the condition
-    its ``env.*`` overrides set; prints mean and std return (and the mean of each per-episode
-    statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
+    its overrides set (``env.*``, ``policy.blind``); prints mean and std return (and the mean of
+    each per-episode statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
     from iap_mjx import es
 
     try:
@@ -258,9 +258,10 @@ def add_commands(commands: Any) -> None:
     evaluate.add_argument(
         "overrides",
         nargs="*",
-        metavar="env.key=value",
+        metavar="key=value",
         help="the evaluation's condition, e.g. env.distraction=none, env.dynamic=true, "
-        "env.background_videos=val (held-out backgrounds)",
+        "env.background_videos=val (held-out backgrounds), policy.blind=true (a hierarchical "
+        "policy with its eyes closed)",
     )
     evaluate.add_argument("--episodes", type=arguments.count, default=8)
     evaluate.add_argument("--seed", type=int, default=12345, help="evaluation seed (distinct from the training seeds)")

@@ -86,18 +86,30 @@ def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfi
     return config
 
 
+CONDITION_POLICY_SETTINGS = ("policy.blind",)
+"""The policy settings an evaluation condition may change besides the env: those that leave the
+trained parameters as they are (``policy.blind=true``: the hierarchical policy's high level sees
+a zeroed image, the trained policy with its eyes closed)."""
+
+
 def check_condition(overrides: Iterable[str]) -> tuple[str, ...]:
-    """``overrides`` as a tuple if every one is an ``env.<field>=<value>`` setting."""
+    """``overrides`` as a tuple if every one is an ``env.<field>=<value>`` setting or one of
+    :data:`CONDITION_POLICY_SETTINGS`."""
     overrides = tuple(overrides)
-    not_env = [item for item in overrides if not str(item).strip().startswith("env.")]
-    if not_env:
-        raise ValueError(f"evaluation overrides set the env only (env.<field>=<value>), got {not_env}")
+    allowed = lambda key: key.startswith("env.") or key in CONDITION_POLICY_SETTINGS  # noqa: E731
+    bad = [item for item in overrides if not allowed(str(item).split("=", 1)[0].strip())]
+    if bad:
+        raise ValueError(
+            "evaluation conditions set the env (env.<field>=<value>) or "
+            f"{', '.join(f'{key}=<value>' for key in CONDITION_POLICY_SETTINGS)}, got {bad}"
+        )
     return overrides
 
 
 def apply_condition(config: TrainConfig, overrides: Iterable[str]) -> TrainConfig:
-    """``config`` in another evaluation condition: ``env.<field>=<value>`` overrides only
-    (the policy, ES and loop stay the run's). ``env.distraction=none`` also drops the config's
+    """``config`` in another evaluation condition: ``env.<field>=<value>`` overrides and
+    :data:`CONDITION_POLICY_SETTINGS` only (the policy's parameters, the ES and the loop stay
+    the run's). ``env.distraction=none`` also drops the config's
     other distraction settings (``DISTRACTION_SETTINGS``), which mean nothing without one."""
     overrides = check_condition(overrides)
     settings = {key.strip(): value for key, value in (str(item).split("=", 1) for item in overrides if "=" in item)}

@@ -138,7 +138,9 @@ def evaluate_run(
 
     ``overrides``: ``env.<field>=<value>`` settings that change the evaluation's env from the
     run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
-    (backgrounds never seen in training); the policy and its parameters are the run's.
+    (backgrounds never seen in training), or ``policy.blind=true`` (a hierarchical policy's
+    high level given a zeroed image: ``configs.overrides.CONDITION_POLICY_SETTINGS``); the
+    policy's parameters are the run's.
     ``env.distraction=none`` also drops the run's other distraction settings
     (``configs.overrides.apply_condition``).
     """

@@ -17,6 +17,12 @@ continuous positions, so none of them is, but for probability zero, a course tra
 Evaluations are stored in the run directory (``eval.json``, :mod:`iap_mjx.paper.evaluations`), so a
 report reads them instead of evaluating again.
 
+The seeing policies (IAP, CNN) are also evaluated with their eyes closed: the same checkpoint on
+the same courses, its high level given a zeroed image (``policy.blind=true``, as the blind
+control sees it). What a trained policy loses then is what its eyes give it, measured per seed
+on the same courses, so the seed-to-seed spread that the comparison with the blind control
+carries does not enter it.
+
 Writes ``<out>/fig11.json`` and ``<out>/fig11.png`` and returns the markdown table with the
 issue's bars stated as lines.
 """
@@ -40,6 +46,9 @@ logger = logging.getLogger(__name__)
 POLICIES = {"IAP": "quadruped-walls-iap", "CNN": "quadruped-walls-cnn", "blind": "quadruped-walls-blind"}
 """Figure 11's policies (labels) and their presets."""
 COURSE = "course"  # the eval.json entry of the training env's own course, unseen draws
+EYES_CLOSED = ("policy.blind=true",)  # the condition: the trained high level given a zeroed image
+CLOSED = "course-eyes-closed"  # its eval.json entry
+SEEING = ("IAP", "CNN")  # the policies evaluated with their eyes closed
 STATISTICS = QuadrupedWalls.episode_metrics  # walls_passed, fell_off, wall_contacts, distance
 MIN_PARAMETER_RATIO = 5.0  # the bar: the CNN has at least 5x IAP's parameters
 
@@ -58,16 +67,20 @@ def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
     return checked
 
 
-def evaluate_course(run_dir: Path, step: int, *, episodes: int) -> dict[str, list[float]]:
+def evaluate_course(run_dir: Path, step: int, *, episodes: int, eyes_closed: bool = False) -> dict[str, list[float]]:
     """``{"return": (episodes,), statistic: (episodes,) ...}`` (lists) of the run's checkpoint
-    ``step`` on fresh courses, read from ``eval.json`` where stored, evaluated otherwise."""
+    ``step`` on fresh courses (with ``eyes_closed``, the same courses, its high level given a
+    zeroed image), read from ``eval.json`` where stored, evaluated otherwise."""
     from iap_mjx import es
 
+    condition = EYES_CLOSED if eyes_closed else ()
+
     def evaluate() -> dict[str, list[float]]:
-        results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED)
+        results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
         return {name: [float(value) for value in values] for name, values in results.items()}
 
-    return stored_evaluation(run_dir, evaluation_key(COURSE, step, episodes), episodes, evaluate)
+    key = evaluation_key(CLOSED if eyes_closed else COURSE, step, episodes)
+    return stored_evaluation(run_dir, key, episodes, evaluate)
 
 
 def run_row(
@@ -80,8 +93,8 @@ def run_row(
     episodes: int,
     export: Path | None = None,
 ) -> dict[str, Any] | None:
-    """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses;
-    with ``export``, its newest checkpoint and files are copied to ``export/<preset>-seed<k>``."""
+    """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses, a
+    seeing policy's also with its eyes closed (``"eyes_closed"``); with ``export``, its newest checkpoint and files are copied to ``export/<preset>-seed<k>``."""
     from iap_mjx.es import checkpoint
     from iap_mjx.paper.runs import run_summary
 
@@ -91,7 +104,10 @@ def run_row(
         return None
     row = {"policy": label, "preset": POLICIES[label], **summary[0]}
     if row["finished"]:
-        row["course"] = evaluate_course(out_dir / name, checkpoint.latest_step(out_dir / name), episodes=episodes)
+        step = checkpoint.latest_step(out_dir / name)
+        row["course"] = evaluate_course(out_dir / name, step, episodes=episodes)
+        if label in SEEING:
+            row["eyes_closed"] = evaluate_course(out_dir / name, step, episodes=episodes, eyes_closed=True)
     if export is not None:
         checkpoint.export_latest(out_dir / name, export / name)
     return row
@@ -148,16 +164,23 @@ def reproduce_fig11(
 
 def summarise(rows: list[dict[str, Any]], parameters: int) -> dict[str, Any]:
     """One policy's runs: its parameters, the per-seed means of the finished runs' evaluation
-    episodes (``"return"`` and each statistic: lists over finished seeds), how many finished,
-    and the furthest run's iterations and env steps."""
+    episodes (``"return"`` and each statistic: lists over finished seeds; a seeing policy's
+    also with its eyes closed, ``"eyes_closed"``, the same seeds in the same order), how many
+    finished, and the furthest run's iterations and env steps."""
     done = [row for row in rows if row["finished"]]
-    return {
+    means = lambda entry: {  # noqa: E731
+        name: [float(np.mean(row[entry][name])) for row in done] for name in ("return", *STATISTICS)
+    }
+    summary = {
         "parameters": parameters,
         "finished": len(done),
         "iterations": max((row["iterations"] for row in rows), default=0),
         "env_steps": max((row["env_steps"] for row in rows), default=0),
-        **{name: [float(np.mean(row["course"][name])) for row in done] for name in ("return", *STATISTICS)},
+        **means("course"),
     }
+    if all("eyes_closed" in row for row in done):
+        summary["eyes_closed"] = means("eyes_closed")
+    return summary
 
 
 def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
@@ -206,7 +229,34 @@ def table(summaries: dict[str, dict[str, Any]], *, seeds: int) -> str:
             f"{mean_std(summary['wall_contacts'])} | {mean_std(summary['distance'], 2)} | "
             f"{summary['finished']} of {seeds} | {summary['iterations']} | {summary['env_steps']:,} |"
         )
-    return "\n".join([*lines, "", *bars(summaries, seeds=seeds)])
+    return "\n".join([*lines, "", *eyes_closed_table(summaries), *bars(summaries, seeds=seeds)])
+
+
+def eyes_closed_table(summaries: dict[str, dict[str, Any]]) -> list[str]:
+    """Markdown lines (ending in a blank one; none before a seeing run has finished): each seeing
+    policy's final return and walls passed with its eyes open and closed on the same courses,
+    mean ± std over its finished seeds, and per seed what closing them changes."""
+    seeing = [label for label in SEEING if summaries[label]["finished"]]
+    if not seeing:
+        return []
+    lines = [
+        "With their eyes closed: the same final checkpoints on the same courses, the high level given a zeroed "
+        "image (the condition `policy.blind=true`, as the blind control sees it):",
+        "",
+        "| policy | final return, eyes open | eyes closed | walls passed per episode, eyes open | eyes closed | "
+        "walls passed, open minus closed, per seed |",
+        "|---|---:|---:|---:|---:|---|",
+    ]
+    for label in seeing:
+        summary, closed = summaries[label], summaries[label]["eyes_closed"]
+        gains = ", ".join(
+            f"{open_ - shut:+.2f}" for open_, shut in zip(summary["walls_passed"], closed["walls_passed"])
+        )
+        lines.append(
+            f"| {label} | {mean_std(summary['return'])} | {mean_std(closed['return'])} | "
+            f"{mean_std(summary['walls_passed'], 2)} | {mean_std(closed['walls_passed'], 2)} | {gains} |"
+        )
+    return [*lines, ""]
 
 
 def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path: Path) -> Path:
