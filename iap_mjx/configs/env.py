@@ -251,6 +251,26 @@ class QuadrupedWallsConfig(QuadrupedConfig):
 
 
 @dataclasses.dataclass(frozen=True)
+class QuadrupedTurnConfig(QuadrupedConfig):
+    """``QuadrupedConfig`` plus the turn command's scale (``quadruped-turn`` only).
+
+    Attributes:
+      max_turn_rate: the yaw rate (rad/s) a command of +-1 asks for. 0.5 by default: at the
+        full command a quarter turn takes about 3 s, and a robot walking 0.8 m/s (the trot's
+        speed) moves about 1 m sideways over the 1.9 m that at least separate two of the
+        course's walls, more than a wall's 0.6-1.0 m gap needs.
+    """
+
+    max_turn_rate: float = 0.5
+
+    def __post_init__(self):
+        super().__post_init__()
+        rate = self.max_turn_rate
+        if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not 0 < rate <= 3:
+            raise ValueError(f"QuadrupedTurnConfig.max_turn_rate must be a number in (0, 3] rad/s, got {rate!r}.")
+
+
+@dataclasses.dataclass(frozen=True)
 class QuadrupedGatesConfig(QuadrupedConfig):
     """``QuadrupedConfig`` plus the gates corridor's settings (``quadruped-gates`` only).
 

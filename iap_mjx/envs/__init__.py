@@ -1,14 +1,20 @@
 """Environments: MJX ports of dm_control tasks and an A1-class quadruped (``quadruped-flat``,
-``quadruped-walls``, ``quadruped-gates``), with the brax State convention.
+``quadruped-walls``, ``quadruped-gates``, ``quadruped-turn``), with the brax State convention.
 
 ``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
 arguments without building); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
 quadruped's, ``QuadrupedWallsConfig`` the course's, ``QuadrupedGatesConfig`` the gates
-corridor's); ``batch`` runs large populations in chunks.
+corridor's, ``QuadrupedTurnConfig`` the turn command's); ``batch`` runs large populations in chunks.
 """
 
 from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)
-from iap_mjx.configs.env import EnvConfig, QuadrupedConfig, QuadrupedGatesConfig, QuadrupedWallsConfig
+from iap_mjx.configs.env import (
+    EnvConfig,
+    QuadrupedConfig,
+    QuadrupedGatesConfig,
+    QuadrupedTurnConfig,
+    QuadrupedWallsConfig,
+)
 from iap_mjx.envs import batch
 from iap_mjx.envs.base import Env, State
 from iap_mjx.envs.registry import check, make, names
@@ -18,6 +24,7 @@ __all__ = [
     "EnvConfig",
     "QuadrupedConfig",
     "QuadrupedGatesConfig",
+    "QuadrupedTurnConfig",
     "QuadrupedWallsConfig",
     "State",
     "batch",

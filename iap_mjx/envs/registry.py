@@ -22,6 +22,7 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
     from iap_mjx.envs.finger import FingerSpin
     from iap_mjx.envs.quadruped import QuadrupedFlat, QuadrupedWalls
     from iap_mjx.envs.quadruped_gates import QuadrupedGates
+    from iap_mjx.envs.quadruped_turn import QuadrupedTurn
     from iap_mjx.envs.reacher import ReacherEasy
     from iap_mjx.envs.walker import WalkerWalk
 
@@ -32,6 +33,7 @@ def _task_classes() -> dict[str, type[DmControlEnv]]:
         FingerSpin,
         QuadrupedFlat,
         QuadrupedGates,
+        QuadrupedTurn,
         QuadrupedWalls,
         ReacherEasy,
         WalkerWalk,
