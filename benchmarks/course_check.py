@@ -17,7 +17,8 @@ reports its statistics (gates passed, obstacle contacts, leaving the corridor, f
     python benchmarks/course_check.py --env quadruped-gates --episodes 32 --section course-check-gates
     python benchmarks/course_check.py --low-level runs/flat0 --export-low-level low.npz
         # the run's weights with its observation normalisation folded in, for
-        # policy.low_level_init=low.npz of the quadruped-walls-* presets
+        # policy.low_level_init=low.npz of the quadruped-walls-* presets; a quadruped-turn-pmtg
+        # run's command becomes the latent's first entry (hierarchical.commanded_low_level)
 
 ``key=value`` arguments set the env's settings (e.g. ``n_walls=3``, ``n_gates=3``).
 """
@@ -45,7 +46,8 @@ from jax.flatten_util import ravel_pytree  # noqa: E402
 
 from iap_mjx import configs, es  # noqa: E402
 from iap_mjx.configs.overrides import parse_value  # noqa: E402
-from iap_mjx.policies.hierarchical import fold_normalisation  # noqa: E402
+from iap_mjx.es import checkpoint  # noqa: E402
+from iap_mjx.policies.hierarchical import commanded_low_level, fold_normalisation  # noqa: E402
 
 COURSES = ("quadruped-walls", "quadruped-gates")
 
@@ -159,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--low-level",
         metavar="RUN_DIR",
-        help="a trained quadruped-flat-pmtg run (default: the PMTG policy's initial params, the TG's trot)",
+        help="a trained quadruped-flat-pmtg or quadruped-turn-pmtg run (default: the PMTG policy's "
+        "initial params, the TG's trot)",
     )
     parser.add_argument(
         "--export-low-level",
@@ -175,6 +178,9 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit("--export-low-level needs --low-level RUN_DIR of a run with observation statistics")
         latent = len(dict(config.policy.options).get("latent", (0.0,) * 4))
         w, b = fold_normalisation(params["w"], params["b"], obs_stats.mean, obs_stats.var, latent)
+        if checkpoint.load_config(args.low_level)["env"]["name"] == "quadruped-turn":
+            # its observed command becomes the hierarchy's first latent entry
+            w, b = commanded_low_level(w, b, trained_latent=latent, latent_size=latent)
         np.savez(args.export_low_level, w=w, b=b)
         print(f"wrote {args.export_low_level}: w {w.shape}, b {b.shape}")
         return 0

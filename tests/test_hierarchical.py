@@ -17,6 +17,7 @@ from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.hierarchical import (
     AttentiveHierarchicalPolicy,
     HierarchicalPolicy,
+    commanded_low_level,
     duration_steps,
     fold_normalisation,
 )
@@ -263,3 +264,27 @@ def test_a_trained_policy_evaluates_with_its_eyes_closed():
     }
     assert not np.allclose(*latents["seeing"])
     np.testing.assert_array_equal(*latents["closed"])
+
+
+def test_a_turn_trained_low_level_takes_its_command_from_the_latent():
+    """``commanded_low_level``: the hierarchy's low level on latent ``(c, 0, 0, 0)`` and state
+    ``s`` gives the action the quadruped-turn policy gives on observation ``[c, s]``."""
+    rng = np.random.default_rng(3)
+    turn = PMTGPolicy(18)  # observes [command, state (17)], latent (0, 0, 0, 0) as trained
+    trained = {
+        "w": jnp.asarray(rng.normal(0.0, 0.3, (turn.input_size, turn.output_size)), jnp.float32),
+        "b": jnp.asarray(rng.normal(0.0, 0.3, turn.output_size), jnp.float32),
+    }
+    w, b = commanded_low_level(trained["w"], trained["b"], trained_latent=4, latent_size=4)
+    low = PMTGPolicy(17)
+    assert w.shape == (low.input_size, low.output_size) and not w[1:4].any()
+    for command in (-0.7, 0.0, 1.0):
+        state, phase = jnp.asarray(rng.normal(size=17), jnp.float32), jnp.float32(rng.uniform(0, 6))
+        expected, _ = turn.apply(
+            trained, jnp.concatenate([jnp.array([command]), state]), {"phase": phase, "latent": jnp.zeros(4)}
+        )
+        latent = jnp.array([command, 0.0, 0.0, 0.0], jnp.float32)
+        action, _ = low.apply({"w": jnp.asarray(w), "b": jnp.asarray(b)}, state, {"phase": phase, "latent": latent})
+        np.testing.assert_allclose(action, expected, atol=1e-6)
+    with pytest.raises(ValueError, match="command_size = 5"):
+        commanded_low_level(w, b, trained_latent=4, latent_size=4, command_size=5)

@@ -8,6 +8,10 @@ at 2.5 Hz that walks about 0.8 m/s with no residuals); the return is the capped 
 the mean forward speed is ``return / 10 s``. ``RESULTS.md`` (section ``quadruped-walking``)
 has its three seeds.
 
+``quadruped-turn-pmtg``: the same on ``quadruped-turn``, where each episode commands a yaw rate
+(the observation's first entry) and the return is the distance walked along the commanded
+heading: a low level that steers both ways on command, to start the hierarchy from.
+
 ``quadruped-walls-iap``, ``-cnn``, ``-blind``: the hierarchical policy
 (``iap_mjx.policies.hierarchical``) on ``quadruped-walls`` from ``"pixels+state"`` (the 24x32
 first-person camera for the high level, the 17-d state for the PMTG low level), 20 s episodes,
@@ -44,6 +48,21 @@ FLAT_PMTG = Preset(
 )
 
 register(FLAT_PMTG)
+
+TURN_PMTG = Preset(
+    "quadruped-turn-pmtg",
+    "quadruped-turn from the state and a turn command: linear PMTG low level (trot TG + residuals), "
+    "OpenES; return = metres walked along the commanded heading in 10 s",
+    "quadruped-turn",
+    "pmtg",
+    es=FLAT_PMTG.es,
+    run=FLAT_PMTG.run,
+)
+"""The flat preset's policy, ES and budget on ``quadruped-turn``: a low level that turns both
+ways on command, for the hierarchy's ``policy.low_level_init`` (its command becomes the latent's
+first entry: ``iap_mjx.policies.hierarchical.commanded_low_level``)."""
+
+register(TURN_PMTG)
 
 COURSE_ENV: Options = (("obs_mode", "pixels+state"),)
 """The course seen through the first-person camera (24x32 RGB, its default size), the state

@@ -252,6 +252,27 @@ def fold_normalisation(
     return folded.astype(np.float32), bias.astype(np.float32)
 
 
+def commanded_low_level(
+    w: np.ndarray, b: np.ndarray, *, trained_latent: int, latent_size: int, command_size: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """A PMTG low level trained on ``quadruped-turn`` as the hierarchy's: the command it observed
+    becomes the latent's first ``command_size`` entries.
+
+    ``w`` ``(trained_latent + command_size + state + 2, 16)`` reads ``[latent (constant zero in
+    training, so its rows are dropped), command, state, cos phi, sin phi]`` on raw observations
+    (fold a run's normalisation in first: :func:`fold_normalisation`). The result, ``(latent_size
+    + state + 2, 16)``, reads ``[latent, state, cos phi, sin phi]``: the command's rows as the
+    latent's first entries, zero rows for the others, so the hierarchy's low level on latent
+    ``(c, 0, ...)`` acts exactly as the trained policy on command ``c``. ``b`` is unchanged."""
+    w = np.asarray(w, np.float32)
+    if not 1 <= command_size <= latent_size:
+        raise ValueError(f"command_size = {command_size} must be in [1, latent_size = {latent_size}]")
+    rest = w[trained_latent + command_size :]  # state rows, then cos phi and sin phi
+    latent = np.zeros((latent_size, w.shape[1]), np.float32)
+    latent[:command_size] = w[trained_latent : trained_latent + command_size]
+    return np.concatenate([latent, rest]), np.asarray(b, np.float32)
+
+
 @functools.lru_cache(maxsize=8)
 def _load_low_level(path: str, input_size: int, output_size: int) -> dict[str, jax.Array]:
     if not Path(path).is_file():
