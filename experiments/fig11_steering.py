@@ -8,14 +8,17 @@ run's low level alone on ``quadruped-flat`` for 250 control steps (5 s), 2 episo
 and prints per run the heading reached after 5 s (degrees; + is left, toward +y): its minimum,
 median and maximum over the commands (each the mean of its 2 episodes), and how many commands
 turn the robot left or right by more than 15 degrees. A low level that turns both ways is one
-the high level can steer around a wall on either side.
+the high level can steer around a wall on either side. A ``quadruped-turn-pmtg`` run is probed
+as the hierarchy would hold it (its command as the latent's first entry).
 
     python experiments/fig11_steering.py pretrained/quadruped/quadruped-walls-*-seed*
+    python experiments/fig11_steering.py results/turn/quadruped-turn-pmtg-seed0
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -23,6 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from iap_mjx import envs, es
+from iap_mjx.policies.hierarchical import commanded_low_level, fold_normalisation
+from iap_mjx.policies.pmtg import PMTGPolicy
 
 STEPS = 250  # 5 s of 0.02 s control steps
 EPISODES = 2
@@ -44,10 +49,23 @@ def heading(quat: jax.Array) -> jax.Array:
     return jnp.degrees(jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
+def low_level(run_dir: Path) -> tuple[PMTGPolicy, dict]:
+    """The run's low level and its params as the hierarchy holds them: a hierarchical run's own;
+    a ``quadruped-turn-pmtg`` run's with its normalisation folded in and its command as the
+    latent's first entry (what ``policy.low_level_init`` would start the hierarchy from)."""
+    result = es.load_run(run_dir)
+    if result.config.env.name != "quadruped-turn":
+        return result.policy.low, result.params["low"]
+    turn, stats, latent = result.policy, result.obs_stats, len(result.policy.latent)
+    w, b = fold_normalisation(result.params["w"], result.params["b"], stats.mean, stats.var, latent)
+    w, b = commanded_low_level(w, b, trained_latent=latent, latent_size=latent)
+    low = dataclasses.replace(turn, obs_size=turn.obs_size - 1)
+    return low, {"w": jnp.asarray(w), "b": jnp.asarray(b)}
+
+
 def probe(run_dir: Path) -> np.ndarray:
     """``(commands,)`` the heading after ``STEPS`` control steps per command, mean over episodes."""
-    result = es.load_run(run_dir)
-    low = result.policy.low
+    low, params = low_level(run_dir)
     env = envs.make("quadruped-flat", episode_length=STEPS)
 
     def episode(params, latent, key):
@@ -62,7 +80,7 @@ def probe(run_dir: Path) -> np.ndarray:
 
     run = jax.jit(jax.vmap(jax.vmap(episode, (None, None, 0)), (None, 0, None)))
     keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
-    return np.asarray(run(result.params["low"], jnp.asarray(commands(low.input_size - low.obs_size - 2)), keys)).mean(1)
+    return np.asarray(run(params, jnp.asarray(commands(len(low.latent))), keys)).mean(1)
 
 
 def main() -> None:
