@@ -94,7 +94,8 @@ def run_row(
     export: Path | None = None,
 ) -> dict[str, Any] | None:
     """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses, a
-    seeing policy's also with its eyes closed (``"eyes_closed"``); with ``export``, its newest checkpoint and files are copied to ``export/<preset>-seed<k>``."""
+    seeing policy's also with its eyes closed (``"eyes_closed"``); with ``export``, its newest
+    checkpoint and files are copied to ``export/<preset>-seed<k>``."""
     from iap_mjx.es import checkpoint
     from iap_mjx.paper.runs import run_summary
 
