@@ -19,6 +19,7 @@ from iap_mjx.paper import fig11
 from iap_mjx.paper.evaluations import EVAL_FILE, EVAL_SEED
 
 ITERATIONS = ("run.iterations=3",)
+POLICIES_RUN = ("iap", "cnn", "blind")
 # (policy, seed): the evaluation's mean return and walls passed per episode - 0.5 (below)
 RUNS = {
     ("iap", 0): (20.0, 1.0),
@@ -74,6 +75,8 @@ def test_bad_input_fails_before_anything_runs(tmp_path, capsys):
         fig11.reproduce_fig11(tmp_path, episodes=0)
     with pytest.raises(ValueError, match="seeds"):
         fig11.reproduce_fig11(tmp_path, seeds=0)
+    with pytest.raises(ValueError, match="section = 'Fig 11' must be lower-case letters"):
+        fig11.reproduce_fig11(tmp_path, section="Fig 11")
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "fig11", "policy.kernl=relu", "--out", str(tmp_path)]) == 2
     assert "kernl" in capsys.readouterr().err
@@ -202,3 +205,21 @@ def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations, capsys
     assert checkpoint.latest_step(export / "quadruped-walls-blind-seed0") == 2
     copied = configs.TrainConfig.from_dict(checkpoint.load_config(export / "quadruped-walls-iap-seed0"))
     assert copied == configs.apply_overrides(configs.get("quadruped-walls-iap"), ITERATIONS)
+
+
+def test_a_second_experiment_writes_its_own_section_beside_the_first(tmp_path, evaluations):
+    """``--section fig11-turn``: its own RESULTS.md section and experiments/ folder, the
+    command that rewrites it; the default section stays as it was."""
+    for policy in POLICIES_RUN:
+        _run(tmp_path / "out", policy, 0)
+    results = tmp_path / "RESULTS.md"
+    results.write_text("# Results\n\n<!-- BEGIN fig11 -->\nfirst\n<!-- END fig11 -->\n")
+    args = ["reproduce", "fig11", *ITERATIONS, "--seeds", "1", "--episodes", "2", "--report-only"]
+    paths = ["--out", str(tmp_path / "out"), "--results", str(results)]
+    assert cli.main([*args, *paths, "--section", "fig11-turn"]) == 0
+    text = results.read_text()
+    assert "<!-- BEGIN fig11 -->\nfirst\n<!-- END fig11 -->" in text
+    assert "<!-- BEGIN fig11-turn -->\n## Figure 11 (`fig11-turn`): the quadruped" in text
+    assert "![fig11-turn](experiments/fig11-turn/fig11.png)" in text and "--section fig11-turn`" in text
+    assert (tmp_path / "experiments" / "fig11-turn" / "fig11.png").stat().st_size > 0
+    assert not (tmp_path / "experiments" / "fig11").exists()

@@ -76,6 +76,7 @@ def _fig11(args: argparse.Namespace) -> str:
         train=not args.report_only,
         results=args.results,
         export=args.export,
+        section=args.section,
     )
 
 
@@ -235,6 +236,12 @@ def add_commands(commands: Any) -> None:
     episodes(parser, "per run, each on a course not seen in training")
     results(parser)
     export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
+    parser.add_argument(
+        "--section",
+        default="fig11",
+        help="the --results section and experiments/ folder to write (default fig11; e.g. fig11-turn for "
+        "a second experiment beside the first)",
+    )
     report_only(parser)
 
     parser = figure(

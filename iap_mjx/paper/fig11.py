@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,7 @@ CLOSED = "course-eyes-closed"  # its eval.json entry
 SEEING = ("IAP", "CNN")  # the policies evaluated with their eyes closed
 STATISTICS = QuadrupedWalls.episode_metrics  # walls_passed, fell_off, wall_contacts, distance
 MIN_PARAMETER_RATIO = 5.0  # the bar: the CNN has at least 5x IAP's parameters
+SECTION = "fig11"  # the RESULTS.md section and experiments/ folder written by default
 
 
 def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
@@ -123,17 +125,22 @@ def reproduce_fig11(
     train: bool = True,
     results: str | Path | None = None,
     export: str | Path | None = None,
+    section: str = SECTION,
 ) -> str:
     """Trains (``train=False``: only reads) every policy on ``seeds`` seeds, seed by seed so that
     the policies compare early, evaluates the finished runs on ``episodes`` fresh courses each,
     writes ``fig11.json`` / ``fig11.png`` in ``out_dir`` and returns the markdown table;
-    ``results``: a markdown file (RESULTS.md) whose ``fig11`` section is rewritten with it;
+    ``results``: a markdown file (RESULTS.md) whose section ``section`` (default ``fig11``; another
+    name keeps a second experiment, e.g. from another low level, beside the first) is rewritten
+    with it, its figure copied to ``experiments/<section>/``;
     ``export``: a folder (e.g. ``pretrained/quadruped``, tracked by git) that receives each run's
     newest checkpoint, config and metrics as ``<preset>-seed<k>``, finished or not."""
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds = {seeds!r} must be an int >= 1")
+    if not isinstance(section, str) or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", section):
+        raise ValueError(f"section = {section!r} must be lower-case letters, digits and dashes, e.g. fig11-turn")
     from iap_mjx import policies
     from iap_mjx.paper.runs import built_policies
 
@@ -159,7 +166,9 @@ def reproduce_fig11(
     png = plot(rows, summaries, out_dir / "fig11.png")
     markdown = table(summaries, seeds=seeds)
     if results is not None:
-        write_results(Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes)
+        write_results(
+            Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes, section=section
+        )
     return markdown
 
 
@@ -301,9 +310,16 @@ def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path:
 
 
 def write_results(
-    path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...], episodes: int
+    path: Path,
+    markdown: str,
+    png: Path,
+    *,
+    seeds: int,
+    overrides: tuple[str, ...],
+    episodes: int,
+    section: str = SECTION,
 ) -> None:
-    """The ``fig11`` section of ``path``: the command, the figure and the table."""
+    """Section ``section`` of ``path``: the command, the figure and the table."""
     command = " ".join(
         [
             "iap-mjx reproduce fig11",
@@ -312,13 +328,16 @@ def write_results(
             f"--episodes {episodes}",
             f"--out {png.parent}",
             f"--results {path.name}",
+            *([f"--section {section}"] if section != SECTION else []),
         ]
     )
+    title = "Figure 11" if section == SECTION else f"Figure 11 (`{section}`)"
     body = (
-        f"## Figure 11: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
+        f"## {title}: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
         f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
         f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
         f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
-        f"the mean ± std over seeds of the per-seed means.\n\n![fig11]({image_link(png, path, 'fig11')})\n\n{markdown}\n"
+        f"the mean ± std over seeds of the per-seed means.\n\n![{section}]({image_link(png, path, section)})\n\n"
+        f"{markdown}\n"
     )
-    write_section(path, "fig11", body, title="# Results")
+    write_section(path, section, body, title="# Results")
