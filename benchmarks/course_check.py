@@ -18,7 +18,7 @@ reports its statistics (gates passed, obstacle contacts, leaving the corridor, f
     python benchmarks/course_check.py --low-level runs/flat0 --export-low-level low.npz
         # the run's weights with its observation normalisation folded in, for
         # policy.low_level_init=low.npz of the quadruped-walls-* presets; a quadruped-turn-pmtg
-        # run's command becomes the latent's first entry (hierarchical.commanded_low_level)
+        # run's command becomes the latent's first entry (hierarchical.low_level_weights)
 
 ``key=value`` arguments set the env's settings (e.g. ``n_walls=3``, ``n_gates=3``).
 """
@@ -46,8 +46,7 @@ from jax.flatten_util import ravel_pytree  # noqa: E402
 
 from iap_mjx import configs, es  # noqa: E402
 from iap_mjx.configs.overrides import parse_value  # noqa: E402
-from iap_mjx.es import checkpoint  # noqa: E402
-from iap_mjx.policies.hierarchical import commanded_low_level, fold_normalisation  # noqa: E402
+from iap_mjx.policies.hierarchical import low_level_weights  # noqa: E402
 
 COURSES = ("quadruped-walls", "quadruped-gates")
 
@@ -176,11 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.export_low_level:
         if args.low_level is None or obs_stats is None:
             raise SystemExit("--export-low-level needs --low-level RUN_DIR of a run with observation statistics")
-        latent = len(dict(config.policy.options).get("latent", (0.0,) * 4))
-        w, b = fold_normalisation(params["w"], params["b"], obs_stats.mean, obs_stats.var, latent)
-        if checkpoint.load_config(args.low_level)["env"]["name"] == "quadruped-turn":
-            # its observed command becomes the hierarchy's first latent entry
-            w, b = commanded_low_level(w, b, trained_latent=latent, latent_size=latent)
+        trained = es.load_run(args.low_level)
+        w, b = low_level_weights(trained.policy, trained.params, trained.obs_stats, trained.config.env.name)
         np.savez(args.export_low_level, w=w, b=b)
         print(f"wrote {args.export_low_level}: w {w.shape}, b {b.shape}")
         return 0

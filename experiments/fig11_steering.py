@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from iap_mjx import envs, es
-from iap_mjx.policies.hierarchical import commanded_low_level, fold_normalisation
+from iap_mjx.policies.hierarchical import low_level_weights
 from iap_mjx.policies.pmtg import PMTGPolicy
 
 STEPS = 250  # 5 s of 0.02 s control steps
@@ -56,11 +56,9 @@ def low_level(run_dir: Path) -> tuple[PMTGPolicy, dict]:
     result = es.load_run(run_dir)
     if result.config.env.name != "quadruped-turn":
         return result.policy.low, result.params["low"]
-    turn, stats, latent = result.policy, result.obs_stats, len(result.policy.latent)
-    w, b = fold_normalisation(result.params["w"], result.params["b"], stats.mean, stats.var, latent)
-    w, b = commanded_low_level(w, b, trained_latent=latent, latent_size=latent)
-    low = dataclasses.replace(turn, obs_size=turn.obs_size - 1)
-    return low, {"w": jnp.asarray(w), "b": jnp.asarray(b)}
+    turn = result.policy
+    w, b = low_level_weights(turn, result.params, result.obs_stats, result.config.env.name)
+    return dataclasses.replace(turn, obs_size=turn.obs_size - 1), {"w": jnp.asarray(w), "b": jnp.asarray(b)}
 
 
 def probe(run_dir: Path) -> np.ndarray:

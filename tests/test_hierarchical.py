@@ -275,7 +275,7 @@ def test_a_turn_trained_low_level_takes_its_command_from_the_latent():
         "w": jnp.asarray(rng.normal(0.0, 0.3, (turn.input_size, turn.output_size)), jnp.float32),
         "b": jnp.asarray(rng.normal(0.0, 0.3, turn.output_size), jnp.float32),
     }
-    w, b = commanded_low_level(trained["w"], trained["b"], trained_latent=4, latent_size=4)
+    w, b = commanded_low_level(trained["w"], trained["b"], 4)
     low = PMTGPolicy(17)
     assert w.shape == (low.input_size, low.output_size) and not w[1:4].any()
     for command in (-0.7, 0.0, 1.0):
@@ -286,5 +286,3 @@ def test_a_turn_trained_low_level_takes_its_command_from_the_latent():
         latent = jnp.array([command, 0.0, 0.0, 0.0], jnp.float32)
         action, _ = low.apply({"w": jnp.asarray(w), "b": jnp.asarray(b)}, state, {"phase": phase, "latent": latent})
         np.testing.assert_allclose(action, expected, atol=1e-6)
-    with pytest.raises(ValueError, match="command_size = 5"):
-        commanded_low_level(w, b, trained_latent=4, latent_size=4, command_size=5)

@@ -252,25 +252,33 @@ def fold_normalisation(
     return folded.astype(np.float32), bias.astype(np.float32)
 
 
-def commanded_low_level(
-    w: np.ndarray, b: np.ndarray, *, trained_latent: int, latent_size: int, command_size: int = 1
-) -> tuple[np.ndarray, np.ndarray]:
+def commanded_low_level(w: np.ndarray, b: np.ndarray, latent_size: int) -> tuple[np.ndarray, np.ndarray]:
     """A PMTG low level trained on ``quadruped-turn`` as the hierarchy's: the command it observed
-    becomes the latent's first ``command_size`` entries.
+    becomes the latent's first entry.
 
-    ``w`` ``(trained_latent + command_size + state + 2, 16)`` reads ``[latent (constant zero in
-    training, so its rows are dropped), command, state, cos phi, sin phi]`` on raw observations
-    (fold a run's normalisation in first: :func:`fold_normalisation`). The result, ``(latent_size
-    + state + 2, 16)``, reads ``[latent, state, cos phi, sin phi]``: the command's rows as the
-    latent's first entries, zero rows for the others, so the hierarchy's low level on latent
-    ``(c, 0, ...)`` acts exactly as the trained policy on command ``c``. ``b`` is unchanged."""
+    ``w`` ``(latent_size + 1 + state + 2, 16)`` reads ``[latent (constant zero in training, so
+    its rows are dropped), command, state, cos phi, sin phi]`` on raw observations (fold a run's
+    normalisation in first: :func:`fold_normalisation`). The result, ``(latent_size + state + 2,
+    16)``, reads ``[latent, state, cos phi, sin phi]``: the command's row as the latent's first,
+    zero rows for the others, so the hierarchy's low level on latent ``(c, 0, ...)`` acts exactly
+    as the trained policy on command ``c``. ``b`` is unchanged."""
     w = np.asarray(w, np.float32)
-    if not 1 <= command_size <= latent_size:
-        raise ValueError(f"command_size = {command_size} must be in [1, latent_size = {latent_size}]")
-    rest = w[trained_latent + command_size :]  # state rows, then cos phi and sin phi
     latent = np.zeros((latent_size, w.shape[1]), np.float32)
-    latent[:command_size] = w[trained_latent : trained_latent + command_size]
-    return np.concatenate([latent, rest]), np.asarray(b, np.float32)
+    latent[0] = w[latent_size]
+    return np.concatenate([latent, w[latent_size + 1 :]]), np.asarray(b, np.float32)
+
+
+def low_level_weights(policy: PMTGPolicy, params: dict[str, Any], obs_stats: Any, env_name: str):
+    """``(w, b)`` of a trained ``quadruped-flat-pmtg`` or ``quadruped-turn-pmtg`` run (its
+    ``policy``, centre ``params``, observation statistics and env's name) as the hierarchy's low
+    level reads them (an ``.npz`` of them is ``policy.low_level_init``): the normalisation folded
+    in (:func:`fold_normalisation`), a turn run's command moved into the latent
+    (:func:`commanded_low_level`)."""
+    latent = len(policy.latent)
+    w, b = fold_normalisation(params["w"], params["b"], obs_stats.mean, obs_stats.var, latent)
+    if env_name == "quadruped-turn":
+        w, b = commanded_low_level(w, b, latent)
+    return w, b
 
 
 @functools.lru_cache(maxsize=8)
