@@ -32,7 +32,7 @@ echo "== $(date -u '+%F %T') experiments/fig11-tuning.sh"
 OUT="$OUT/fig11-tuning" NICE="$NICE" bash experiments/fig11-tuning.sh
 run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
 # Table 2's 4x4 setting is the preset's own run, Figure 11's seed 0: the same directory reuses it
-run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/fig11"
+run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/fig11" --export "$EXPORT/quadruped"
 run reproduce fig10 --out "$OUT/fig11"
 # beyond the paper (issue 24): the gates corridor seen through depth, IAP and the blind control
 run train quadruped-gates-iap --run-dir "$OUT/gates/quadruped-gates-iap-seed0" --no-progress

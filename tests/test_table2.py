@@ -123,3 +123,34 @@ def test_table_reports_maximum_returns_patches_and_commands(tmp_path, capsys):
     stored = json.loads((tmp_path / "table2.json").read_text())
     assert [row["population_max"] for row in stored][3] == [1.0, 20.0, 3.0]
     assert (tmp_path / "table2.png").stat().st_size > 0
+
+
+def test_export_copies_each_runs_newest_checkpoint_finished_or_not(tmp_path, capsys):
+    """``--export``: every setting's run directory, the preset's own (shared with fig11) under
+    its own name, so that a session can ship unfinished runs and the next resume them."""
+    from iap_mjx.es import checkpoint
+
+    _run(tmp_path / "out", (1, 1), [4.0, 12.0, 8.0])
+    _run(tmp_path / "out", (2, 2), [3.0, 6.0], iterations=2)
+    _run(tmp_path / "out", (4, 4), [5.0, 9.0, 7.0])
+    export = tmp_path / "pretrained"
+    argv = [
+        "reproduce",
+        "table2",
+        *ITERATIONS,
+        "--report-only",
+        "--out",
+        str(tmp_path / "out"),
+        "--export",
+        str(export),
+    ]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in export.iterdir()) == [
+        "quadruped-walls-iap-seed0",
+        "table2-p1-s1-seed0",
+        "table2-p2-s2-seed0",
+    ]
+    assert checkpoint.latest_step(export / "table2-p2-s2-seed0") == 2
+    copied = configs.TrainConfig.from_dict(checkpoint.load_config(export / "table2-p1-s1-seed0"))
+    assert copied == configs.apply_overrides(configs.get(table2.PRESET), ITERATIONS + table2.setting_overrides(1, 1))

@@ -90,6 +90,7 @@ def _table2(args: argparse.Namespace) -> str:
         overrides=tuple(args.overrides),
         train=not args.report_only,
         results=args.results,
+        export=args.export,
     )
 
 
@@ -260,6 +261,7 @@ def add_commands(commands: Any) -> None:
     )
     parser.add_argument("--seed", type=arguments.index, default=0, help="the training seed (default 0)")
     results(parser)
+    export(parser, "DIR/table2-p<p>-s<s>-seed<k> (e.g. pretrained/quadruped)")
     report_only(parser)
 
     parser = figure(

@@ -130,11 +130,15 @@ def reproduce_table2(
     overrides: tuple[str, ...] = (),
     train: bool = True,
     results: str | Path | None = None,
+    export: str | Path | None = None,
 ) -> str:
     """Trains (``train=False``: only reads) every setting on ``seed``, writes ``table2.json`` /
     ``table2.png`` in ``out_dir`` and returns the markdown table; ``results``: a markdown file
-    whose ``table2`` section is rewritten with it."""
+    whose ``table2`` section is rewritten with it; ``export``: a folder (e.g.
+    ``pretrained/quadruped``, tracked by git) that receives each run's newest checkpoint, config
+    and metrics under its run directory's name, finished or not."""
     from iap_mjx import policies
+    from iap_mjx.es import checkpoint
     from iap_mjx.paper.runs import built_policies, run_summary
 
     checked = check(tuple(settings), tuple(overrides), seed)
@@ -148,6 +152,8 @@ def reproduce_table2(
             logger.info("table2 %s: no run in %s yet", setting, out_dir / name)
             continue
         row, history = summary
+        if export is not None:
+            checkpoint.export_latest(out_dir / name, Path(export) / name)
         best = [float(entry["return_max"]) for entry in history]
         rows.append(
             {
