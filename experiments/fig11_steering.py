@@ -5,7 +5,8 @@ The hierarchy trains both levels together from the same trot, so how the robot a
 probe holds each of 32 latent commands constant (zero, +-1 on each of the 4 entries, and 23 drawn
 uniformly from [-1, 1]^4 with a fixed key: the high level's outputs lie in [-1, 1]) and walks the
 run's low level alone on ``quadruped-flat`` for 250 control steps (5 s), 2 episodes per command,
-and prints per run the heading reached after 5 s (degrees; + is left, toward +y): its minimum,
+and prints per run the heading reached after 5 s (degrees, unwrapped: the yaw turned since the
+start, + is left, toward +y, and a turn past 180 degrees keeps its sign): its minimum,
 median and maximum over the commands (each the mean of its 2 episodes), and how many commands
 turn the robot left or right by more than 15 degrees. A low level that turns both ways is one
 the high level can steer around a wall on either side. A ``quadruped-turn-pmtg`` run is probed
@@ -68,13 +69,18 @@ def probe(run_dir: Path) -> np.ndarray:
 
     def episode(params, latent, key):
         def step(carry, _):
-            state, policy_state = carry
+            state, policy_state, turned = carry
             action, policy_state = low.apply(params, state.obs, policy_state)
-            return (env.step(state, action), policy_state), None
+            after = env.step(state, action)
+            # summed per-step yaw changes, each wrapped to (-180, 180]: a turn past 180 degrees
+            # stays a turn that way instead of wrapping to the other sign
+            change = heading(after.data.qpos[3:7]) - heading(state.data.qpos[3:7])
+            return (after, policy_state, turned + (change + 180.0) % 360.0 - 180.0), None
 
-        first = (env.reset(key), {"phase": jnp.zeros(()), "latent": latent})
-        (state, _), _ = jax.lax.scan(step, first, None, length=STEPS)
-        return heading(state.data.qpos[3:7])
+        start = env.reset(key)
+        first = (start, {"phase": jnp.zeros(()), "latent": latent}, jnp.zeros(()))
+        (_, _, turned), _ = jax.lax.scan(step, first, None, length=STEPS)
+        return turned
 
     run = jax.jit(jax.vmap(jax.vmap(episode, (None, None, 0)), (None, 0, None)))
     keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
