@@ -220,6 +220,6 @@ def test_a_second_experiment_writes_its_own_section_beside_the_first(tmp_path, e
     text = results.read_text()
     assert "<!-- BEGIN fig11 -->\nfirst\n<!-- END fig11 -->" in text
     assert "<!-- BEGIN fig11-turn -->\n## Figure 11 (`fig11-turn`): the quadruped" in text
-    assert "![fig11-turn](experiments/fig11-turn/fig11.png)" in text and "--section fig11-turn`" in text
+    assert "![fig11-turn](experiments/fig11-turn/fig11.png)" in text and "--section fig11-turn --out" in text
     assert (tmp_path / "experiments" / "fig11-turn" / "fig11.png").stat().st_size > 0
     assert not (tmp_path / "experiments" / "fig11").exists()

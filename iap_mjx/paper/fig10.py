@@ -19,7 +19,7 @@ from typing import Any
 
 from iap_mjx import configs
 from iap_mjx.paper.evaluations import EVAL_SEED
-from iap_mjx.viz.sections import image_link, write_section
+from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -121,14 +121,11 @@ def write_results(
     path: Path, markdown: str, *, run_dirs: tuple[Path, ...], frames: int, out_dir: Path, scale: int
 ) -> None:
     """The ``fig10`` section of ``path``: the command and the strips (the camera inset at ``scale``x)."""
-    command = " ".join(
-        [
-            "iap-mjx reproduce fig10",
-            "--run-dirs " + ",".join(str(run_dir) for run_dir in run_dirs),
-            f"--frames {frames}",
-            f"--out {out_dir}",
-            f"--results {path.name}",
-        ]
+    command = reproduce_command(
+        "fig10",
+        ["--run-dirs " + ",".join(str(run_dir) for run_dir in run_dirs), f"--frames {frames}"],
+        out=out_dir,
+        results=path,
     )
     body = (
         f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
@@ -138,4 +135,4 @@ def write_results(
         f"level's choice were it asked at that step; it is asked when the command it holds runs out).\n\n"
         f"{markdown}\n"
     )
-    write_section(path, "fig10", body, title="# Results")
+    write_results_section(path, "fig10", body)

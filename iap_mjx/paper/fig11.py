@@ -40,7 +40,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, stored_evaluation
-from iap_mjx.viz.sections import image_link, mean_std, write_section
+from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -273,14 +273,9 @@ def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path:
     """Left: each policy's evaluation return per ES iteration, mean and band over its seeds,
     the parameter counts in the legend and title. Right: walls passed per episode on fresh
     courses, mean ± std over finished seeds."""
-    import matplotlib
+    from iap_mjx.viz.curves import plot_mean_band, save_png, subplots
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from iap_mjx.viz.curves import plot_mean_band
-
-    fig, (curves, walls) = plt.subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": (2, 1)})
+    fig, (curves, walls) = subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": (2, 1)})
     for label, summary in summaries.items():
         runs = [row["curve"] for row in rows if row["policy"] == label]
         if runs:
@@ -303,10 +298,7 @@ def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path:
     )
     walls.set_ylabel("walls passed per episode (fresh courses)")
     walls.set_title("finished runs, mean ± std over seeds")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def write_results(
@@ -320,16 +312,9 @@ def write_results(
     section: str = SECTION,
 ) -> None:
     """Section ``section`` of ``path``: the command, the figure and the table."""
-    command = " ".join(
-        [
-            "iap-mjx reproduce fig11",
-            *overrides,
-            f"--seeds {seeds}",
-            f"--episodes {episodes}",
-            f"--out {png.parent}",
-            f"--results {path.name}",
-            *([f"--section {section}"] if section != SECTION else []),
-        ]
+    options = [*overrides, f"--seeds {seeds}", f"--episodes {episodes}"]
+    command = reproduce_command(
+        "fig11", options + ([f"--section {section}"] if section != SECTION else []), out=png.parent, results=path
     )
     title = "Figure 11" if section == SECTION else f"Figure 11 (`{section}`)"
     body = (
@@ -340,4 +325,4 @@ def write_results(
         f"the mean ± std over seeds of the per-seed means.\n\n![{section}]({image_link(png, path, section)})\n\n"
         f"{markdown}\n"
     )
-    write_section(path, section, body, title="# Results")
+    write_results_section(path, section, body)

@@ -104,28 +104,20 @@ def reproduce(
 
 def plot(rows: list[dict[str, Any]], path: Path, *, title: str) -> Path:
     """Writes :func:`figure` of ``rows`` to ``path``."""
-    import matplotlib.pyplot as plt
+    from iap_mjx.viz.curves import save_png
 
-    fig = figure(rows, title=title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(figure(rows, title=title), path, dpi=110)
 
 
 def figure(rows: list[dict[str, Any]], *, title: str):
     """Left, as the paper: bars of inference time per forward pass, crosses with std bars
     of the mean final return. Right: mean evaluation-return curves, shaded +- std over seeds
     (cut to the shortest seed)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from iap_mjx.viz.curves import plot_mean_band
+    from iap_mjx.viz.curves import plot_mean_band, subplots
 
     labels = [row["variant"] for row in rows]
     x = np.arange(len(rows))
-    fig, (ax, curves) = plt.subplots(1, 2, figsize=(1.3 * len(rows) + 8, 4))
+    fig, (ax, curves) = subplots(1, 2, figsize=(1.3 * len(rows) + 8, 4))
     ax.bar(x, [row["inference_s"] for row in rows], color="tab:blue", alpha=0.7)
     ax.set_ylabel("inference time (s)")
     ax.set_xticks(x, labels)

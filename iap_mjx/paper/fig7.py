@@ -182,16 +182,13 @@ def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides
 def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -> Path:
     """Left: the grid's returns as an annotated heat map (patch size x l). Right: return
     against ``d_qk`` at the best cell."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from iap_mjx.viz.curves import save_png, subplots
 
     grid = np.full((len(PATCH_SIZES), len(TOP_LS)), np.nan)
     for row in rows:
         if row["d_qk"] == GRID_D_QK and row["finished"]:
             grid[PATCH_SIZES.index(row["patch_size"]), TOP_LS.index(row["top_l"])] = row["return"]
-    fig, (ax, bars) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (ax, bars) = subplots(1, 2, figsize=(10, 4))
     image = ax.imshow(grid, cmap="viridis", origin="lower")
     for i in range(len(PATCH_SIZES)):
         for j in range(len(TOP_LS)):
@@ -214,31 +211,20 @@ def plot(rows: list[dict[str, Any]], best: tuple[int, int] | None, path: Path) -
         bars.set_title("d_qk row: after the grid")
     bars.set_xlabel("query/key dimension d_qk")
     bars.set_ylabel("return")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def write_results(
     path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int, seed: int
 ) -> None:
     """The ``fig7`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import image_link, write_section
+    from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
-    command_line = " ".join(
-        [
-            "iap-mjx reproduce fig7",
-            *overrides,
-            f"--episodes {episodes}",
-            f"--out {png.parent}",
-            f"--results {path.name}",
-        ]
-    )
+    command_line = reproduce_command("fig7", [*overrides, f"--episodes {episodes}"], out=png.parent, results=path)
     image = image_link(png, path, "fig7")
     body = (
         f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
         f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "
         f"evaluation episodes in the training condition.\n\n![fig7]({image})\n\n{markdown}\n"
     )
-    write_section(path, "fig7", body, title="# Results")
+    write_results_section(path, "fig7", body)

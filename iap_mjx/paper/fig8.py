@@ -184,13 +184,10 @@ def wall_seconds(row: dict[str, Any]) -> np.ndarray:
 
 def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     """Evaluation return against wall-clock seconds: solid patch size 8, dashed patch size 2."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from iap_mjx.viz.curves import save_png, subplots
 
     colours = {"brute": "tab:red", "relu": "tab:green", "hybrid": "tab:blue"}
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = subplots(figsize=(7, 4))
     for row in rows:
         ax.plot(
             wall_seconds(row),
@@ -203,10 +200,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     ax.set_ylabel("evaluation return")
     ax.set_title("cartpole-swingup, static medium distractions")
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def table(rows: list[dict[str, Any]], timings: dict[str, Any]) -> str:
@@ -238,9 +232,9 @@ def table(rows: list[dict[str, Any]], timings: dict[str, Any]) -> str:
 
 def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], timings: dict[str, Any]) -> None:
     """The ``fig8`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import image_link, write_section
+    from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
-    command_line = " ".join(["iap-mjx reproduce fig8", *overrides, f"--out {png.parent}", f"--results {path.name}"])
+    command_line = reproduce_command("fig8", overrides, out=png.parent, results=path)
     image = image_link(png, path, "fig8")
     # the timings measured alone are the figure's x axis: kept beside it, tracked
     image_link(png.parent / TIMINGS_FILE, path, "fig8")
@@ -251,4 +245,4 @@ def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str,
         f"(`{TIMINGS_FILE}`; compile seconds with the {timings.get('compile', 'persistent compilation cache on')}); "
         f"the training runs' own timings are not used.\n\n![fig8]({image})\n\n{markdown}\n"
     )
-    write_section(path, "fig8", body, title="# Results")
+    write_results_section(path, "fig8", body)

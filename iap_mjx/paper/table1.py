@@ -34,7 +34,7 @@ from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.paper.evaluations import evaluate_conditions
-from iap_mjx.viz.sections import image_link, mean_std, write_section
+from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {
@@ -196,16 +196,9 @@ def write_results(
     """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
     curves."""
     name = "table1" + POLICIES[policy]
-    command = " ".join(
-        [
-            "iap-mjx reproduce table1",
-            *overrides,
-            f"--seeds {seeds}",
-            f"--episodes {episodes}",
-            *([f"--policy {policy}"] if policy != "iap" else []),
-            f"--out {png.parent}",
-            f"--results {path.name}",
-        ]
+    options = [*overrides, f"--seeds {seeds}", f"--episodes {episodes}"]
+    command = reproduce_command(
+        "table1", options + ([f"--policy {policy}"] if policy != "iap" else []), out=png.parent, results=path
     )
     image = image_link(png, path, name)
     if policy == "iap":
@@ -224,7 +217,7 @@ def write_results(
             "evaluation episodes per seed; mean ± std over seeds."
         )
     body = f"{title.format(command=command, episodes=episodes)}\n\n![{name}]({image})\n\n{markdown}\n"
-    write_section(path, name, body, title="# Results")
+    write_results_section(path, name, body)
 
 
 def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
@@ -302,13 +295,10 @@ def comparison(cnn: list[dict[str, Any]], iap: list[dict[str, Any]], *, seeds: i
 
 def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     """One panel per task: each seed's evaluation-return curve and the baselines as lines."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from iap_mjx.viz.curves import save_png, subplots
 
     tasks = [task for task in TASKS if any(row["task"] == task for row in rows)]
-    fig, axes = plt.subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.2), squeeze=False)
+    fig, axes = subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.2), squeeze=False)
     for ax, task in zip(axes[0], tasks):
         for row in rows:
             if row["task"] == task:
@@ -319,7 +309,4 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
         ax.set_xlabel("ES iteration")
     axes[0][0].set_ylabel("evaluation return (static medium)")
     axes[0][0].legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.viz.sections import image_link, write_section
+from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -213,12 +213,9 @@ def table(rows: list[dict[str, Any]], *, settings: int) -> str:
 
 def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     """Each setting's running maximum of the population's best return per ES iteration."""
-    import matplotlib
+    from iap_mjx.viz.curves import save_png, subplots
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = subplots(figsize=(7, 4))
     for row in rows:
         best = row["population_max"]
         ax.plot(
@@ -230,10 +227,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     ax.set_ylabel("max episode return so far (population)")
     ax.set_title("quadruped-walls-iap: patch size and stride")
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def write_results(
@@ -246,16 +240,8 @@ def write_results(
     overrides: tuple[str, ...],
 ) -> None:
     """The ``table2`` section of ``path``: the command, the table and the curves."""
-    command_line = " ".join(
-        [
-            "iap-mjx reproduce table2",
-            *overrides,
-            "--settings " + ",".join(f"{p}x{s}" for p, s in settings),
-            f"--seed {seed}",
-            f"--out {png.parent}",
-            f"--results {path.name}",
-        ]
-    )
+    options = [*overrides, "--settings " + ",".join(f"{p}x{s}" for p, s in settings), f"--seed {seed}"]
+    command_line = reproduce_command("table2", options, out=png.parent, results=path)
     body = (
         f"## Table 2: patch size and stride of the quadruped's IAP high level\n\nCommand: `{command_line}`. "
         f"One seed (seed {seed}) per setting, the same budget. Max episode return: the largest `return_max` "
@@ -263,4 +249,4 @@ def write_results(
         "beside it the largest `eval_return` (the centre's mean over its evaluation episodes). L: patches "
         f"on the course's camera.\n\n![table2]({image_link(png, path, 'table2')})\n\n{markdown}\n"
     )
-    write_section(path, "table2", body, title="# Results")
+    write_results_section(path, "table2", body)

@@ -14,16 +14,33 @@ import numpy as np
 logger = logging.getLogger(__name__)
 
 
-def plot_reward_curve(history: Iterable[dict[str, Any]], path: str | Path, *, title: str = "") -> Path:
-    """Population mean/min/max return and the centre's evaluation return per iteration -> PNG."""
+def subplots(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
+    """``matplotlib.pyplot.subplots`` on the Agg backend: every figure goes to a file, and no
+    screen is needed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt.subplots(*args, **kwargs)
+
+
+def save_png(fig: Any, path: str | Path, *, dpi: int = 100) -> Path:
+    """Lays ``fig`` out tightly, writes it to ``path`` and closes it; returns ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def plot_reward_curve(history: Iterable[dict[str, Any]], path: str | Path, *, title: str = "") -> Path:
+    """Population mean/min/max return and the centre's evaluation return per iteration -> PNG."""
     rows = list(history)
     iterations = [row["iteration"] for row in rows]
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = subplots(figsize=(7, 4))
     if rows and "return_mean" in rows[0]:
         ax.plot(iterations, [row["return_mean"] for row in rows], label="population mean")
         ax.fill_between(
@@ -47,10 +64,7 @@ def plot_reward_curve(history: Iterable[dict[str, Any]], path: str | Path, *, ti
     ax.set_ylabel("episode return")
     ax.set_title(title)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    path = save_png(fig, path, dpi=110)
     logger.info("wrote %s", path)
     return path
 

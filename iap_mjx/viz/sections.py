@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import shutil
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -43,3 +44,15 @@ def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmark
     pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
     text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
     path.write_text(text)
+
+
+def reproduce_command(figure: str, options: Iterable[str], *, out: Path, results: Path) -> str:
+    """The ``iap-mjx reproduce`` command line that rewrites a figure's RESULTS.md section:
+    ``options`` (overrides first, then the figure's own flags), then ``--out`` and ``--results``
+    (``results``' file name: the command runs beside it)."""
+    return " ".join([f"iap-mjx reproduce {figure}", *options, f"--out {out}", f"--results {Path(results).name}"])
+
+
+def write_results_section(path: Path, name: str, body: str) -> None:
+    """:func:`write_section` for RESULTS.md: a new file starts with ``# Results``."""
+    write_section(path, name, body, title="# Results")
