@@ -11,9 +11,11 @@ from __future__ import annotations
 import functools
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 logger = logging.getLogger(__name__)
 
@@ -70,3 +72,10 @@ def evaluate_conditions(
         )
         for name, condition in conditions.items()
     }
+
+
+def seed_means(rows: list[dict[str, Any]], entry: str, names: Iterable[str]) -> dict[str, list[float]]:
+    """Per ``name``, the mean of each finished run's ``row[entry][name]`` (its evaluation
+    episodes): one number per finished seed, in ``rows``' order."""
+    done = [row for row in rows if row["finished"]]
+    return {name: [float(np.mean(row[entry][name])) for row in done] for name in names}

@@ -39,7 +39,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.envs.quadruped import QuadrupedWalls
-from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, stored_evaluation
+from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -178,18 +178,16 @@ def summarise(rows: list[dict[str, Any]], parameters: int) -> dict[str, Any]:
     also with its eyes closed, ``"eyes_closed"``, the same seeds in the same order), how many
     finished, and the furthest run's iterations and env steps."""
     done = [row for row in rows if row["finished"]]
-    means = lambda entry: {  # noqa: E731
-        name: [float(np.mean(row[entry][name])) for row in done] for name in ("return", *STATISTICS)
-    }
+    names = ("return", *STATISTICS)
     summary = {
         "parameters": parameters,
         "finished": len(done),
         "iterations": max((row["iterations"] for row in rows), default=0),
         "env_steps": max((row["env_steps"] for row in rows), default=0),
-        **means("course"),
+        **seed_means(rows, "course", names),
     }
     if all("eyes_closed" in row for row in done):
-        summary["eyes_closed"] = means("eyes_closed")
+        summary["eyes_closed"] = seed_means(rows, "eyes_closed", names)
     return summary
 
 

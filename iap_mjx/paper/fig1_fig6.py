@@ -70,7 +70,7 @@ def reproduce(
     rows: list[dict[str, Any]] = []
     for label, config, preset in variants:
         runs = [trained_curve(config, seed, out_dir / f"{preset}-seed{seed}", train=train) for seed in range(seeds)]
-        trained = [run for run in runs if run is not None and run[0]]
+        trained = [run for run in runs if run is not None]
         if not trained:
             logger.info("%s: no runs in %s yet", label, out_dir)
             continue

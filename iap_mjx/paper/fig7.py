@@ -74,24 +74,13 @@ def cell_row(
     """One cell: its curve and (finished) its final centre's evaluation returns."""
     from iap_mjx.es import checkpoint
     from iap_mjx.paper.evaluations import evaluate_conditions
-    from iap_mjx.paper.runs import trained_curve
+    from iap_mjx.paper.runs import run_summary
 
     run_dir = out_dir / run_name(*cell, seed)
-    trained = trained_curve(config, seed, run_dir, train=train)
-    if trained is None or not trained[0]:
+    summary = run_summary(config, seed, run_dir, train=train)
+    if summary is None:
         return None
-    curve, seconds = trained
-    row = {
-        "patch_size": cell[0],
-        "top_l": cell[1],
-        "d_qk": cell[2],
-        "seed": seed,
-        "curve": curve,
-        "seconds": seconds,
-        "iterations": len(curve),
-        "finished": len(curve) == config.run.iterations,
-        "run": run_dir.name,
-    }
+    row = {"patch_size": cell[0], "top_l": cell[1], "d_qk": cell[2], **summary[0], "run": run_dir.name}
     if row["finished"]:
         step = checkpoint.latest_step(run_dir)
         row["returns"] = evaluate_conditions(run_dir, step, episodes=episodes, conditions=TRAIN_CONDITION)["train"]

@@ -152,7 +152,7 @@ def reproduce_fig8(
     rows = []
     for kernel, patch in VARIANTS:
         trained = trained_curve(checked[kernel, patch], 0, out_dir / f"{name(kernel, patch)}-seed0", train=train)
-        if trained is None or not trained[0]:
+        if trained is None:
             continue
         curve, seconds = trained
         timing = timings["variants"][name(kernel, patch)]

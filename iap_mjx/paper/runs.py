@@ -22,8 +22,8 @@ def trained_curve(
     Returns the centre's evaluation return at the start of iterations ``1..run.iterations``
     (a run directory trained further is cut there) and the seconds those iterations took:
     their run times summed over every session, plus the first session's compile. With
-    ``train=False`` nothing is trained: the run's rows up to its last checkpoint are read
-    (``None`` when it has none).
+    ``train=False`` nothing is trained: the run's rows up to its last checkpoint are read.
+    ``None`` while the run has no iteration to report (no checkpoint, or none of its rows).
     """
     from iap_mjx.es import checkpoint
     from iap_mjx.es.metrics_log import read_history
@@ -39,7 +39,9 @@ def trained_curve(
             return None
         history = read_history(run_dir, up_to=step)
     history = history[: config.run.iterations]
-    seconds = sum(row["run_s"] for row in history) + (history[0]["compile_s"] if history else 0.0)
+    if not history:
+        return None
+    seconds = sum(row["run_s"] for row in history) + history[0]["compile_s"]
     return [float(row["eval_return"]) for row in history], seconds
 
 
@@ -52,7 +54,7 @@ def run_summary(
     from iap_mjx.es.metrics_log import read_history
 
     trained = trained_curve(config, seed, run_dir, train=train)
-    if trained is None or not trained[0]:
+    if trained is None:
         return None
     curve, seconds = trained
     history = read_history(run_dir, up_to=len(curve))
@@ -61,7 +63,7 @@ def run_summary(
         "curve": curve,
         "seconds": seconds,
         "iterations": len(curve),
-        "env_steps": int(history[-1]["env_steps"]) if history else 0,
+        "env_steps": int(history[-1]["env_steps"]),
         "finished": len(curve) == config.run.iterations,
     }
     return row, history

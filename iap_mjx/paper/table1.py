@@ -33,7 +33,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
-from iap_mjx.paper.evaluations import evaluate_conditions
+from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -136,6 +136,18 @@ def run_row(
     return row
 
 
+def collect_rows(
+    task_configs: dict[str, configs.TrainConfig], seeds: int, out_dir: Path, **kwargs: Any
+) -> list[dict[str, Any]]:
+    """:func:`run_row` of every task and seed (task by task) that has a run; ``kwargs`` go to it."""
+    rows = []
+    for task, config in task_configs.items():
+        for seed in range(seeds):
+            if (row := run_row(task, config, seed, out_dir, **kwargs)) is not None:
+                rows.append(row)
+    return rows
+
+
 def reproduce_table1(
     out_dir: str | Path,
     *,
@@ -161,13 +173,7 @@ def reproduce_table1(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     export = None if export is None else Path(export)
-    rows = [
-        row
-        for task, config in task_configs.items()
-        for seed in range(seeds)
-        if (row := run_row(task, config, seed, out_dir, train=train, episodes=episodes, export=export, policy=policy))
-        is not None
-    ]
+    rows = collect_rows(task_configs, seeds, out_dir, train=train, episodes=episodes, export=export, policy=policy)
     if not rows:
         raise ValueError(f"no table1 {policy} runs in {out_dir} to report")
     name = "table1" + POLICIES[policy]
@@ -176,12 +182,7 @@ def reproduce_table1(
     if policy == "iap":
         markdown = table(rows, seeds=seeds)
     else:  # beside the IAP runs of the same tasks, read (and evaluated) but never trained here
-        iap = [
-            row
-            for task, config in check(tuple(tasks), tuple(overrides)).items()
-            for seed in range(seeds)
-            if (row := run_row(task, config, seed, out_dir, train=False, episodes=episodes)) is not None
-        ]
+        iap = collect_rows(check(tuple(tasks), tuple(overrides)), seeds, out_dir, train=False, episodes=episodes)
         markdown = comparison(rows, iap, seeds=seeds)
     if results is not None:
         write_results(
@@ -237,7 +238,7 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
         if not task_rows:
             continue
         done = [row for row in task_rows if row["finished"]]
-        per = {name: [float(np.mean(row["conditions"][name])) for row in done] for name in CONDITIONS}
+        per = seed_means(task_rows, "conditions", CONDITIONS)
         sac, qt = BASELINES.get(task, (None, None))
         if len(done) == seeds:
             means[task] = float(np.mean(per["train"]))
@@ -276,10 +277,7 @@ def comparison(cnn: list[dict[str, Any]], iap: list[dict[str, Any]], *, seeds: i
             continue
         theirs = [row for row in iap if row["task"] == task]
         per = {
-            policy: {
-                name: [float(np.mean(row["conditions"][name])) for row in task_rows if row["finished"]]
-                for name in CONDITIONS
-            }
+            policy: seed_means(task_rows, "conditions", CONDITIONS)
             for policy, task_rows in (("iap", theirs), ("cnn", ours))
         }
         counts = [f"{task_rows[0]['parameters']:,}" if task_rows else "-" for task_rows in (theirs, ours)]
