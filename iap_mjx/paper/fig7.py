@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -57,12 +58,12 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.Trai
         raise ValueError(f"fig7 sets the patch size, top_l and d_qk per cell; remove {', '.join(swept)}")
     cells = {}
     for p in PATCH_SIZES:
-        for l in TOP_LS:
+        for top_l in TOP_LS:
             for d in D_QKS:
-                config = configs.apply_overrides(configs.get(PRESET), (*overrides, *cell_overrides(p, l, d)))
+                config = configs.apply_overrides(configs.get(PRESET), (*overrides, *cell_overrides(p, top_l, d)))
                 if config.run.eval_episodes < 1:
                     raise ValueError("fig7 reads the evaluation return: run.eval_episodes must be >= 1")
-                cells[p, l, d] = config
+                cells[p, top_l, d] = config
     first = next(iter(cells.values()))
     envs.check(first.env.name, **dict(first.env.overrides))  # the cells share one env
     return cells
@@ -113,17 +114,16 @@ def reproduce_fig7(
     cells = check(tuple(overrides))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for p in PATCH_SIZES:
-        for l in TOP_LS:
-            row = cell_row((p, l, GRID_D_QK), cells[p, l, GRID_D_QK], seed, out_dir, train=train, episodes=episodes)
-            rows.append(row) if row is not None else None
+    grid = [(p, top_l, GRID_D_QK) for p in PATCH_SIZES for top_l in TOP_LS]
+    rows = [row for cell in grid if (row := cell_row(cell, cells[cell], seed, out_dir, train=train, episodes=episodes))]
     best = best_cell(rows)
-    if best is not None:
-        for d in D_QKS:
-            if d != GRID_D_QK:
-                row = cell_row((*best, d), cells[(*best, d)], seed, out_dir, train=train, episodes=episodes)
-                rows.append(row) if row is not None else None
+    if best is not None:  # the d_qk row at the grid's best cell, once the grid is finished
+        row_cells = [(*best, d) for d in D_QKS if d != GRID_D_QK]
+        rows += [
+            row
+            for cell in row_cells
+            if (row := cell_row(cell, cells[cell], seed, out_dir, train=train, episodes=episodes))
+        ]
     if not rows:
         raise ValueError(f"no fig7 runs in {out_dir} to report")
     (out_dir / "fig7.json").write_text(json.dumps({"best": best, "rows": rows}, indent=1))
@@ -149,11 +149,7 @@ def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides
     ]
     for row in rows:
         patches = (240 // row["patch_size"]) * (320 // row["patch_size"])
-        final = (
-            f"{row['return']:.1f} ± {np.std(row['returns']):.1f} ({len(row['returns'])})"
-            if row["finished"]
-            else "running"
-        )
+        final = f"{mean_std(row['returns'])} ({len(row['returns'])})" if row["finished"] else "running"
         lines.append(
             f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {patches:,} | {final} | "
             f"{max(row['curve']):.1f} | {row['iterations']} | {row['seconds']:.0f} | "
@@ -207,8 +203,6 @@ def write_results(
     path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int, seed: int
 ) -> None:
     """The ``fig7`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
-
     command_line = reproduce_command("fig7", [*overrides, f"--episodes {episodes}"], out=png.parent, results=path)
     image = image_link(png, path, "fig7")
     body = (
