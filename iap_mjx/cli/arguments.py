@@ -1,8 +1,10 @@
-"""Argument types shared by the commands: counts, indices and the patch settings of Table 2."""
+"""Argument types shared by the commands (counts, indices and the patch settings of Table 2),
+and how a command reports a bad setting."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def count(text: str) -> int:
@@ -39,3 +41,10 @@ def names(text: str) -> tuple[str, ...]:
     if not all(parts):
         raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of names, none empty")
     return parts
+
+
+def usage_error(error: Exception) -> int:
+    """Prints ``error: <message>`` to stderr and returns the exit status of a bad setting, 2 (as
+    argparse's own errors), so that a command fails before anything long starts."""
+    print(f"error: {error}", file=sys.stderr)
+    return 2

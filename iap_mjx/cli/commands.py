@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from iap_mjx.cli import arguments
+from iap_mjx.cli.arguments import usage_error
 
 
 def cmd_presets(args: argparse.Namespace) -> int:
@@ -53,8 +54,7 @@ def cmd_show(args: argparse.Namespace) -> int:
 
         parts = es.build(config)
     except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     env, policy = parts.env, parts.policy
     view = {
         "config": config.to_dict(),
@@ -91,16 +91,14 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         config = configs.apply_overrides(configs.get(args.preset), args.overrides)
     except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     if args.coordinator:
         from iap_mjx.es import distributed
 
         try:
             distributed.initialize(args.coordinator, args.num_processes, args.process_id)
         except ValueError as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
+            return usage_error(error)
     import jax
 
     from iap_mjx import es
@@ -114,8 +112,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         video_program = artifacts.compile_video_in_background(env, policy) if primary else None
         result = es.train(config, run_dir=run_dir, progress=not args.no_progress, env=env, policy=policy)
     except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     except KeyboardInterrupt:
         from iap_mjx.es import checkpoint
 
@@ -151,8 +148,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             args.run_dir, episodes=args.episodes, seed=args.seed, overrides=tuple(args.overrides)
         )
     except (FileNotFoundError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     returns = results.pop("return")
     print(
         json.dumps(
@@ -182,8 +178,7 @@ def cmd_attended(args: argparse.Namespace) -> int:
             result.env, result.policy, result.params, episodes=args.episodes, seed=args.seed, obs_stats=result.obs_stats
         )
     except (FileNotFoundError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     print(attended.markdown(counts))
     return 0
 
@@ -203,8 +198,7 @@ def cmd_video(args: argparse.Namespace) -> int:
         out = Path(args.out) if args.out else Path(args.run_dir) / "episode.mp4"
         path, episode_return = artifacts.write_video(result, out, seed=args.seed, steps=args.steps)
     except (FileNotFoundError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     print(json.dumps({"video": str(path), "return": episode_return}))
     return 0
 

@@ -14,6 +14,7 @@ import sys
 from typing import Any
 
 from iap_mjx.cli import arguments
+from iap_mjx.cli.arguments import usage_error
 
 
 def _fig1_or_fig6(args: argparse.Namespace) -> str:
@@ -106,8 +107,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     try:
         markdown = args.run_figure(args)
     except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return usage_error(error)
     except KeyboardInterrupt:
         # Every run saved a checkpoint of its last finished iteration; rerunning resumes them.
         print(

@@ -38,9 +38,8 @@ def stored_evaluation(run_dir: Path, key: str, episodes: int, evaluate: Callable
     """``run_dir/eval.json``'s entry ``key`` where it holds ``episodes`` episodes; otherwise
     ``evaluate()``'s (a JSON value of that form), stored under ``key`` first.
 
-    An entry with fewer episodes (stored by an ``evaluate_run`` that returned one device's share
-    of them) is evaluated again. The file is replaced whole, so a killed report never leaves it
-    cut short.
+    An entry with another number of episodes is evaluated again. The file is replaced whole, so
+    a killed report never leaves it cut short.
     """
     path = Path(run_dir) / EVAL_FILE
     stored = json.loads(path.read_text()) if path.exists() else {}

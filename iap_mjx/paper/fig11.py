@@ -24,7 +24,8 @@ on the same courses, so the seed-to-seed spread that the comparison with the bli
 carries does not enter it.
 
 Writes ``<out>/fig11.json`` and ``<out>/fig11.png`` and returns the markdown table with the
-issue's bars stated as lines.
+acceptance bars (:func:`bars`: IAP against the CNN, each seeing policy against the blind one)
+stated as lines.
 """
 
 from __future__ import annotations
@@ -192,7 +193,7 @@ def summarise(rows: list[dict[str, Any]], parameters: int) -> dict[str, Any]:
 
 
 def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
-    """The issue's bars as lines, decided once every seed of every policy is finished."""
+    """The acceptance bars as lines, decided once every seed of every policy is finished."""
     iap, cnn, blind = (summaries[label] for label in POLICIES)
     ratio = cnn["parameters"] / iap["parameters"]
     if any(summary["finished"] < seeds for summary in summaries.values()):

@@ -9,9 +9,9 @@ patch size 8 (``L = 1,200``), where brute force fits, and ReLU and hybrid also a
 
 Wall-clock is honest on a shared machine by construction: the curves' x axis is the
 iteration count times each method's steady-state seconds per iteration (plus its compile
-time, with the persistent compilation cache off), measured by :func:`measure` with every method timed in the same process, one after
-another, on a machine left alone (``timings.json``; the command says so and measures once,
-before any training, when the file is missing). Brute force at ``L = 19,200`` is not trained:
+time, with the persistent compilation cache off), measured by :func:`measure` with every
+method timed in the same process, one after another, on a machine left alone (``timings.json``;
+the command says so and measures once, before any training, when the file is missing). Brute force at ``L = 19,200`` is not trained:
 its cost per iteration is projected from the same run's timings, the hybrid ``p = 2``
 iteration plus the frames of an iteration times the difference of the two methods' measured
 time per forward pass.
@@ -135,8 +135,10 @@ def reproduce_fig8(
     results: str | Path | None = None,
     timing_iterations: int = 3,
 ) -> str:
-    """Measures the timings (once, when ``timings.json`` is missing), trains every variant
-    (``train=False``: only reads), writes ``fig8.json`` / ``fig8.png`` and returns the table."""
+    """Measures the timings (once, when ``timings.json`` is missing: ``timing_iterations`` ES
+    iterations of each variant), trains every variant (``train=False``: only reads), writes
+    ``fig8.json`` / ``fig8.png`` and returns the table; ``results``: a markdown file whose ``fig8``
+    section is rewritten with it."""
     from iap_mjx.paper.runs import trained_curve
 
     checked = check(tuple(overrides))
