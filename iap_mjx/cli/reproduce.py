@@ -120,6 +120,36 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+# the options that several figures share
+def _add_seeds(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seeds", type=arguments.count, default=3, help="training seeds per preset (default 3)")
+
+
+def _add_episodes(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--episodes", type=arguments.count, default=20, help=f"evaluation episodes {what} (default 20)")
+
+
+def _add_results(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--results", default=None, metavar="RESULTS.md", help="rewrite this markdown file's section")
+
+
+def _add_report_only(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="train nothing: report the runs already in --out, however far they got",
+    )
+
+
+def _add_export(parser: argparse.ArgumentParser, example: str) -> None:
+    parser.add_argument(
+        "--export",
+        default=None,
+        metavar="DIR",
+        help=f"copy each run's newest checkpoint, config and metrics to {example}, tracked by git",
+    )
+
+
 def add_commands(commands: Any) -> None:
     """Adds ``reproduce`` and its one subcommand per figure to the ``iap-mjx`` subparsers."""
     repro = commands.add_parser(
@@ -142,34 +172,6 @@ def add_commands(commands: Any) -> None:
         parser.set_defaults(func=cmd_reproduce, run_figure=function, command_parser=parser)
         return parser
 
-    def seeds(parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--seeds", type=arguments.count, default=3, help="training seeds per preset (default 3)")
-
-    def episodes(parser: argparse.ArgumentParser, what: str) -> None:
-        parser.add_argument(
-            "--episodes", type=arguments.count, default=20, help=f"evaluation episodes {what} (default 20)"
-        )
-
-    def results(parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--results", default=None, metavar="RESULTS.md", help="rewrite this markdown file's section"
-        )
-
-    def report_only(parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--report-only",
-            action="store_true",
-            help="train nothing: report the runs already in --out, however far they got",
-        )
-
-    def export(parser: argparse.ArgumentParser, example: str) -> None:
-        parser.add_argument(
-            "--export",
-            default=None,
-            metavar="DIR",
-            help=f"copy each run's newest checkpoint, config and metrics to {example}, tracked by git",
-        )
-
     for name in ("fig1", "fig6"):
         parser = figure(
             name,
@@ -177,9 +179,9 @@ def add_commands(commands: Any) -> None:
             "times one forward pass of every attention variant and trains each preset on --seeds seeds",
             _fig1_or_fig6,
         )
-        seeds(parser)
+        _add_seeds(parser)
         parser.add_argument("--passes", type=arguments.count, default=100, help="timed forward passes (default 100)")
-        report_only(parser)
+        _add_report_only(parser)
 
     parser = figure(
         "fig7",
@@ -188,9 +190,9 @@ def add_commands(commands: Any) -> None:
         "{5, 10, 20}, then d_qk {2, 4, 8} at the best cell",
         _fig7,
     )
-    episodes(parser, "per run, in the training condition")
-    results(parser)
-    report_only(parser)
+    _add_episodes(parser, "per run, in the training condition")
+    _add_results(parser)
+    _add_report_only(parser)
 
     parser = figure(
         "fig8",
@@ -199,8 +201,8 @@ def add_commands(commands: Any) -> None:
         "iteration measured first (leave the machine alone)",
         _fig8,
     )
-    results(parser)
-    report_only(parser)
+    _add_results(parser)
+    _add_report_only(parser)
 
     parser = figure(
         "table1",
@@ -210,8 +212,8 @@ def add_commands(commands: Any) -> None:
         "--policy cnn does the same for the convolutional baseline",
         _table1,
     )
-    seeds(parser)
-    episodes(parser, "per run and condition")
+    _add_seeds(parser)
+    _add_episodes(parser, "per run and condition")
     parser.add_argument(
         "--tasks", type=arguments.names, default=None, help="comma-separated suite tasks (default: all six)"
     )
@@ -222,9 +224,9 @@ def add_commands(commands: Any) -> None:
         help="iap (dcs-<task>) or cnn, the same-budget convolutional baseline (dcs-<task>-cnn), "
         "reported beside the IAP runs in --out",
     )
-    results(parser)
-    export(parser, "DIR/<task>-seed<k> (e.g. pretrained/dcs)")
-    report_only(parser)
+    _add_results(parser)
+    _add_export(parser, "DIR/<task>-seed<k> (e.g. pretrained/dcs)")
+    _add_report_only(parser)
 
     parser = figure(
         "fig11",
@@ -233,17 +235,17 @@ def add_commands(commands: Any) -> None:
         "run on --episodes courses not seen in training (walls passed, falls, wall contacts, distance)",
         _fig11,
     )
-    seeds(parser)
-    episodes(parser, "per run, each on a course not seen in training")
-    results(parser)
-    export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
+    _add_seeds(parser)
+    _add_episodes(parser, "per run, each on a course not seen in training")
+    _add_results(parser)
+    _add_export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
     parser.add_argument(
         "--section",
         default="fig11",
         help="the --results section and experiments/ folder to write (default fig11; e.g. fig11-turn for "
         "a second experiment beside the first)",
     )
-    report_only(parser)
+    _add_report_only(parser)
 
     parser = figure(
         "table2",
@@ -260,9 +262,9 @@ def add_commands(commands: Any) -> None:
         help="comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)",
     )
     parser.add_argument("--seed", type=arguments.index, default=0, help="the training seed (default 0)")
-    results(parser)
-    export(parser, "DIR/table2-p<p>-s<s>-seed<k> (e.g. pretrained/quadruped)")
-    report_only(parser)
+    _add_results(parser)
+    _add_export(parser, "DIR/table2-p<p>-s<s>-seed<k> (e.g. pretrained/quadruped)")
+    _add_report_only(parser)
 
     parser = figure(
         "fig10",
@@ -280,4 +282,4 @@ def add_commands(commands: Any) -> None:
         "OUT/table2-p1-s1-seed0,OUT/quadruped-walls-iap-seed0)",
     )
     parser.add_argument("--frames", type=arguments.count, default=6, help="frames per strip (default 6)")
-    results(parser)
+    _add_results(parser)
