@@ -1,6 +1,7 @@
 """The hierarchical quadruped policy: the countdown that holds the high level's command (under
 ``vmap``, against schedules worked out by hand), the duration's mapping, the blind control, the
-paper's CNN high level and its size, the factory's checks, and a low level from a file."""
+paper's CNN high level and its size, the factory's checks, a low level from a file, and the
+shipped turn run as that file."""
 
 from __future__ import annotations
 
@@ -286,3 +287,32 @@ def test_a_turn_trained_low_level_takes_its_command_from_the_latent():
         latent = jnp.array([command, 0.0, 0.0, 0.0], jnp.float32)
         action, _ = low.apply({"w": jnp.asarray(w), "b": jnp.asarray(b)}, state, {"phase": phase, "latent": latent})
         np.testing.assert_allclose(action, expected, atol=1e-6)
+
+
+def test_the_shipped_turn_run_is_the_shipped_low_level():
+    """``low_level_weights`` end to end on the shipped ``quadruped-turn-pmtg`` run: its
+    normalisation folded in and its command moved into the latent, the hierarchy's low level on
+    raw state ``s`` and latent ``(c, 0, 0, 0)`` acts as the trained policy on the normalised
+    ``[c, s]``; and ``pretrained/quadruped-turn/low-level-seed0.npz`` (Figure 11's
+    ``fig11-turn`` low level) is exactly what it gives."""
+    from pathlib import Path
+
+    from iap_mjx import es
+    from iap_mjx.policies.hierarchical import low_level_weights
+
+    shipped = Path(__file__).resolve().parent.parent / "pretrained" / "quadruped-turn"
+    turn = es.load_run(shipped / "quadruped-turn-pmtg-seed0")
+    stats = turn.obs_stats
+    w, b = low_level_weights(turn.policy, turn.params, stats, turn.config.env.name)
+    with np.load(shipped / "low-level-seed0.npz") as stored:
+        np.testing.assert_array_equal(stored["w"], w)
+        np.testing.assert_array_equal(stored["b"], b)
+    low = PMTGPolicy(17)
+    rng = np.random.default_rng(4)
+    for phase in (0.5, 2.0, 4.0):
+        raw = stats.mean + jnp.sqrt(stats.var) * jnp.asarray(rng.uniform(-3, 3, 18), jnp.float32)
+        state = {"phase": jnp.float32(phase), "latent": jnp.zeros(4)}
+        trained = turn.policy.outputs(turn.params, normalize(stats, raw), state)
+        latent = jnp.zeros(4).at[0].set(raw[0])
+        folded = low.outputs({"w": jnp.asarray(w), "b": jnp.asarray(b)}, raw[1:], {**state, "latent": latent})
+        np.testing.assert_allclose(folded, trained, rtol=1e-4, atol=1e-4)
