@@ -31,6 +31,10 @@ run reproduce fig8 run.iterations=30 --out "$OUT/fig8"
 echo "== $(date -u '+%F %T') experiments/fig11-tuning.sh"
 OUT="$OUT/fig11-tuning" NICE="$NICE" bash experiments/fig11-tuning.sh
 run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
+# the same three high levels from a low level that turns both ways on command (issue 24): the shipped
+# export of quadruped-turn-pmtg seed 0 (RESULTS.md, section quadruped-turn, says how it was made)
+run reproduce fig11 policy.low_level_init=pretrained/quadruped-turn/low-level-seed0.npz --seeds 3 \
+    --out "$OUT/fig11-turn" --export "$EXPORT/quadruped-turn" --section fig11-turn
 # Table 2's 4x4 setting is the preset's own run, Figure 11's seed 0: the same directory reuses it
 run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/fig11" --export "$EXPORT/quadruped"
 run reproduce fig10 --out "$OUT/fig11"
