@@ -6,6 +6,9 @@
 #
 #   bash experiments/reproduce-all.sh            # from the repository's root, in its venv
 #
+# On a new machine, `bash experiments/restore-runs.sh` first puts the exported runs (pretrained/)
+# back under OUT, so that the finished ones are skipped and the unfinished ones resume.
+#
 # Settings (environment variables):
 #   OUT      where the runs go (default results/; git ignores it)
 #   EXPORT   the tracked folder that receives trained checkpoints (default pretrained/)
