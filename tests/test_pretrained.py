@@ -33,3 +33,27 @@ def test_a_shipped_dcs_policy_loads_and_evaluates_for_a_few_steps():
         run, episodes=2, seed=0, overrides=("env.episode_length=5", "env.background_size=64", "env.background_frames=4")
     )
     assert returns.shape == (2,) and np.all(np.isfinite(returns)) and np.all(returns >= 0)
+
+
+def test_a_run_started_from_a_low_level_file_loads_from_any_folder(tmp_path, monkeypatch):
+    """A hierarchy trained from ``policy.low_level_init`` (a path relative to where it trained)
+    loads and takes an evaluation condition from another folder: its checkpoint, not the file,
+    holds its parameters."""
+    started = [
+        run
+        for run in RUNS
+        if "low_level_init" in dict(configs.TrainConfig.from_dict(checkpoint.load_config(run)).policy.options)
+    ]
+    assert started, "no shipped run started from a low level file"
+    monkeypatch.chdir(tmp_path)
+    result = es.load_run(started[0])
+    stored = checkpoint.load_config(started[0])
+    assert result.config.policy.options == tuple(
+        (name, value)
+        for name, value in configs.TrainConfig.from_dict(stored).policy.options
+        if name != "low_level_init"
+    )
+    assert int(result.state.iteration) == checkpoint.latest_step(started[0])
+    assert not np.allclose(result.params["low"]["w"], 0.0)
+    closed = es.in_condition(result, ["policy.blind=true"])
+    assert closed.policy.blind

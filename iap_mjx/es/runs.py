@@ -88,10 +88,20 @@ def result_from_state(parts: Components, state: TrainState, history, run_dir) ->
     )
 
 
+def trained_config(run_dir: str | Path) -> TrainConfig:
+    """A run directory's config as its checkpoint is loaded with: the stored one without the
+    policy's ``low_level_init``, the file its low level started from. The checkpoint holds the
+    trained parameters, and that path, relative to where the run trained, need not resolve
+    where the run is loaded (``iap-mjx eval`` from another folder, a copied run directory)."""
+    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    options = tuple((name, value) for name, value in config.policy.options if name != "low_level_init")
+    return dataclasses.replace(config, policy=dataclasses.replace(config.policy, options=options))
+
+
 def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> TrainResult:
     """A run's latest checkpoint as a :class:`TrainResult` (params, ``policy_fn``, config,
     history), without training. ``env``/``policy`` as in :func:`iap_mjx.es.train.train`."""
-    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    config = trained_config(run_dir)
     parts = build(config, env=env, policy=policy)
     state = restore_state(parts, run_dir, init_state(parts))
     return result_from_state(parts, state, read_history(run_dir), run_dir)
@@ -164,7 +174,7 @@ def evaluate_run_episodes(
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     check_condition(overrides)
-    config = apply_condition(TrainConfig.from_dict(checkpoint.load_config(run_dir)), overrides)
+    config = apply_condition(trained_config(run_dir), overrides)
     if env is None:
         from iap_mjx import envs
 
