@@ -32,6 +32,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, A
     selects patches of the camera (an IAP high level, eyes open), built and nothing compiled;
     ``ValueError`` naming the run otherwise."""
     from iap_mjx.es import checkpoint, make_env_and_policy
+    from iap_mjx.es.runs import trained_config
 
     if not run_dirs or len(set(run_dirs)) != len(run_dirs):
         raise ValueError(f"fig10 needs distinct run directories, got {[str(run_dir) for run_dir in run_dirs]}")
@@ -39,7 +40,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, A
     for run_dir in run_dirs:
         if checkpoint.latest_step(run_dir) is None:
             raise ValueError(f"{run_dir}: no checkpoint (train it first: iap-mjx reproduce table2)")
-        config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
+        config = trained_config(run_dir)  # as es.load_run reads it below
         env, policy = make_env_and_policy(config)
         if config.policy.kind != "hierarchical" or not hasattr(policy, "select"):
             raise ValueError(
