@@ -41,6 +41,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
+from iap_mjx.paper.runs import built_policies, check_evaluated, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -64,9 +65,8 @@ def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
     for label, preset in POLICIES.items():
         config = configs.apply_overrides(configs.get(preset), overrides)
         envs.check(config.env.name, **dict(config.env.overrides))
-        if config.run.eval_episodes < 1:
-            raise ValueError("fig11 reads the evaluation return: run.eval_episodes must be >= 1")
         checked[label] = config
+    check_evaluated("fig11", checked.values())
     return checked
 
 
@@ -100,7 +100,6 @@ def run_row(
     seeing policy's also with its eyes closed (``"eyes_closed"``); with ``export``, its newest
     checkpoint and files are copied to ``export/<preset>-seed<k>``."""
     from iap_mjx.es import checkpoint
-    from iap_mjx.paper.runs import run_summary
 
     name = f"{POLICIES[label]}-seed{seed}"
     summary = run_summary(config, seed, out_dir / name, train=train)
@@ -143,7 +142,6 @@ def reproduce_fig11(
     if not isinstance(section, str) or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", section):
         raise ValueError(f"section = {section!r} must be lower-case letters, digits and dashes, e.g. fig11-turn")
     from iap_mjx import policies
-    from iap_mjx.paper.runs import built_policies
 
     checked = check(tuple(overrides))
     parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}

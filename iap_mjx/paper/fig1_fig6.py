@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.paper.runs import inference_seconds, trained_curve
+from iap_mjx.paper.runs import check_evaluated, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
 
@@ -63,8 +63,7 @@ def reproduce(
     ]  # every config validated before any compile
     for _, config, _ in variants:
         envs.check(config.env.name, **dict(config.env.overrides))
-    if any(config.run.eval_episodes < 1 for _, config, _ in variants):
-        raise ValueError("reproduce reads the evaluation return: run.eval_episodes must be >= 1")
+    check_evaluated(figure, (config for _, config, _ in variants))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []

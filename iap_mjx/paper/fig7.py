@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.paper.runs import check_evaluated, check_not_swept, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -51,19 +52,20 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.Trai
     compiles; ``overrides`` may not set what the sweep varies."""
     from iap_mjx import envs
 
-    swept = [
-        item for item in overrides if item.split("=")[0].strip() in ("policy.patch_size", "policy.top_l", "policy.d_qk")
-    ]
-    if swept:
-        raise ValueError(f"fig7 sets the patch size, top_l and d_qk per cell; remove {', '.join(swept)}")
+    check_not_swept(
+        "fig7",
+        overrides,
+        ("policy.patch_size", "policy.top_l", "policy.d_qk"),
+        "the patch size, top_l and d_qk per cell",
+    )
     cells = {}
     for p in PATCH_SIZES:
         for top_l in TOP_LS:
             for d in D_QKS:
-                config = configs.apply_overrides(configs.get(PRESET), (*overrides, *cell_overrides(p, top_l, d)))
-                if config.run.eval_episodes < 1:
-                    raise ValueError("fig7 reads the evaluation return: run.eval_episodes must be >= 1")
-                cells[p, top_l, d] = config
+                cells[p, top_l, d] = configs.apply_overrides(
+                    configs.get(PRESET), (*overrides, *cell_overrides(p, top_l, d))
+                )
+    check_evaluated("fig7", cells.values())
     first = next(iter(cells.values()))
     envs.check(first.env.name, **dict(first.env.overrides))  # the cells share one env
     return cells
@@ -75,7 +77,6 @@ def cell_row(
     """One cell: its curve and (finished) its final centre's evaluation returns."""
     from iap_mjx.es import checkpoint
     from iap_mjx.paper.evaluations import evaluate_conditions
-    from iap_mjx.paper.runs import run_summary
 
     run_dir = out_dir / run_name(*cell, seed)
     summary = run_summary(config, seed, run_dir, train=train)

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs, runtime
+from iap_mjx.paper.runs import check_evaluated, check_not_swept, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
 
@@ -55,15 +56,13 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[str, int], configs.TrainConf
     before anything compiles; ``overrides`` may not set what the figure varies."""
     from iap_mjx import envs
 
-    swept = [item for item in overrides if item.split("=")[0].strip() in ("policy.kernel", "policy.patch_size")]
-    if swept:
-        raise ValueError(f"fig8 sets the kernel and patch size per curve; remove {', '.join(swept)}")
+    check_not_swept("fig8", overrides, ("policy.kernel", "policy.patch_size"), "the kernel and patch size per curve")
     result = {}
     for kernel, patch in (*VARIANTS, ("brute", 2)):
-        config = configs.apply_overrides(configs.get(PRESET), (*overrides, *variant_overrides(kernel, patch)))
-        if config.run.eval_episodes < 1:
-            raise ValueError("fig8 reads the evaluation return: run.eval_episodes must be >= 1")
-        result[kernel, patch] = config
+        result[kernel, patch] = configs.apply_overrides(
+            configs.get(PRESET), (*overrides, *variant_overrides(kernel, patch))
+        )
+    check_evaluated("fig8", result.values())
     first = next(iter(result.values()))
     envs.check(first.env.name, **dict(first.env.overrides))
     return result
@@ -99,8 +98,6 @@ def measure(
     """Every variant's seconds per iteration and compile seconds (each program compiled, none
     loaded from the persistent cache), then brute force's projected cost per iteration at
     ``p = 2`` from the forward passes of brute force and hybrid at ``p = 2``."""
-    from iap_mjx.paper.runs import inference_seconds
-
     if iterations < 2:
         raise ValueError(f"iterations = {iterations}: timing needs >= 2 (the first one compiles)")
     timings: dict[str, Any] = {
@@ -139,8 +136,6 @@ def reproduce_fig8(
     iterations of each variant), trains every variant (``train=False``: only reads), writes
     ``fig8.json`` / ``fig8.png`` and returns the table; ``results``: a markdown file whose ``fig8``
     section is rewritten with it."""
-    from iap_mjx.paper.runs import trained_curve
-
     checked = check(tuple(overrides))
     out_dir = Path(out_dir)
     path = out_dir / TIMINGS_FILE

@@ -1,16 +1,34 @@
-"""The training runs behind every figure and table: trained (or resumed) in their own run
-directory, read back as a report's row, and their policies built without compiling, so that a
-report is reproduced by running it again and a finished run is never trained twice; and the
-time of one policy forward pass, which Figures 1, 6 and 8 report beside the runs."""
+"""The training runs behind every figure and table: their configs checked before anything
+compiles, trained (or resumed) in their own run directory, read back as a report's row, and
+their policies built without compiling, so that a report is reproduced by running it again and
+a finished run is never trained twice; and the time of one policy forward pass, which Figures 1,
+6 and 8 report beside the runs."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from iap_mjx import configs
+
+
+def check_evaluated(report: str, checked: Iterable[configs.TrainConfig]) -> None:
+    """``ValueError`` unless every config evaluates its centre (``run.eval_episodes >= 1``):
+    ``report``'s curves and tables read the evaluation return."""
+    if any(config.run.eval_episodes < 1 for config in checked):
+        raise ValueError(f"{report} reads the evaluation return: run.eval_episodes must be >= 1")
+
+
+def check_not_swept(report: str, overrides: Iterable[str], swept: Iterable[str], what: str) -> None:
+    """``ValueError`` naming every override of a setting in ``swept`` (e.g. ``policy.patch_size``),
+    which ``report`` sets itself per run (``what``, e.g. "the kernel and patch size per curve")."""
+    swept = tuple(swept)
+    given = [item for item in overrides if item.split("=", 1)[0].strip() in swept]
+    if given:
+        raise ValueError(f"{report} sets {what}; remove {', '.join(given)}")
 
 
 def trained_curve(

@@ -34,6 +34,7 @@ from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
+from iap_mjx.paper.runs import check_evaluated, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -87,8 +88,7 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap
     result = {}
     for task in tasks:
         config = configs.apply_overrides(configs.get(preset(task, policy)), overrides)
-        if config.run.eval_episodes < 1:
-            raise ValueError("table1 reads the evaluation return: run.eval_episodes must be >= 1")
+        check_evaluated("table1", [config])
         for condition in CONDITIONS.values():
             probe = apply_condition(config, condition)
             envs.check(probe.env.name, **dict(probe.env.overrides))
@@ -120,7 +120,6 @@ def run_row(
     (finished runs) every condition's returns; with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     from iap_mjx.es import checkpoint
-    from iap_mjx.paper.runs import run_summary
 
     run_dir = out_dir / f"{preset(task, policy)}-seed{seed}"
     summary = run_summary(config, seed, run_dir, train=train)

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, run_summary
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -76,9 +77,7 @@ def check(
 
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed = {seed!r} must be an int >= 0")
-    swept = [item for item in overrides if item.split("=")[0].strip() in SWEPT]
-    if swept:
-        raise ValueError(f"table2 sets the patch size and stride per setting; remove {', '.join(swept)}")
+    check_not_swept("table2", overrides, SWEPT, "the patch size and stride per setting")
     settings = tuple(tuple(setting) for setting in settings)
     if (
         not settings
@@ -91,8 +90,7 @@ def check(
         raise ValueError(f"settings = {settings!r} must be distinct (patch size, stride) pairs of ints")
     base = configs.apply_overrides(configs.get(PRESET), overrides)
     camera = envs.check(base.env.name, **dict(base.env.overrides))
-    if base.run.eval_episodes < 1:
-        raise ValueError("table2 reads the evaluation return: run.eval_episodes must be >= 1")
+    check_evaluated("table2", [base])
     top_l = dict(base.policy.options).get("top_l", AttentionConfig.top_l)
     for patch_size, stride in settings:
         reason = fits(patch_size, stride, camera.height, camera.width, top_l)
@@ -139,7 +137,6 @@ def reproduce_table2(
     and metrics under its run directory's name, finished or not."""
     from iap_mjx import policies
     from iap_mjx.es import checkpoint
-    from iap_mjx.paper.runs import built_policies, run_summary
 
     checked = check(tuple(settings), tuple(overrides), seed)
     built = built_policies({setting: config for setting, (config, _, _) in checked.items()})
