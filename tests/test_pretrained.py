@@ -35,16 +35,22 @@ def test_a_shipped_dcs_policy_loads_and_evaluates_for_a_few_steps():
     assert returns.shape == (2,) and np.all(np.isfinite(returns)) and np.all(returns >= 0)
 
 
-def test_a_run_started_from_a_low_level_file_loads_from_any_folder(tmp_path, monkeypatch):
-    """A hierarchy trained from ``policy.low_level_init`` (a path relative to where it trained)
-    loads and takes an evaluation condition from another folder: its checkpoint, not the file,
-    holds its parameters."""
+def started_from_a_low_level_file() -> list[Path]:
+    """The shipped hierarchies trained from ``policy.low_level_init`` (a path relative to where
+    they trained)."""
     started = [
         run
         for run in RUNS
         if "low_level_init" in dict(configs.TrainConfig.from_dict(checkpoint.load_config(run)).policy.options)
     ]
     assert started, "no shipped run started from a low level file"
+    return started
+
+
+def test_a_run_started_from_a_low_level_file_loads_from_any_folder(tmp_path, monkeypatch):
+    """Such a run loads and takes an evaluation condition from another folder: its checkpoint,
+    not the file, holds its parameters."""
+    started = started_from_a_low_level_file()
     monkeypatch.chdir(tmp_path)
     result = es.load_run(started[0])
     stored = checkpoint.load_config(started[0])
@@ -57,3 +63,20 @@ def test_a_run_started_from_a_low_level_file_loads_from_any_folder(tmp_path, mon
     assert not np.allclose(result.params["low"]["w"], 0.0)
     closed = es.in_condition(result, ["policy.blind=true"])
     assert closed.policy.blind
+
+
+def test_show_prints_such_a_run_from_any_folder_with_its_stored_config(tmp_path, monkeypatch, capsys):
+    """``iap-mjx show RUN_DIR`` builds the run as it is loaded and prints the config it stored,
+    the file its low level started from included."""
+    import json
+
+    from iap_mjx import cli
+
+    run = started_from_a_low_level_file()[0]
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["show", str(run), "policy.blind=true"]) == 0
+    view = json.loads(capsys.readouterr().out)
+    stored = configs.TrainConfig.from_dict(checkpoint.load_config(run))
+    assert configs.TrainConfig.from_dict(view["config"]) == configs.apply_overrides(stored, ["policy.blind=true"])
+    assert view["policy"]["settings"]["blind"] is True
+    assert view["policy"]["parameters"] == sum(view["policy"]["parameters_per_level"].values())

@@ -47,12 +47,15 @@ def resolve_target(target: str, overrides: list[str]):
 
 def cmd_show(args: argparse.Namespace) -> int:
     """Prints the resolved config of a preset (or run directory) with overrides, and what it
-    builds: every env setting, the policy's settings and its number of parameters."""
+    builds: every env setting, the policy's settings and its number of parameters. A run
+    directory is built as its checkpoint is loaded (``es.runs.without_initialisation``: the file a
+    low level started from need not exist here), and its stored config is printed as it is."""
     try:
         config = resolve_target(args.target, args.overrides)
         from iap_mjx import es
+        from iap_mjx.es.runs import without_initialisation
 
-        parts = es.build(config)
+        parts = es.build(without_initialisation(config) if Path(args.target).is_dir() else config)
     except ValueError as error:
         return usage_error(error)
     env, policy = parts.env, parts.policy

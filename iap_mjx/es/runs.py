@@ -93,7 +93,12 @@ def trained_config(run_dir: str | Path) -> TrainConfig:
     policy's ``low_level_init``, the file its low level started from. The checkpoint holds the
     trained parameters, and that path, relative to where the run trained, need not resolve
     where the run is loaded (``iap-mjx eval`` from another folder, a copied run directory)."""
-    config = TrainConfig.from_dict(checkpoint.load_config(run_dir))
+    return without_initialisation(TrainConfig.from_dict(checkpoint.load_config(run_dir)))
+
+
+def without_initialisation(config: TrainConfig) -> TrainConfig:
+    """``config`` without the options that only say where training started (the policy's
+    ``low_level_init``), as :func:`trained_config` builds a run."""
     options = tuple((name, value) for name, value in config.policy.options if name != "low_level_init")
     return dataclasses.replace(config, policy=dataclasses.replace(config.policy, options=options))
 
