@@ -104,7 +104,7 @@ def test_metrics_files_and_policy_fn(tmp_path):
     assert any((tmp_path / "tensorboard").iterdir())
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["3", "6"]
     obs = jnp.ones(6)
-    action, state = result.policy_fn(result.params, obs)
+    action, state = result.policy_fn(result.params, obs, result.initial_policy_state(jax.random.PRNGKey(0)))
     assert action.shape == (2,) and state == ()
     returns = evaluate_run(tmp_path, episodes=5, env=env)
     assert returns.shape == (5,) and np.all(np.isfinite(returns))

@@ -63,6 +63,16 @@ def test_a_run_started_from_a_low_level_file_loads_from_any_folder(tmp_path, mon
     assert not np.allclose(result.params["low"]["w"], 0.0)
     closed = es.in_condition(result, ["policy.blind=true"])
     assert closed.policy.blind
+    # one step of its policy function from an episode's initial state (the held command)
+    import jax
+
+    key = jax.random.PRNGKey(0)
+    obs = jax.tree_util.tree_map(
+        lambda leaf: np.zeros(leaf.shape, leaf.dtype), jax.eval_shape(result.env.reset, key).obs
+    )
+    action, state = result.policy_fn(result.params, obs, result.initial_policy_state(key))
+    assert action.shape == (result.env.action_size,) and np.all(np.isfinite(action))
+    assert jax.tree_util.tree_structure(state) == jax.tree_util.tree_structure(result.initial_policy_state(key))
 
 
 def test_show_prints_such_a_run_from_any_folder_with_its_stored_config(tmp_path, monkeypatch, capsys):

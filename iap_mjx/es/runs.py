@@ -36,9 +36,11 @@ class TrainResult:
       params: the centre's policy params (a pytree), the ones to ship.
       obs_stats: observation statistics the policy was trained with (``None`` if unused).
       history: one dict per iteration (the columns of ``metrics.csv``).
-      policy_fn: jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one
-        unbatched observation, with the run's observation normalisation applied.
-      initial_policy_state: ``key -> policy_state`` for one episode.
+      policy_fn: jitted ``(params, obs, policy_state) -> (action, policy_state)`` for one
+        unbatched observation, with the run's observation normalisation applied; an episode
+        starts from ``initial_policy_state(key)``.
+      initial_policy_state: ``key -> policy_state`` for one episode (``()`` for a stateless
+        policy; an LSTM's carry, a hierarchy's held command).
       config: the config trained.
       run_dir: where metrics and checkpoints went (``None`` if nowhere).
       state: the final ``TrainState``.
@@ -59,11 +61,11 @@ class TrainResult:
 
 
 def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
-    """Jitted ``(params, obs, policy_state=()) -> (action, policy_state)`` for one step."""
+    """Jitted ``(params, obs, policy_state) -> (action, policy_state)`` for one step."""
     policy = parts.policy
 
     @jax.jit
-    def policy_fn(params, obs, policy_state=()):
+    def policy_fn(params, obs, policy_state):
         return policy.apply(params, observe(obs_stats, obs), policy_state)
 
     return policy_fn
