@@ -1,6 +1,7 @@
 """The host-side pieces of ``train`` that its end-to-end tests (``test_es_train.py``) exercise
 only in passing: the sigma schedules' ends, the parameter count's wording, each iteration's
-metrics row, and when a run checkpoints or stops. No program is compiled."""
+metrics row, when a run checkpoints or stops, and a checkpoint restored into a state of
+other shapes. No program is compiled."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from iap_mjx.configs import ESConfig, RunConfig
+from iap_mjx.es import checkpoint
 from iap_mjx.es.bookkeeping import checkpoint_due, metric_rows, past_time_limit
 from iap_mjx.es.components import describe_parameters, make_sigma
 
@@ -58,3 +60,28 @@ def test_the_time_limit_counts_from_the_start_and_zero_means_none():
     assert not past_time_limit(RunConfig(max_minutes=0), now - 1e6)
     assert not past_time_limit(RunConfig(max_minutes=1), now)
     assert past_time_limit(RunConfig(max_minutes=1), now - 61)
+
+
+def test_a_checkpoint_restored_into_other_shapes_names_the_leaf_and_both_shapes(tmp_path):
+    from flax import struct
+
+    @struct.dataclass
+    class State:
+        iteration: np.ndarray
+        strategy_state: dict
+
+    saved = State(iteration=np.array(3), strategy_state={"mean": np.arange(5.0), "step": np.array(1)})
+    checkpoint.save(tmp_path, 3, saved, {"a": 1})
+    assert checkpoint.stored_shapes(tmp_path, 3) == {
+        "iteration": (),
+        "strategy_state.mean": (5,),
+        "strategy_state.step": (),
+    }
+    step, restored = checkpoint.restore(tmp_path, saved)  # the same shapes restore
+    assert step == 3 and np.array_equal(restored.strategy_state["mean"], np.arange(5.0))
+    grown = State(iteration=np.array(0), strategy_state={"mean": np.zeros(6), "step": np.array(0)})
+    with pytest.raises(
+        ValueError,
+        match=r"^checkpoint 3 in .* does not fit the run as built: strategy_state.mean \(5,\) stored, \(6,\) built \(",
+    ):
+        checkpoint.restore(tmp_path, grown)

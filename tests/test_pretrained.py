@@ -90,3 +90,14 @@ def test_show_prints_such_a_run_from_any_folder_with_its_stored_config(tmp_path,
     assert configs.TrainConfig.from_dict(view["config"]) == configs.apply_overrides(stored, ["policy.blind=true"])
     assert view["policy"]["settings"]["blind"] is True
     assert view["policy"]["parameters"] == sum(view["policy"]["parameters_per_level"].values())
+
+
+def test_eval_in_a_condition_that_resizes_the_policy_names_the_sizes_and_the_setting(capsys):
+    """A CNN's parameters depend on the frame's size: evaluated on a taller frame, the shipped
+    run fails before anything compiles, saying which sizes differ and which setting did it."""
+    from iap_mjx import cli
+
+    run = PRETRAINED / "quadruped" / "quadruped-walls-cnn-seed0"
+    assert cli.main(["eval", str(run), "env.height=48", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "strategy_state.mean (7269,) stored, (10341,) built" in err and "env.height=48" in err

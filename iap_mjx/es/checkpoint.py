@@ -80,8 +80,46 @@ def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[in
         if step is None:
             raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
         abstract = jax.tree_util.tree_map(np.asarray, to_host(like))
+        _check_shapes(run_dir, step, abstract)
         restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
         return step, restored["state"]
+
+
+def _leaf_name(path: tuple[Any, ...]) -> str:
+    """``strategy_state.mean``-style name of a pytree path, the same for a dataclass's field and
+    the dict key orbax stores it under."""
+    parts = (getattr(entry, "name", getattr(entry, "key", getattr(entry, "idx", entry))) for entry in path)
+    return ".".join(str(part) for part in parts)
+
+
+def stored_shapes(run_dir: str | Path, step: int) -> dict[str, tuple[int, ...]]:
+    """``{leaf name: shape}`` of checkpoint ``step``'s state, read from its metadata (no array
+    is loaded)."""
+    options = ocp.CheckpointManagerOptions(create=False, enable_async_checkpointing=False)
+    handlers = {"state": ocp.StandardCheckpointHandler()}
+    with ocp.CheckpointManager(
+        Path(run_dir).resolve() / CHECKPOINT_DIR, options=options, item_handlers=handlers
+    ) as manager:
+        metadata = manager.item_metadata(step)["state"]
+    return {_leaf_name(path): tuple(leaf.shape) for path, leaf in jax.tree_util.tree_leaves_with_path(metadata)}
+
+
+def _check_shapes(run_dir: str | Path, step: int, like: Any) -> None:
+    """``ValueError`` naming every leaf whose stored shape is not ``like``'s: a checkpoint
+    restored into a run built with other settings (a policy of another size, a frame another
+    policy input) fails here with the sizes, not inside orbax."""
+    stored = stored_shapes(run_dir, step)
+    wrong = [
+        f"{name} {stored[name]} stored, {np.shape(leaf)} built"
+        for name, leaf in ((_leaf_name(path), leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(like))
+        if name in stored and stored[name] != np.shape(leaf)
+    ]
+    if wrong:
+        more = f" and {len(wrong) - 1} more" if len(wrong) > 1 else ""
+        raise ValueError(
+            f"checkpoint {step} in {run_dir} does not fit the run as built: {wrong[0]}{more} (a setting "
+            "that sizes the policy or what it sees is not the one the run trained with)"
+        )
 
 
 #: What :func:`export_latest` copies besides the checkpoint: what a person or a resumed run reads.

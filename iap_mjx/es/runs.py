@@ -188,7 +188,15 @@ def evaluate_run_episodes(
         envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here
     config = dataclasses.replace(config, run=dataclasses.replace(config.run, eval_episodes=episodes))
     parts = build(config, env=env, policy=policy)
-    state = restore_state(parts, run_dir, init_state(parts))
+    try:
+        state = restore_state(parts, run_dir, init_state(parts))
+    except ValueError as error:
+        if not overrides:
+            raise
+        raise ValueError(
+            f"{error}; here the condition {' '.join(overrides)}: keep the env settings that shape what "
+            "the policy sees (env.height, env.width, env.obs_mode) as trained"
+        ) from None
     state = state.replace(key=jax.random.PRNGKey(seed))
     # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
