@@ -33,16 +33,24 @@ def test_nan_fitness_ranks_and_scores_lowest():
 
 
 def test_each_shaping_name_gives_the_shaping_it_names():
-    """``es.shaping``'s names live in ``configs.training``; ``es`` builds its table from them
-    by position, so a reordered list would hand a name another function: each is checked by
-    what it computes (ranks in [-0.5, 0.5], zero mean and unit std, the raw values)."""
-    assert tuple(SHAPINGS) == training.SHAPINGS
+    """``es.shaping``'s names live in ``configs.training``; ``es`` keys its table by them, and a
+    name paired with the wrong function would still run: each is checked by what it computes
+    (ranks in [-0.5, 0.5], zero mean and unit std, the raw values)."""
+    assert set(SHAPINGS) == set(training.SHAPINGS)
     fitness = jnp.array([3.0, 1.0, 2.0])
     np.testing.assert_allclose(SHAPINGS["centred_rank"](fitness), [0.5, -0.5, 0.0])
     np.testing.assert_allclose(
         SHAPINGS["z_score"](fitness), (np.array([3.0, 1.0, 2.0]) - 2.0) / np.sqrt(2 / 3), rtol=1e-6
     )
     np.testing.assert_array_equal(SHAPINGS["identity"](fitness), fitness)
+
+
+def test_a_table_for_the_config_names_must_hold_each_name_once():
+    table = {"a": 1, "b": 2}
+    assert training.one_per_name(("b", "a"), table) is table
+    for names in (("a",), ("a", "b", "c")):
+        with pytest.raises(ImportError, match="holds"):
+            training.one_per_name(names, table)
 
 
 def test_each_optimizer_name_gives_the_optimizer_it_names():

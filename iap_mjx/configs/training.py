@@ -20,6 +20,14 @@ SIGMA_SCHEDULES = ("constant", "linear", "exponential")
 OPEN_ES = "open_es"
 
 
+def one_per_name(names: tuple[str, ...], table: dict[str, Any]) -> dict[str, Any]:
+    """``table`` (name -> what ``iap_mjx.es`` builds for it), checked to hold exactly
+    ``names``: a name added here without its entry there fails at import, not in a run."""
+    if set(table) != set(names):
+        raise ImportError(f"a table for the names {names} holds {tuple(table)}")
+    return table
+
+
 def _fail(owner: str, field: str, value: Any, why: str) -> None:
     raise ValueError(f"{owner}.{field} = {value!r}: {why}")
 

@@ -21,7 +21,7 @@ from flax import struct
 from jax.flatten_util import ravel_pytree
 from jax.sharding import NamedSharding, PartitionSpec
 
-from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig
+from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig, one_per_name
 from iap_mjx.es.episode import EpisodeResult
 from iap_mjx.es.normalizer import ObsStats, init_stats
 from iap_mjx.es.rollout import make_evaluator, make_mesh, padded_share
@@ -85,12 +85,16 @@ def make_sigma(es: ESConfig, iterations: int) -> float | Callable[[jax.Array], j
     return es.sigma
 
 
-_OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = dict(
-    zip(OPTIMIZERS, (optax.adam, optax.sgd, lambda learning_rate: optax.sgd(learning_rate, momentum=0.9)), strict=True)
+_OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = one_per_name(
+    OPTIMIZERS,
+    {
+        "adam": optax.adam,
+        "sgd": optax.sgd,
+        "momentum": lambda learning_rate: optax.sgd(learning_rate, momentum=0.9),
+    },
 )
-"""The optax optimizer of each ``ESConfig.optimizer`` name given its learning rate, listed in
-the order of ``configs.training.OPTIMIZERS`` (the names' one home): a name without an optimizer
-fails at import."""
+"""The optax optimizer of each ``ESConfig.optimizer`` name given its learning rate (the names'
+one home: ``configs.training.OPTIMIZERS``)."""
 
 
 def make_optimizer(es: ESConfig) -> optax.GradientTransformation:

@@ -1,6 +1,7 @@
 """Fitness shaping: raw returns ``(P,)`` -> weights ``(P,)`` for the gradient estimate.
 
-We maximise; a NaN fitness (a diverged episode) is ranked below every finite one.
+We maximise. A NaN fitness (a diverged episode) counts as the worst: centred ranks put it
+below every finite one, z-scores and the identity give it the lowest finite member's value.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.configs.training import SHAPINGS as SHAPING_NAMES
+from iap_mjx.configs.training import one_per_name
 
 ShapingFn = Callable[[jax.Array], jax.Array]
 
@@ -47,6 +49,8 @@ def identity(fitness: jax.Array) -> jax.Array:
     return jnp.where(finite, fitness, jnp.min(jnp.where(finite, fitness, jnp.inf)))
 
 
-SHAPINGS: dict[str, ShapingFn] = dict(zip(SHAPING_NAMES, (centred_ranks, z_scores, identity), strict=True))
-"""The function of each ``ESConfig.shaping`` name, listed in the order of
-``configs.training.SHAPINGS`` (the names' one home): a name without a function fails at import."""
+SHAPINGS: dict[str, ShapingFn] = one_per_name(
+    SHAPING_NAMES, {"centred_rank": centred_ranks, "z_score": z_scores, "identity": identity}
+)
+"""The function of each ``ESConfig.shaping`` name (the names' one home:
+``configs.training.SHAPINGS``)."""

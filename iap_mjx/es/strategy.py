@@ -177,7 +177,8 @@ class EvosaxStrategy:
         return self._algo.ask(key, state, self._params)
 
     def tell(self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: Any) -> Any:
-        # A NaN fitness becomes the worst; evosax minimises, so negate.
+        # A NaN fitness ranks below the worst finite one (as centred ranks put it); evosax
+        # minimises, so negate.
         finite = jnp.isfinite(fitness)
         worst = jnp.min(jnp.where(finite, fitness, jnp.inf))
         loss = -jnp.where(finite, fitness, worst - 1.0)
