@@ -8,7 +8,9 @@ sample budget), each an ``env.step`` call, one action: a dm_control task with ac
 Control Suite count those (``iap_mjx.paper.table1.control_steps``); ``return_*`` are over the
 population's fitness (mean return per member);
 ``eval_return``/``eval_return_std`` over the centre's evaluation episodes at the start of the
-iteration; ``parameters`` is the policy's number of trainable scalars (the same in every row);
+iteration; ``parameters`` is the policy's number of trainable scalars (the same in every row),
+``params_norm`` the L2 norm of the centre's and ``sigma`` OpenES's noise scale at the iteration
+(empty for an evosax strategy);
 ``nan_episodes`` counts episodes that met a bad state; ``contact_saturated_episodes``
 counts population episodes that filled every MJX contact slot at some step (a contact may have
 been dropped: raise ``env.max_contacts`` if it is not 0); ``env_steps_per_s`` counts

@@ -1,4 +1,5 @@
-"""The IAP pixel policy: attention + controller (and its brute-force twin).
+"""The IAP pixel policy: attention + controller (``kernel="brute"`` gives the brute-force
+softmax baseline with the same controller).
 
 IAP policy (paper section 3): the attention layer scores every patch of the image, keeps the
 top ``l``, and the controller sees their centres (``2l`` numbers, optionally the patches'

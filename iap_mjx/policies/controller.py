@@ -43,7 +43,8 @@ class Controller:
         check_choice(self.owner, "controller", self.kind, CONTROLLERS)
         check_choice(self.owner, "activation", self.activation, ACTIVATIONS)
         check_sizes(self.owner, "hidden_sizes", self.hidden_sizes, non_empty=self.kind == "lstm")
-        check_positive(self.owner, "action_size", self.output_size)
+        check_positive(self.owner, "input_size", self.input_size)
+        check_positive(self.owner, "output_size", self.output_size)
 
     def init(self, key: jax.Array) -> Any:
         """Linear/MLP: a list of dense layers. LSTM: ``{"cell": {"w": (n_in + h, 4h), "b":

@@ -9,7 +9,7 @@
   ``cheetah-run-pixels-cnn``).
 
 :class:`ConvNet` is three convolutions of small filters, a pooling layer, a fully connected
-``tanh`` layer, and an output clipped to ``[-1, 1]``. The extraction lost the sizes; ours (its
+``tanh`` layer, and an output clipped to ``[-1, 1]``. The paper's text gives no sizes; ours (its
 defaults) on the course's 24x32 RGB camera: 3x3 filters with 8, 16 and 16 channels at strides
 2, 2 and 1 ("SAME" padding, ReLU), so 24x32 -> 12x16x8 -> 6x8x16 -> 6x8x16; a 2x2 max pool ->
 3x4x16 = 192 numbers; a 16-unit ``tanh`` layer; a linear output clipped to ``[-1, 1]``. The

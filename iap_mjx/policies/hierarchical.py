@@ -22,8 +22,8 @@ Per control step, on ``"pixels+state"`` observations ``{"pixels": (H, W, 3), "st
 - The **low level**, :class:`~iap_mjx.policies.pmtg.PMTGPolicy`, runs every control step on the
   held latent, the 17-d state (IMU and joint angles) and its TG phase.
 
-``duration_range`` defaults to ``(10, 50)`` control steps, 0.2 s to 1 s (ours: the paper's range
-was lost). 0.2 s is half a period of the 2.5 Hz trot the low level starts from, one step of a
+``duration_range`` defaults to ``(10, 50)`` control steps, 0.2 s to 1 s (ours: the paper's text
+gives no range). 0.2 s is half a period of the 2.5 Hz trot the low level starts from, one step of a
 leg pair: a command held for less cannot change the gait's course before the next replaces
 it. 1 s walks about 0.8 m at that trot, less than half the 1.9 m that at least separate two
 walls, so one command cannot carry the robot from the sight of a wall past it unseen.
@@ -33,8 +33,7 @@ of its parameters, the latent and duration it settles on): the control that tell
 other policies use their eyes.
 
 ES trains both levels together, one flat parameter vector (``{"high": ..., "low": ...}``). The
-low level starts at the PMTG policy's ``initial_tg`` (a trot that walks about 0.8 m/s with no
-residuals), or, with ``low_level_init`` (an ``.npz`` of ``w`` and ``b``, e.g. a trained
+low level starts at the PMTG policy's ``initial_tg`` (a trot that walks with no residuals), or, with ``low_level_init`` (an ``.npz`` of ``w`` and ``b``, e.g. a trained
 ``quadruped-flat-pmtg`` run's, :func:`fold_normalisation`), from those weights; the presets
 start from ``initial_tg``.
 """

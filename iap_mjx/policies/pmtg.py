@@ -41,8 +41,6 @@ import numpy as np
 from iap_mjx.policies.base import check_choice, check_options, check_positive, constructor_options
 from iap_mjx.robots import a1
 
-TWO_PI = 2.0 * math.pi
-
 #: Phase offsets (fractions of a period) per leg in the PyBullet code's order FL, RL, FR, RR.
 GAITS_FL_RL_FR_RR = {
     "walk": (0.0, 0.25, 0.5, 0.75),
@@ -242,11 +240,13 @@ class PMTGPolicy:
       tg: the trajectory generator's settings.
       initial_tg: the TG's ``(frequency Hz, intensity, height, ratio)`` that the initial
         params give (through the output bias; all weights zero, no residuals): where ES
-        starts. The default is a trot measured to walk about 0.8 m/s on ``quadruped-flat``
-        with no residuals (``benchmarks/quadruped_tg.py``); ``None``: all-zero params, the
-        TG's mid-range (1.5 Hz, 0.4, 0.225, 1: about 0.26 m/s). The speed grows towards the
-        high frequency and low height bounds, which ``tanh`` outputs reach only with large
-        weights, so ES from the mid-range spends most of its iterations travelling there.
+        starts. The default is a trot from ``benchmarks/quadruped_tg.py``'s grid on
+        ``quadruped-flat`` with no residuals, an interior point (not the range's corner, which
+        ``tanh`` reaches only with large weights) that already walks; ``None``: all-zero
+        params, the TG's mid-range (1.5 Hz, 0.4, 0.225, 1), about a third as fast (both
+        speeds: RESULTS.md, section ``quadruped-walking``). The speed grows towards the high frequency and low height
+        bounds, which ``tanh`` outputs reach only with large weights, so ES from the
+        mid-range spends most of its iterations travelling there.
     """
 
     obs_size: int
