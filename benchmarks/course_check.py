@@ -84,7 +84,7 @@ def run(config: configs.TrainConfig, params, obs_stats, episodes: int, seed: int
     flat, _ = ravel_pytree(params)
     population = np.broadcast_to(np.asarray(flat), (episodes, flat.shape[0]))
     keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
-    result = jax.jit(parts.evaluate)(population, keys, obs_stats)
+    result = jax.jit(parts.rollout)(population, keys, obs_stats)
     host = jax.tree_util.tree_map(np.asarray, result)
     return {"return": host.ret, "steps": host.steps, "saturated": host.saturated, **host.metrics}, parts.env
 

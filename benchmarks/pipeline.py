@@ -106,7 +106,7 @@ def work_stage(job: dict) -> dict:
     from jax.flatten_util import ravel_pytree
 
     from iap_mjx import configs, envs, policies
-    from iap_mjx.es.rollout import make_evaluator, make_mesh
+    from iap_mjx.es.rollout import make_mesh, make_rollout
 
     config = configs.apply_overrides(configs.get(job["preset"]), job["overrides"])
     options = dict(config.env.overrides)
@@ -126,9 +126,9 @@ def work_stage(job: dict) -> dict:
     n = config.es.population_size
     population = flat + 0.05 * jax.random.normal(jax.random.PRNGKey(1), (n, flat.shape[0]))
     keys = jax.random.split(jax.random.PRNGKey(2), n)
-    evaluate = make_evaluator(env, policy, unravel, make_mesh(config.run.num_devices), config.run.chunk_size, False)
+    rollout = make_rollout(env, policy, unravel, make_mesh(config.run.num_devices), config.run.chunk_size, False)
     compile_s, seconds, _ = report.compile_and_time(
-        lambda f, k: evaluate(f, k, None), population, keys, repeats=3, min_seconds=1.0
+        lambda f, k: rollout(f, k, None), population, keys, repeats=3, min_seconds=1.0
     )
     return {"compile_s": compile_s, "frames_per_s": n * env.episode_length / seconds}
 

@@ -15,6 +15,11 @@ import jax
 import jax.numpy as jnp
 
 
+def ceil_div(a: int, b: int) -> int:
+    """``ceil(a / b)`` for positive ints, exactly (no float)."""
+    return -(-a // b)
+
+
 def map_chunks(fn: Callable[[Any], Any], args: Any, chunk: int, axis_size: int) -> Any:
     """``fn`` over consecutive chunks of ``chunk`` rows of ``args``, concatenated.
 

@@ -13,7 +13,7 @@ from jax.flatten_util import ravel_pytree
 from iap_mjx.envs.base import State
 from iap_mjx.es.episode import run_episode
 from iap_mjx.es.normalizer import init_stats
-from iap_mjx.es.rollout import make_evaluator, make_mesh
+from iap_mjx.es.rollout import make_mesh, make_rollout
 from iap_mjx.policies import LinearPolicy, MLPPolicy
 
 
@@ -146,8 +146,8 @@ def test_chunked_sharded_evaluator_matches_single_episodes():
     population = flat + 0.3 * jax.random.normal(jax.random.PRNGKey(1), (n, flat.shape[0]))
     keys = jax.random.split(jax.random.PRNGKey(2), n)
     stats = init_stats(6)
-    evaluate = make_evaluator(env, policy, unravel, make_mesh(2), chunk_size=3, track_obs=True)
-    result = jax.jit(evaluate)(population, keys, stats)
+    rollout = make_rollout(env, policy, unravel, make_mesh(2), chunk_size=3, track_obs=True)
+    result = jax.jit(rollout)(population, keys, stats)
     for i in range(n):
         one = run_episode(env, policy, unravel(population[i]), keys[i], stats, True)
         np.testing.assert_allclose(result.ret[i], one.ret, rtol=1e-5, atol=1e-6)

@@ -24,7 +24,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig, one_per_name
 from iap_mjx.es.episode import EpisodeResult
 from iap_mjx.es.normalizer import ObsStats, init_stats
-from iap_mjx.es.rollout import make_evaluator, make_mesh, padded_share
+from iap_mjx.es.rollout import make_mesh, make_rollout, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
 
@@ -56,7 +56,7 @@ class Components:
     unravel: Callable[[jax.Array], Any]
     num_dims: int
     mesh: Any
-    evaluate: Callable[..., EpisodeResult]
+    rollout: Callable[..., EpisodeResult]
 
     @property
     def steps_per_iteration(self) -> int:
@@ -161,9 +161,9 @@ def build(config: TrainConfig, *, env: Any = None, policy: Any = None, devices: 
     mesh = make_mesh(config.run.num_devices, devices)
     check_chunk_size(config.run.chunk_size, env, mesh.devices.size)
     track = config.es.normalize_observations
-    evaluate = make_evaluator(env, policy, unravel, mesh, config.run.chunk_size, track)
+    rollout = make_rollout(env, policy, unravel, mesh, config.run.chunk_size, track)
     strategy = make_strategy(config.es, flat.shape[0], config.run.iterations)
-    return Components(config, env, policy, strategy, template, unravel, flat.shape[0], mesh, evaluate)
+    return Components(config, env, policy, strategy, template, unravel, flat.shape[0], mesh, rollout)
 
 
 def describe_parameters(parts: Components) -> str:

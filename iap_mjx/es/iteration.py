@@ -56,17 +56,18 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             ]
         )
         keys = jnp.concatenate([jax.random.split(episode_key, member_episodes), _eval_keys(state, eval_episodes)])
-        everything = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
-        result = jax.tree_util.tree_map(lambda x: x[:member_episodes], everything)
-        eval_returns = everything.ret[member_episodes:]
-        returns = result.ret.reshape(population_size, n_episodes)
-        bad = result.bad.reshape(population_size, n_episodes)
+        # the members' episodes, then the centre's evaluation episodes
+        episodes = parts.rollout(flat, keys, _stats_or_none(parts, state.obs_stats))
+        members = jax.tree_util.tree_map(lambda x: x[:member_episodes], episodes)
+        eval_returns = episodes.ret[member_episodes:]
+        returns = members.ret.reshape(population_size, n_episodes)
+        bad = members.bad.reshape(population_size, n_episodes)
         fitness = jnp.where(jnp.any(bad > 0, axis=1), jnp.nan, jnp.mean(returns, axis=1))
         strategy_state = parts.strategy.tell(tell_key, population, fitness, strategy_state)
         obs_stats = state.obs_stats
         if es.normalize_observations:
             obs_stats = update_stats(
-                obs_stats, jnp.sum(result.steps), jnp.sum(result.obs_sum, 0), jnp.sum(result.obs_sq_sum, 0)
+                obs_stats, jnp.sum(members.steps), jnp.sum(members.obs_sum, 0), jnp.sum(members.obs_sq_sum, 0)
             )
         finite = jnp.isfinite(fitness)
         metrics = {
@@ -75,16 +76,16 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
             "return_std": jnp.nanstd(fitness),
             "nan_episodes": jnp.sum(bad),
-            "contact_saturated_episodes": jnp.sum(result.saturated),
+            "contact_saturated_episodes": jnp.sum(members.saturated),
             "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
         }
         if eval_episodes:
             metrics["eval_return"] = jnp.mean(eval_returns)
             metrics["eval_return_std"] = jnp.std(eval_returns)
-        for name, values in result.metrics.items():  # the env's per-episode statistics, if any
+        for name, values in members.metrics.items():  # the env's per-episode statistics, if any
             metrics[f"{name}_mean"] = jnp.mean(values)
             if eval_episodes:
-                metrics[f"eval_{name}"] = jnp.mean(everything.metrics[name][member_episodes:])
+                metrics[f"eval_{name}"] = jnp.mean(episodes.metrics[name][member_episodes:])
         if isinstance(parts.strategy, OpenES):
             metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
@@ -111,7 +112,7 @@ def make_centre_evaluation(parts: Components, episodes: int):
         keys = _eval_keys(state, episodes)
         centre = parts.strategy.mean(state.strategy_state)
         flat = jnp.broadcast_to(centre, (episodes, centre.shape[0]))
-        result = parts.evaluate(flat, keys, _stats_or_none(parts, state.obs_stats))
+        result = parts.rollout(flat, keys, _stats_or_none(parts, state.obs_stats))
         return {"return": result.ret, **result.metrics}
 
     return evaluate

@@ -18,7 +18,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from iap_mjx.chunks import repeat_row
+from iap_mjx.chunks import ceil_div, repeat_row
 from iap_mjx.es.episode import EpisodeResult, run_episode
 from iap_mjx.policies.base import Policy
 
@@ -35,7 +35,7 @@ def make_mesh(num_devices: int = 0, devices: Any = None) -> Mesh:
     return Mesh(np.array(devices), (POP_AXIS,))
 
 
-def make_evaluator(
+def make_rollout(
     env: Any,
     policy: Policy,
     unravel: Callable[[jax.Array], Any],
@@ -43,7 +43,7 @@ def make_evaluator(
     chunk_size: int,
     track_obs: bool,
 ) -> Callable[..., EpisodeResult]:
-    """``evaluate(flat_params (N, D), keys (N, 2), obs_stats) -> EpisodeResult`` with ``(N,)``.
+    """``rollout(flat_params (N, D), keys (N, 2), obs_stats) -> EpisodeResult`` with ``(N,)``.
 
     Row ``i`` is one episode of the policy with flat params ``flat_params[i]`` from
     ``keys[i]``. ``N`` is padded internally (repeating row 0) so that every device gets the
@@ -57,9 +57,11 @@ def make_evaluator(
             flat, key = args
             return run_episode(env, policy, unravel(flat), key, obs_stats, track_obs)
 
+        # ``rollout`` padded the rows to a whole number of equal chunks of at most
+        # ``chunk_size`` (:func:`padded_share`), so this chunk divides them exactly
         per_device = flat_params.shape[0]
-        batch = per_device // -(-per_device // chunk_size)
-        return jax.lax.map(one, (flat_params, keys), batch_size=batch)
+        chunk = per_device // ceil_div(per_device, chunk_size)
+        return jax.lax.map(one, (flat_params, keys), batch_size=chunk)
 
     replicated = PartitionSpec()
     sharded = jax.shard_map(
@@ -70,7 +72,7 @@ def make_evaluator(
         check_vma=False,
     )
 
-    def evaluate(flat_params, keys, obs_stats):
+    def rollout(flat_params, keys, obs_stats):
         n = flat_params.shape[0]
         padded = num_devices * padded_share(n, num_devices, chunk_size)
         if padded != n:
@@ -82,11 +84,11 @@ def make_evaluator(
         result = sharded(flat_params, keys, obs_stats)
         return jax.tree_util.tree_map(lambda x: x[:n], result)
 
-    return evaluate
+    return rollout
 
 
 def padded_share(n: int, num_devices: int, chunk_size: int) -> int:
     """Episodes per device after padding ``n`` to equal shares of equal chunks."""
-    share = -(-n // num_devices)
-    chunks = -(-share // chunk_size)
-    return chunks * -(-share // chunks)
+    share = ceil_div(n, num_devices)
+    chunks = ceil_div(share, chunk_size)
+    return chunks * ceil_div(share, chunks)
