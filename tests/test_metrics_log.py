@@ -20,7 +20,7 @@ def test_truncated_last_line_is_dropped_and_resume_rewrites_the_files(tmp_path):
         f.write('{"iteration": 5, "retu')  # killed mid-write
     assert [r["iteration"] for r in read_history(tmp_path)] == [1, 2, 3, 4]
     resumed = MetricsWriter(tmp_path, 3, tensorboard=False)  # the checkpoint is at 3
-    assert [r["iteration"] for r in resumed.history] == [1, 2, 3]
+    assert [r["iteration"] for r in resumed.kept] == [1, 2, 3]
     lines = (tmp_path / "metrics.jsonl").read_text().splitlines()
     assert [json.loads(line)["iteration"] for line in lines] == [1, 2, 3]
     assert len((tmp_path / "metrics.csv").read_text().splitlines()) == 1 + 3

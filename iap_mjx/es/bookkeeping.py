@@ -30,7 +30,7 @@ logger = logging.getLogger(__name__)
 
 
 def _scalar(x) -> float:
-    return float(np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else x)
+    return float(checkpoint.to_host(x))
 
 
 def restore_state(parts: Components, run_dir, state: TrainState) -> TrainState:
@@ -182,7 +182,7 @@ class Reporter:
             if run_dir is not None and primary
             else None
         )
-        history = list(writer.history) if writer else (read_history(run_dir, start) if run_dir else [])
+        history = list(writer.kept) if writer else (read_history(run_dir, start) if run_dir else [])
         bar = None
         if progress and primary:
             from tqdm.auto import tqdm

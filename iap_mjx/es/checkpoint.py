@@ -33,6 +33,14 @@ def _reader(run_dir: str | Path) -> ocp.CheckpointManager:
     return _manager(run_dir, create=False)
 
 
+def _step_or_latest(manager: ocp.CheckpointManager, run_dir: str | Path, step: int | None) -> int:
+    """``step``, or the newest checkpoint's (``FileNotFoundError`` when there is none)."""
+    step = manager.latest_step() if step is None else step
+    if step is None:
+        raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
+    return step
+
+
 def to_host(tree: Any) -> Any:
     """Numpy copies of a pytree of (possibly replicated, multi-process) arrays."""
     return jax.tree_util.tree_map(
@@ -66,9 +74,7 @@ def save(run_dir: str | Path, step: int, state: Any, config: dict[str, Any]) -> 
 def load_config(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
     """The JSON config stored with checkpoint ``step`` (default: the latest)."""
     with _reader(run_dir) as manager:
-        step = manager.latest_step() if step is None else step
-        if step is None:
-            raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
+        step = _step_or_latest(manager, run_dir, step)
         restored = manager.restore(step, args=ocp.args.Composite(config=ocp.args.JsonRestore()))
         return dict(restored["config"])
 
@@ -76,9 +82,7 @@ def load_config(run_dir: str | Path, step: int | None = None) -> dict[str, Any]:
 def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[int, Any]:
     """``(step, state)`` restored into the structure, shapes and dtypes of ``like``."""
     with _reader(run_dir) as manager:
-        step = manager.latest_step() if step is None else step
-        if step is None:
-            raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
+        step = _step_or_latest(manager, run_dir, step)
         abstract = jax.tree_util.tree_map(np.asarray, to_host(like))
         _check_shapes(run_dir, step, abstract)
         restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))

@@ -29,7 +29,8 @@ from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
 
 # Every random draw descends from ``run.seed`` through one of these streams (``fold_in``), so
-# the training, evaluation and initialisation draws never share a key.
+# the training and evaluation draws never share a key with each other or with initialisation
+# (whose one key both the policy's and the strategy's ``init`` take).
 TRAIN_STREAM, EVAL_STREAM, INIT_STREAM = 0, 1, 2
 
 

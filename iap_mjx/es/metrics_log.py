@@ -106,7 +106,8 @@ def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str
 
 
 class MetricsWriter:
-    """Appends rows to the run's metrics files; on resume, drops rows past the checkpoint."""
+    """Appends rows to the run's metrics files; on resume, drops rows past the checkpoint
+    (``resume_from``; ``None``: a fresh start, no row kept) and keeps the others in ``kept``."""
 
     def __init__(
         self, run_dir: str | Path, resume_from: int | None, tensorboard: bool, columns: tuple[str, ...] = COLUMNS
@@ -114,9 +115,8 @@ class MetricsWriter:
         self.columns = tuple(columns)
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        kept = read_history(self.run_dir, up_to=resume_from if resume_from is not None else -1)
-        self.history = kept
-        self._rewrite(kept)
+        self.kept = read_history(self.run_dir, up_to=resume_from if resume_from is not None else -1)
+        self._rewrite(self.kept)
         self._tb = None
         if tensorboard:
             from tensorboardX import SummaryWriter
@@ -142,7 +142,6 @@ class MetricsWriter:
 
     def write(self, row: dict[str, Any]) -> None:
         """Appends one iteration's row (keys from ``columns``; missing ones stay empty)."""
-        self.history.append(row)
         with open(self.run_dir / "metrics.jsonl", "a") as f:
             f.write(json.dumps(row) + "\n")
         with open(self.run_dir / "metrics.csv", "a", newline="") as f:
