@@ -52,7 +52,7 @@ from flax import struct
 
 from iap_mjx.attention import AttentionConfig
 from iap_mjx.policies.attention import IAPPolicy
-from iap_mjx.policies.base import check_choice, check_options, check_positive, param_count
+from iap_mjx.policies.base import check_choice, check_options, check_positive, constructor_options, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, TGConfig
@@ -301,10 +301,12 @@ def _load_low_level(path: str, input_size: int, output_size: int) -> dict[str, j
     return {"w": jnp.asarray(w), "b": jnp.asarray(b)}
 
 
-_IAP_FIELDS = {"controller", "hidden_sizes", "activation", "with_patches", "projection_seed"}
-_CNN_FIELDS = {"channels", "strides", "filter_size", "pool", "hidden_size"}
-_HIERARCHY_FIELDS = {"duration_range", "blind", "high_level_imu", "low_level_init"}
-_LOW_FIELDS = {"initial_tg"}
+# What a ``policy.*`` option can set on each part: its constructor's arguments but those the
+# factory below passes itself (shapes, sizes, the parts, sub-configs).
+_IAP_FIELDS = constructor_options(IAPPolicy, "image_shape", "action_size", "attention", "state_size")
+_CNN_FIELDS = constructor_options(ConvNet, "image_shape", "output_size", "state_size")
+_HIERARCHY_FIELDS = constructor_options(HierarchicalPolicy, "high", "low", "state_size")
+_LOW_FIELDS = constructor_options(PMTGPolicy, "obs_size", "action_size", "latent", "tg")
 
 
 def make_hierarchical_policy(
