@@ -106,12 +106,7 @@ class ConvNet:
     def embed(self, conv: list[dict[str, jax.Array]], obs: Any) -> jax.Array:
         """The convolutions, the pool and any state: ``(flat_size,)``."""
         pixels, state = split_observation(obs)
-        x = pixels[None]
-        for layer, stride in zip(conv, self.strides):
-            x = jax.lax.conv_general_dilated(
-                x, layer["w"], (stride, stride), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC")
-            )
-            x = jax.nn.relu(x + layer["b"])
+        x = apply_convolutions(conv, pixels[None], self.strides, jax.nn.relu)
         window = (1, self.pool, self.pool, 1)
         x = jax.lax.reduce_window(x, -jnp.inf, jax.lax.max, window, window, "VALID")
         features = jnp.ravel(x)
@@ -124,6 +119,20 @@ class ConvNet:
         (output_size,) in [-1, 1], policy_state)``."""
         out = apply_dense_layers(params["dense"], self.embed(params["conv"], obs), jnp.tanh)
         return jnp.clip(out, -1.0, 1.0), policy_state
+
+
+def apply_convolutions(
+    conv: list[dict[str, jax.Array]], x: jax.Array, strides: tuple[int, ...], activation: Any
+) -> jax.Array:
+    """``x`` ``(1, H, W, C)`` through each layer of ``conv`` ("SAME" padding at its stride,
+    then ``activation``): ``(1, ceil(H / s), ceil(W / s), channels[-1])``, ``s`` the strides'
+    product."""
+    for layer, stride in zip(conv, strides):
+        x = jax.lax.conv_general_dilated(
+            x, layer["w"], (stride, stride), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC")
+        )
+        x = activation(x + layer["b"])
+    return x
 
 
 def init_convolutions(
@@ -262,11 +271,7 @@ class CNNPolicy:
     def init(self, key: jax.Array) -> dict[str, Any]:
         """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""
         keys = jax.random.split(key, len(self.channels) + 1)
-        ins = (self.image_shape[2], *self.channels[:-1])
-        conv = [
-            {"w": jax.random.normal(k, (3, 3, c_in, c_out)) / math.sqrt(9 * c_in), "b": jnp.zeros((c_out,))}
-            for k, c_in, c_out in zip(keys, ins, self.channels)
-        ]
+        conv = init_convolutions(keys[:-1], self.image_shape[2], self.channels, 3)
         sizes = (self.channels[-1] + self.state_size, self.hidden_size, self.action_size)
         return {"conv": conv, "dense": init_dense_layers(keys[-1], sizes)}
 
@@ -278,10 +283,7 @@ class CNNPolicy:
     def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
         """``obs`` -> ``(action (action_size,), policy_state)``."""
         pixels, state = split_observation(obs)
-        x = pixels[None]
-        for layer in params["conv"]:
-            x = jax.lax.conv_general_dilated(x, layer["w"], (2, 2), "SAME", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-            x = jnp.tanh(x + layer["b"])
+        x = apply_convolutions(params["conv"], pixels[None], (2,) * len(self.channels), jnp.tanh)
         features = jnp.mean(x, axis=(0, 1, 2))
         if self.state_size:
             features = jnp.concatenate([features, state])
