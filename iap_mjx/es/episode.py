@@ -13,35 +13,38 @@ Every episode runs its whole horizon (static shapes, no data-dependent control f
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from iap_mjx.es.normalizer import ObsStats, normalize
 from iap_mjx.loops import batched_like
 from iap_mjx.policies.base import Policy
 
 
-@dataclasses.dataclass(frozen=True)
+@struct.dataclass
 class EpisodeResult:
     """What one episode reports (a leading batch axis when batched).
 
-    ``ret`` ``()`` the return, ``steps`` ``()`` env steps before ``done``, ``bad``
-    ``()`` 1.0 if a non-finite reward/observation was met or the env flagged
-    ``metrics["nan_terminations"]``, ``saturated`` ``()`` 1.0 if the env flagged
-    ``metrics["contact_saturated"]`` (every contact slot filled at some step, so a contact
-    may have been dropped; 0.0 for envs without the flag), ``obs_sum``/``obs_sq_sum``
-    ``(obs_size,)`` sums over the live steps (zeros when not tracked), ``metrics`` the
-    env's per-episode statistics at the episode's end: ``{name: ()}`` for each name in the
-    env's ``episode_metrics`` (e.g. the quadruped course's walls passed; empty for envs
-    without them, which then add nothing to the program), ``records`` what the ``record``
-    hook of :func:`run_episode` returned at each step, ``{name: (T, ...)}``, and with it
-    ``"alive": (T,)``, 1.0 for the steps whose reward the return counts (the tally's own: before
-    ``done`` or a non-finite step ended the episode); empty without a hook.
+    Attributes:
+      ret: ``()`` the return.
+      steps: ``()`` env steps before ``done``.
+      bad: ``()`` 1.0 if a non-finite reward/observation was met or the env flagged
+        ``metrics["nan_terminations"]``.
+      saturated: ``()`` 1.0 if the env flagged ``metrics["contact_saturated"]`` (every contact
+        slot filled at some step, so a contact may have been dropped; 0.0 for envs without the
+        flag).
+      obs_sum, obs_sq_sum: ``(obs_size,)`` sums over the live steps (zeros when not tracked).
+      metrics: the env's per-episode statistics at the episode's end, ``{name: ()}`` for each
+        name in the env's ``episode_metrics`` (e.g. the quadruped course's walls passed; empty
+        for envs without them, which then add nothing to the program).
+      records: what the ``record`` hook of :func:`run_episode` returned at each step, ``{name:
+        (T, ...)}``, and with it ``"alive": (T,)``, 1.0 for the live steps (the tally's own:
+        before ``done`` or a non-finite step ended the episode); empty without a hook.
     """
 
     ret: jax.Array
@@ -50,24 +53,19 @@ class EpisodeResult:
     saturated: jax.Array
     obs_sum: jax.Array
     obs_sq_sum: jax.Array
-    metrics: dict[str, jax.Array] = dataclasses.field(default_factory=dict)
-    records: dict[str, jax.Array] = dataclasses.field(default_factory=dict)
+    metrics: dict[str, jax.Array] = struct.field(default_factory=dict)
+    records: dict[str, jax.Array] = struct.field(default_factory=dict)
 
 
-jax.tree_util.register_dataclass(
-    EpisodeResult,
-    data_fields=["ret", "steps", "bad", "saturated", "obs_sum", "obs_sq_sum", "metrics", "records"],
-    meta_fields=[],
-)
-
-
-@dataclasses.dataclass(frozen=True)
+@struct.dataclass
 class Step:
     """One env step (one action) as the policy took it.
 
-    ``state`` the env state whose observation the policy saw, ``seen`` that observation as
-    the policy saw it (normalised, see :func:`observe`), ``policy_state`` the policy's state
-    before it acted, ``next_state`` the env's state after the action.
+    Attributes:
+      state: the env state whose observation the policy saw.
+      seen: that observation as the policy saw it (normalised, see :func:`observe`).
+      policy_state: the policy's state before it acted.
+      next_state: the env's state after the action.
     """
 
     state: Any
@@ -76,18 +74,18 @@ class Step:
     next_state: Any
 
 
-jax.tree_util.register_dataclass(Step, data_fields=["state", "seen", "policy_state", "next_state"], meta_fields=[])
-
-
-@dataclasses.dataclass(frozen=True)
+@struct.dataclass
 class Tally:
     """An episode's running sums, each ``()`` unless said.
 
-    ``ret`` the return of the live steps, ``alive`` 1.0 until ``done`` or a non-finite
-    reward/observation (then 0.0 for good: a step is live while ``alive`` is), ``bad`` 1.0
-    once a live step met a non-finite reward/observation or the env flagged
-    ``metrics["nan_terminations"]``, ``obs_sum``/``obs_sq_sum`` ``(obs_size,)`` sums of the
-    live steps' raw observations (``(1,)`` zeros when observations are not tracked).
+    Attributes:
+      ret: the return of the live steps.
+      alive: 1.0 until ``done`` or a non-finite reward/observation, then 0.0 for good; a step
+        is live while ``alive`` is 1.0 before it.
+      bad: 1.0 once a live step met a non-finite reward/observation or the env flagged
+        ``metrics["nan_terminations"]``.
+      obs_sum, obs_sq_sum: ``(obs_size,)`` sums of the live steps' raw observations (``(1,)``
+        zeros when observations are not tracked).
     """
 
     ret: jax.Array
@@ -117,12 +115,9 @@ class Tally:
             flat = jnp.where(live & finite, jnp.ravel(obs), 0.0)
             obs_sum = obs_sum + flat
             obs_sq_sum = obs_sq_sum + flat**2
-        steps_alive = jnp.where(live, 1.0, 0.0)
+        was_live = jnp.where(live, 1.0, 0.0)
         alive = self.alive * (1.0 - step.next_state.done) * jnp.where(finite, 1.0, 0.0)
-        return Tally(ret, alive, bad, obs_sum, obs_sq_sum), steps_alive
-
-
-jax.tree_util.register_dataclass(Tally, data_fields=["ret", "alive", "bad", "obs_sum", "obs_sq_sum"], meta_fields=[])
+        return Tally(ret, alive, bad, obs_sum, obs_sq_sum), was_live
 
 
 def episode_metric_names(env: Any) -> tuple[str, ...]:
@@ -182,18 +177,18 @@ def run_episode(
     def step(carry, _):
         env_state, policy_state, tally = carry
         taken, policy_state = episode_step(env, policy, params, obs_stats, env_state, policy_state)
-        tally, steps_alive = tally.add(taken, track_obs)
-        records = {**record(taken), "alive": steps_alive} if record is not None else {}
-        return (taken.next_state, policy_state, tally), (steps_alive, records)
+        tally, live = tally.add(taken, track_obs)
+        records = {**record(taken), "alive": live} if record is not None else {}
+        return (taken.next_state, policy_state, tally), (live, records)
 
     carry = batched_like((state, policy_state, tally), key)
     length = env.episode_length if steps is None else steps
-    carry, (steps_alive, records) = jax.lax.scan(step, carry, None, length=length)
+    carry, (live, records) = jax.lax.scan(step, carry, None, length=length)
     final, _, tally = carry
     saturated = (
         (final.metrics["contact_saturated"] > 0).astype(jnp.float32) if "contact_saturated" in final.metrics else zero
     )
     metrics = {name: final.metrics[name] for name in episode_metric_names(env)}
     return EpisodeResult(
-        tally.ret, jnp.sum(steps_alive), tally.bad, saturated, tally.obs_sum, tally.obs_sq_sum, metrics, records
+        tally.ret, jnp.sum(live), tally.bad, saturated, tally.obs_sum, tally.obs_sq_sum, metrics, records
     )
