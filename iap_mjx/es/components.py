@@ -37,7 +37,8 @@ TRAIN_STREAM, EVAL_STREAM, INIT_STREAM = 0, 1, 2
 @struct.dataclass
 class TrainState:
     """Everything a run needs to continue: strategy state, observation statistics, the base
-    key (constant) and the number of iterations done (``()`` int32)."""
+    key (constant) and the number of iterations done (``()`` int32; OpenES's state counts its
+    own, equal to it, for the sigma schedule)."""
 
     strategy_state: Any
     obs_stats: ObsStats
