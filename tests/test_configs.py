@@ -12,7 +12,7 @@ import pytest
 from iap_mjx import configs
 from iap_mjx.configs import EnvConfig, ESConfig, PolicySpec, RunConfig, TrainConfig, apply_overrides
 from iap_mjx.configs.distraction import DistractionConfig
-from iap_mjx.configs.env import DISTRACTION_FIELDS, DISTRACTION_SETTINGS
+from iap_mjx.configs.env import DISTRACTION_FIELDS, DISTRACTION_SETTINGS, QuadrupedConfig
 
 
 @pytest.mark.parametrize("name", configs.names())
@@ -52,6 +52,20 @@ def test_unknown_preset_lists_the_valid_ones():
 def test_invalid_values_fail_naming_the_field(make, field):
     with pytest.raises(ValueError, match=field.replace(".", r"\.")):
         make()
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: EnvConfig(episode_length=True), r"EnvConfig\.episode_length must be None or an int >= 1, got True"),
+        (lambda: EnvConfig(camera_id=False), r"EnvConfig\.camera_id must be an int >= 0, got False"),
+        (lambda: QuadrupedConfig(action_repeat=2), r"QuadrupedConfig\.action_repeat must be 1 .*, got 2"),
+    ],
+)
+def test_env_settings_refuse_bools_and_a_quadruped_action_repeat(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+    assert QuadrupedConfig(action_repeat=1).action_repeat == 1
 
 
 def test_cmaes_needs_no_even_population():

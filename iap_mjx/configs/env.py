@@ -127,13 +127,15 @@ class EnvConfig:
             not isinstance(self.max_contacts, int) or isinstance(self.max_contacts, bool) or self.max_contacts < 1
         ):
             raise ValueError(f'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got {self.max_contacts!r}.')
-        if self.episode_length is not None and (not isinstance(self.episode_length, int) or self.episode_length < 1):
+        if self.episode_length is not None and (
+            not isinstance(self.episode_length, int) or isinstance(self.episode_length, bool) or self.episode_length < 1
+        ):
             raise ValueError(f"EnvConfig.episode_length must be None or an int >= 1, got {self.episode_length!r}.")
         if not self.max_abs_state > 0:
             raise ValueError(f"EnvConfig.max_abs_state must be > 0, got {self.max_abs_state!r}.")
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
-        if not isinstance(self.camera_id, int) or self.camera_id < 0:
+        if not isinstance(self.camera_id, int) or isinstance(self.camera_id, bool) or self.camera_id < 0:
             raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
         check_depth_max(self.depth_max, self.obs_mode, "EnvConfig.")
         self._check_distraction()
@@ -191,6 +193,7 @@ class QuadrupedConfig(EnvConfig):
     course).
 
     Attributes:
+      action_repeat: 1 only (the PMTG policies act once per 0.02 s control step).
       v_cap: the reward's speed cap in m/s (per control step: ``v_cap * 0.02`` m). 1 m/s by
         default: twice the walking speed aimed for, so walking well is paid in full and
         lunges or falls forward (many times that per 0.02 s step) are not.
@@ -219,6 +222,12 @@ class QuadrupedConfig(EnvConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        if self.action_repeat != 1:
+            # the PMTG trajectory generator advances its phase by one control step (0.02 s) per
+            # action, and the course's statistics count control steps
+            raise ValueError(
+                f"QuadrupedConfig.action_repeat must be 1 (one action per 0.02 s control step), got {self.action_repeat!r}."
+            )
         if not isinstance(self.v_cap, (int, float)) or isinstance(self.v_cap, bool) or not self.v_cap > 0:
             raise ValueError(f"QuadrupedConfig.v_cap must be a number > 0 (m/s), got {self.v_cap!r}.")
         if not isinstance(self.joint_noise, (int, float)) or not 0 <= self.joint_noise <= 0.5:
