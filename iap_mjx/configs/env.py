@@ -72,7 +72,8 @@ class EnvConfig:
         been dropped).
       max_abs_state: an env whose ``|qpos|`` or ``|qvel|`` exceeds this (or is not finite)
         is ended as a bad state.
-      obs_mode: ``"state"`` (this module) or a pixel mode handled by ``iap_mjx.envs.pixels``.
+      obs_mode: ``"state"`` (the env's own observation) or a pixel mode handled by
+        ``iap_mjx.envs.pixels``.
       camera_id, height, width, frame_stack: the camera settings for pixel modes.
       depth_max: ``"depth+state"`` only: its depth is ``min(depth, depth_max) / depth_max``,
         in ``[0, 1]`` (metres along the optical axis, 1 at ``depth_max`` and beyond);

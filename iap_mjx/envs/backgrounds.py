@@ -39,8 +39,10 @@ Memory: ``videos * frames * size**2 * 3`` bytes (``BackgroundVideos.nbytes``). D
 ``size=128`` a quarter of that (~40 MB / ~300 MB). The photographs at 32 frames: 50 MB
 (medium) / 63 MB (hard) at 256. The reference's texture is 800 x 800; at 240 x 320 with
 dm_control's 45-degree field of view one cube face spans about 580 pixels, so 256 is about
-half the screen's resolution, 128 a quarter. Pass the array to jitted code as an argument,
-not as a closed-over constant (XLA would embed it in the program).
+half the screen's resolution, 128 a quarter. The distraction layer closes over the frames,
+so a process that builds a distracted env calls ``iap_mjx.runtime.hoist_large_constants()``
+first (the CLI does): XLA then takes them as an argument instead of embedding them in the
+program.
 """
 
 from __future__ import annotations
@@ -77,7 +79,8 @@ class BackgroundVideos:
         real frames, but a sampler must draw frame indices below ``lengths[v]``.
       lengths: ``(V,)`` int32, each video's true frame count (``1 <= lengths <= F``).
       names: the ``V`` video names.
-      source: where they came from (``"davis:<dir>"`` or ``"builtin"``).
+      source: where they came from: ``"builtin"`` or ``"davis:<dir>"``, with ``":val"``
+        appended for the held-out set (``"builtin:val"``, ``"davis:<dir>:val"``).
     """
 
     frames: np.ndarray

@@ -110,7 +110,7 @@ class Distraction:
     the state into what the camera draws.
 
     Args:
-      env: the suite env (``mj_model``, ``domain``, ``config.action_repeat``).
+      env: the suite env (``mj_model``, ``name``, ``config.action_repeat``).
       camera: the ``iap_mjx.render.Camera`` that renders (built from :func:`camera_model`).
       config: the ``DistractionConfig``.
       videos: the background videos (``backgrounds.BackgroundVideos``) when the background

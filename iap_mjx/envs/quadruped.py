@@ -6,7 +6,7 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
 ``metrics["contact_saturated"]``); the model is ours (:mod:`iap_mjx.robots.a1`).
 
 - Action ``(12,)`` in ``[-1, 1]``: each joint's position target, mapped linearly onto the
-  joint's range (the servos' ``ctrlrange``); :func:`targets_to_action` inverts it.
+  joint's range (the servos' ``ctrlrange``); :func:`iap_mjx.robots.a1.targets_to_action` inverts it.
 - Observation ``(17,)``: the IMU's roll and pitch (rad), its angular velocity in the trunk
   frame (3, rad/s; the last is the yaw rate), the 12 joint angles (rad).
 - Reward: the forward displacement of the trunk per control step, capped,
@@ -41,7 +41,7 @@ from mujoco.mjx._src import collision_driver
 from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
 from iap_mjx.envs.dmc import DmControlEnv
 from iap_mjx.robots import a1
-from iap_mjx.robots.a1 import action_to_targets, targets_to_action  # noqa: F401  (re-exported)
+from iap_mjx.robots.a1 import action_to_targets
 
 
 def roll_pitch(quat: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -73,7 +73,6 @@ class QuadrupedFlat(DmControlEnv):
         sensor = lambda name: int(model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, name)])  # noqa: E731
         self._quat = sensor("trunk_quat")
         self._gyro = sensor("gyro")
-        self._linvel = sensor("trunk_linvel")
         self._joint_pos = sensor(f"{a1.JOINT_NAMES[0]}_pos")
         self._trunk = self._id(mujoco.mjtObj.mjOBJ_BODY, "trunk")
         self.video_camera_id = self._id(mujoco.mjtObj.mjOBJ_CAMERA, "track")
@@ -151,10 +150,6 @@ class QuadrupedFlat(DmControlEnv):
         return jnp.concatenate(
             [jnp.stack([roll, pitch]), s[self._gyro : self._gyro + 3], s[self._joint_pos : self._joint_pos + 12]]
         )
-
-    def forward_velocity(self, data: mjx.Data) -> jax.Array:
-        """The trunk's velocity along world x (m/s), ``()``."""
-        return data.sensordata[self._linvel]
 
     def step_reward(self, before: mjx.Data, after: mjx.Data) -> jax.Array:
         cap = self.config.v_cap * self.control_timestep

@@ -21,9 +21,6 @@ from iap_mjx.viz import curves, video
 logger = logging.getLogger(__name__)
 
 
-has_pixels = video.has_pixels
-
-
 def write_video(
     result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None, program: Any = None
 ) -> tuple[Path, float]:
@@ -51,7 +48,7 @@ def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6
     """A PNG strip of ``frames`` frames from one episode of ``result``'s centre params, the
     selected patches drawn (:func:`video.episode_strip`)."""
     env, policy = result.env, result.policy
-    if not has_pixels(env):
+    if not video.has_pixels(env):
         raise ValueError(f"{result.config.env.name!r} observes the state: a strip shows a pixel agent's frames")
     return video.episode_strip(
         env,
@@ -76,7 +73,7 @@ def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Fut
     the episode's length is known: ``video.draw_steps``). A daemon thread: an interrupted run
     does not wait for it.
     """
-    if not has_pixels(env):
+    if not video.has_pixels(env):
         return None
     future: concurrent.futures.Future = concurrent.futures.Future()
 
@@ -103,7 +100,7 @@ def write_run_artifacts(
             title=f"{result.config.env.name}: {result.config.policy.kind} policy",
         )
     ]
-    if has_pixels(result.env):
+    if video.has_pixels(result.env):
         program = video_program.result() if video_program is not None else None
         path, episode_return = write_video(result, run_dir / "episode.mp4", program=program)
         logger.info("episode video: return %.1f", episode_return)
