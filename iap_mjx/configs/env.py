@@ -63,9 +63,9 @@ class EnvConfig:
       ls_iterations: MJX line-search iterations (MuJoCo ``opt.ls_iterations``).
       max_contacts: contact slots MJX keeps per step (its ``max_contact_points``: the
         closest candidate contacts win). MJX otherwise carries a constraint row block for
-        every candidate geom pair at every step (cheetah: 35 contacts, 146 rows) where
-        native MuJoCo carries only the touching ones (cheetah: at most 5 in our
-        measurements), and the solver's cost grows with the rows. ``"task"`` is the
+        every candidate geom pair at every step where native MuJoCo carries only the
+        touching ones (on cheetah, tens of candidates against a few touching: BENCHMARKS.md,
+        the physics sections), and the solver's cost grows with the rows. ``"task"`` is the
         task's measured default (``DmControlEnv.default_max_contacts``), ``"all"`` keeps
         every candidate, an int sets the number. ``metrics["contact_saturated"]`` reports
         an episode in which every kept slot was touching at once (a contact may have

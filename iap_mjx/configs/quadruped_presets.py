@@ -21,8 +21,9 @@ deterministic ReLU features over 4x4 patches (top 10 centres -> a linear map; Ta
 ``policy.patch_size`` and ``policy.stride``), the paper's CNN (``ConvNet``), or the IAP one on a
 zeroed image (blind, the control). A latent of 4, commands held 10 to 50 control steps. Same
 ES and budget for the three, so that their curves compare: the flat preset's OpenES settings
-(sigma 0.05, Adam 0.02, weight decay 0.005), not yet tuned on the course, without observation
-normalisation (it needs vector observations; the low level reads the raw state).
+(sigma 0.05, Adam 0.02, weight decay 0.005), which short runs on the course chose over two
+others (RESULTS.md, ``fig11-tuning``), without observation normalisation (it needs vector
+observations; the low level reads the raw state).
 
 ``quadruped-gates-iap``, ``-blind`` (beyond the paper: a procedural stand-in for its Figure 9's
 Gibson navigation): the same hierarchy, ES and budget on ``quadruped-gates``, a corridor of
