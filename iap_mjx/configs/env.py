@@ -64,8 +64,8 @@ class EnvConfig:
       max_contacts: contact slots MJX keeps per step (its ``max_contact_points``: the
         closest candidate contacts win). MJX otherwise carries a constraint row block for
         every candidate geom pair at every step where native MuJoCo carries only the
-        touching ones (on cheetah, tens of candidates against a few touching: BENCHMARKS.md,
-        the physics sections), and the solver's cost grows with the rows. ``"task"`` is the
+        touching ones (on cheetah, a few of some thirty candidates), and the solver's cost
+        grows with the rows (BENCHMARKS.md, the physics section's contact-slot rows). ``"task"`` is the
         task's measured default (``DmControlEnv.default_max_contacts``), ``"all"`` keeps
         every candidate, an int sets the number. ``metrics["contact_saturated"]`` reports
         an episode in which every kept slot was touching at once (a contact may have
