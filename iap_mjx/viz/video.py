@@ -34,6 +34,7 @@ MARK_RADIUS = 8  # pixels, the ring's outer radius
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
 SCENE_VIDEO_SIZE = (360, 480)  # (height, width) of the scene around a pixel env's inset view
 INSET_MARGIN = 8  # pixels between the inset view and the frame's edges
+CAPTION_HEIGHT = 16  # pixels of the black band above a frame that holds its caption
 STRIP_SCENE_SCALE = 6  # a strip's inset view: the course's 24x32 camera at 144x192, its caption legible
 RENDER_CHUNK = 50  # scene frames rendered per call: a bounded batch, one compiled shape
 
@@ -106,7 +107,7 @@ def episode_program(
     pixels = has_pixels(env)
     selects = pixels and hasattr(policy, "select")
     # a state env's only picture is its scene; the poses do not depend on the size drawn
-    scene = state_camera(env) if not pixels or (scene and has_scene(env)) else None
+    scene_camera = state_camera(env) if not pixels or (scene and has_scene(env)) else None
 
     @jax.jit
     def program(params, obs_stats, key):
@@ -116,8 +117,8 @@ def episode_program(
                 kept["frames"] = newest_rgb(step.state.obs, channels)
             if selects:
                 kept["indices"] = policy.select(params, step.seen, step.policy_state).indices
-            if scene is not None:
-                kept["scene"] = scene.poses(step.state.data)
+            if scene_camera is not None:
+                kept["scene"] = scene_camera.poses(step.state.data)
             kept["rewards"] = step.next_state.reward
             return kept
 
@@ -200,13 +201,16 @@ def render_scene(
 
 def fit_inset(frame_shape: tuple[int, int], scale: int, scene_size: tuple[int, int]) -> tuple[int, tuple[int, int]]:
     """``(scale, scene size)`` that hold an observation of ``frame_shape`` ``(h, w)``, annotated
-    (a 16-pixel caption on top), inside a scene frame with :func:`inset`'s margins: ``scale``
+    (a ``CAPTION_HEIGHT`` caption on top), inside a scene frame with :func:`inset`'s margins: ``scale``
     lowered as far as 1 where the view would not fit ``scene_size``, and the scene enlarged
     where even that does not fit (a large first-person camera)."""
     (height, width), (scene_h, scene_w) = frame_shape, scene_size
-    fits = min((scene_h - 2 * INSET_MARGIN - 16) // height, (scene_w - 2 * INSET_MARGIN) // width)
+    fits = min((scene_h - 2 * INSET_MARGIN - CAPTION_HEIGHT) // height, (scene_w - 2 * INSET_MARGIN) // width)
     scale = max(1, min(scale, fits))
-    return scale, (max(scene_h, 16 + height * scale + 2 * INSET_MARGIN), max(scene_w, width * scale + 2 * INSET_MARGIN))
+    return scale, (
+        max(scene_h, CAPTION_HEIGHT + height * scale + 2 * INSET_MARGIN),
+        max(scene_w, width * scale + 2 * INSET_MARGIN),
+    )
 
 
 def inset(scene: np.ndarray, view: np.ndarray) -> np.ndarray:
@@ -271,7 +275,7 @@ def annotate(
     scale: int = 3,
     step: int | None = None,
 ) -> np.ndarray:
-    """``frame (H, W, 3)`` (floats in [0, 1], or uint8) -> ``(scale H + 16, scale W, 3)``
+    """``frame (H, W, 3)`` (floats in [0, 1], or uint8) -> ``(scale H + CAPTION_HEIGHT, scale W, 3)``
     uint8 with patches and text.
 
     Each selected patch is outlined in red, a white line just inside the red one (a red line
@@ -285,14 +289,15 @@ def annotate(
     pixels = frame if frame.dtype == np.uint8 else (np.clip(frame, 0, 1) * 255).astype(np.uint8)
     image = Image.fromarray(pixels)
     image = image.resize((frame.shape[1] * scale, frame.shape[0] * scale), Image.NEAREST)
-    canvas = Image.new("RGB", (image.width, image.height + 16), (0, 0, 0))
-    canvas.paste(image, (0, 16))
+    canvas = Image.new("RGB", (image.width, image.height + CAPTION_HEIGHT), (0, 0, 0))
+    canvas.paste(image, (0, CAPTION_HEIGHT))
     draw = ImageDraw.Draw(canvas)
     if indices is not None and layer is not None:
         patch, stride = layer.config.patch_size, layer.config.effective_stride
         _, cols = layer.grid
         boxes = [
-            ((int(index) % cols) * stride * scale, 16 + (int(index) // cols) * stride * scale) for index in indices
+            ((int(index) % cols) * stride * scale, CAPTION_HEIGHT + (int(index) // cols) * stride * scale)
+            for index in indices
         ]
         size = patch * scale
         if size >= MARK_BELOW:  # white lines inside the red ones, all drawn first: overlapping
