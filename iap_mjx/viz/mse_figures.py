@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from iap_mjx.attention import features as ft
+from iap_mjx.viz.curves import save_png, subplots
 
 logger = logging.getLogger(__name__)
 
@@ -114,24 +115,16 @@ def figure3(path: Path, *, draws: int) -> Path:
         ax.set_title(f"{names[kind]}, m = {M}" + (f", r = {R_SIGNS}" if kind == "hybrid" else ""))
         ax.legend(loc="upper left", fontsize=7)
     fig.suptitle("Figure 3: MSE of the softmax-kernel estimators (iid features)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def figure4(path: Path, *, draws: int) -> Path:
     """Slices at ``R = 1`` over ``theta in [-3 pi, 3 pi]``, closed forms and Monte Carlo points."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     theta = np.linspace(-3 * np.pi, 3 * np.pi, 1201)
     curves = closed_forms(np.full_like(theta, SLICE_LENGTH), theta)
     mc_theta = np.linspace(-3 * np.pi, 3 * np.pi, 25)
     mc = monte_carlo(SLICE_LENGTH, mc_theta, draws=draws, seed=1)
-    fig, ax = plt.subplots(figsize=(9, 4.5))
+    fig, ax = subplots(figsize=(9, 4.5))
     colours = {"trig": "tab:blue", "exp": "tab:orange", "hybrid": "tab:green"}
     for kind in ESTIMATORS:
         ax.plot(theta, curves[kind], color=colours[kind], label=f"{kind} (closed form)")
@@ -148,10 +141,7 @@ def figure4(path: Path, *, draws: int) -> Path:
     ax.set_ylim(bottom=0)
     ax.set_title(f"Figure 4: slices at R = {SLICE_LENGTH:g}, m = {M}, r = {R_SIGNS}")
     ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=110)
 
 
 def write_mse_figures(out_dir: str | Path, *, draws: int = 100_000) -> list[Path]:
