@@ -52,7 +52,7 @@ def test_pixel_preset_builds_env_and_policy(name):
         lstm = (20 + 16) * 4 * 16 + 4 * 16 + 16 * env.action_size + env.action_size
         assert param_count(params) == 2 * 48 * 4 + lstm
         variant = name.removeprefix(f"{config.env.name}-pixels").lstrip("-")
-        expected = variant.split("-")[0] if variant in configs.presets.KERNELS else "hybrid"
+        expected = variant.split("-")[0] if variant in configs.presets.FIG6_KERNELS else "hybrid"
         assert policy.attention.kernel == expected
 
 

@@ -17,19 +17,11 @@ from __future__ import annotations
 import dataclasses
 
 from iap_mjx.configs.distraction import TASKS
-from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, register
+from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, iap, register
 from iap_mjx.configs.training import RunConfig
 
-IAP_NATIVE: Options = (
-    ("patch_size", 2),
-    ("top_l", 10),
-    ("d_qk", 4),
-    ("kernel", "hybrid"),
-    ("m", 10),
-    ("r", 5),
-    ("controller", "lstm"),
-    ("hidden_sizes", (16,)),
-)
+IAP_NATIVE: Options = iap(patch_size=2)
+"""The IAP policy at the suite's native frames: 2x2 patches, top 10, hybrid (10, 5), LSTM(16)."""
 CONVNET: Options = (
     ("channels", (8, 16, 16)),
     ("strides", (4, 4, 2)),
@@ -59,8 +51,25 @@ def native(task: str, *, quick: bool = False) -> Options:
     return options
 
 
+QUICK_ES = dataclasses.replace(DCS_ES, population_size=8)
+QUICK_RUN = RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8)
+
+
+def quick(preset: Preset) -> Preset:
+    """``preset`` on 10-step episodes with small background frames, a population of 8 and 2
+    iterations: a smoke run for tests."""
+    return dataclasses.replace(
+        preset,
+        name=f"{preset.name}-quick",
+        description=f"{preset.name} on 10-step episodes, population 8, 2 iterations (smoke)",
+        env_options=native(preset.env, quick=True),
+        es=QUICK_ES,
+        run=QUICK_RUN,
+    )
+
+
 for _task in TASKS:
-    register(
+    for _preset in (
         Preset(
             f"dcs-{_task}",
             f"{_task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
@@ -72,21 +81,7 @@ for _task in TASKS:
             IAP_NATIVE,
             DCS_ES,
             PIXEL_RUN,
-        )
-    )
-    register(
-        Preset(
-            f"dcs-{_task}-quick",
-            f"dcs-{_task} on 10-step episodes, population 8, 2 iterations (smoke)",
-            _task,
-            "iap",
-            native(_task, quick=True),
-            IAP_NATIVE,
-            dataclasses.replace(DCS_ES, population_size=8),
-            RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8),
-        )
-    )
-    register(
+        ),
         Preset(
             f"dcs-{_task}-cnn",
             f"dcs-{_task} with the convolutional baseline in place of attention (3 conv 3x3, "
@@ -97,17 +92,7 @@ for _task in TASKS:
             CONVNET,
             DCS_ES,
             PIXEL_RUN,
-        )
-    )
-    register(
-        Preset(
-            f"dcs-{_task}-cnn-quick",
-            f"dcs-{_task}-cnn on 10-step episodes, population 8, 2 iterations (smoke)",
-            _task,
-            "convnet",
-            native(_task, quick=True),
-            CONVNET,
-            dataclasses.replace(DCS_ES, population_size=8),
-            RunConfig(iterations=2, eval_episodes=2, checkpoint_every=0, chunk_size=8),
-        )
-    )
+        ),
+    ):
+        register(_preset)
+        register(quick(_preset))

@@ -35,7 +35,7 @@ ACTION_REPEAT = {
 of the suite's tasks (``configs.distraction.TASKS``; ``tests/test_dcs_presets.py`` holds them
 equal)."""
 
-KERNELS: dict[str, Options] = {
+FIG6_KERNELS: dict[str, Options] = {
     "relu": (("kernel", "relu"),),
     "hybrid-3-2": (("kernel", "hybrid"), ("m", 3), ("r", 2)),
     "hybrid-6-3": (("kernel", "hybrid"), ("m", 6), ("r", 3)),
@@ -87,12 +87,12 @@ def pixels(task: str, *, episode_steps: int | None = None, size: int = 100) -> O
     return options
 
 
-def iap(kernel: str = "hybrid-10-5") -> Options:
-    """Policy options of the IAP policy: 4x4 patches, top 10, ``kernel`` (a key of
-    :data:`KERNELS`), a 16-unit LSTM controller."""
+def iap(kernel: str = "hybrid-10-5", *, patch_size: int = 4) -> Options:
+    """Policy options of the IAP policy: ``patch_size`` square patches (4x4 at 100x100), top 10,
+    ``kernel`` (a key of :data:`FIG6_KERNELS`), a 16-unit LSTM controller."""
     return (
-        (("patch_size", 4), ("top_l", 10), ("d_qk", 4))
-        + KERNELS[kernel]
+        (("patch_size", patch_size), ("top_l", 10), ("d_qk", 4))
+        + FIG6_KERNELS[kernel]
         + (("controller", "lstm"), ("hidden_sizes", (16,)))
     )
 
@@ -154,7 +154,7 @@ PRESETS: tuple[Preset, ...] = (
             PIXEL_ES,
             PIXEL_RUN,
         )
-        for kernel in KERNELS
+        for kernel in FIG6_KERNELS
         if kernel != "hybrid-10-5"
     ),
     Preset(

@@ -81,9 +81,7 @@ IAP_HIGH: Options = (
     ("controller", "linear"),
 )
 CNN_HIGH: Options = (("high_level", "cnn"),)
-COURSE_ES = ESConfig(
-    population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005, normalize_observations=False
-)
+COURSE_ES = dataclasses.replace(FLAT_PMTG.es, normalize_observations=False)
 COURSE_RUN = RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)
 
 
