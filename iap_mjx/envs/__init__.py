@@ -4,7 +4,8 @@
 ``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
 arguments without building); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
 quadruped's, ``QuadrupedWallsConfig`` the course's, ``QuadrupedGatesConfig`` the gates
-corridor's, ``QuadrupedTurnConfig`` the turn command's); ``batch`` runs large populations in chunks.
+corridor's, ``QuadrupedTurnConfig`` the turn command's); ``batch`` chunks and shards a batch of
+env programs for the physics benchmarks (training batches its episodes in ``iap_mjx.es.rollout``).
 """
 
 from iap_mjx import _mjx  # noqa: F401  (imports mujoco.mjx first, quietly)

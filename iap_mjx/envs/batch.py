@@ -1,8 +1,9 @@
 """Large batches of envs: chunked ``vmap`` (``lax.map`` over chunks) and device sharding.
 
-One ``vmap`` over 1024 MJX envs has been seen to hang XLA's CPU runtime; a ``lax.map`` over
-chunks of at most ``chunk_size`` envs compiles the per-chunk program once and runs the
-chunks one after another, which bounds both memory and the size of what XLA schedules.
+One ``vmap`` over a thousand MJX envs is a program large enough to hang XLA's CPU runtime; a
+``lax.map`` over chunks of at most ``chunk_size`` envs compiles the per-chunk program once and
+runs the chunks one after another, which bounds both memory and the size of what XLA
+schedules.
 ``shard`` splits the batch axis over devices with ``shard_map`` first (each device then
 chunks its share). Benchmarks batch env programs with these; an episode of a policy is
 ``iap_mjx.es.episode.run_episode``, which ``iap_mjx.es.rollout`` batches over a population.
