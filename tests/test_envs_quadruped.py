@@ -241,6 +241,19 @@ def test_task_settings_are_validated_by_the_task_config():
         envs.check("quadruped-flat", solver="pgs")
 
 
+def test_the_config_defaults_are_the_models_own_solver_settings():
+    """The config's solver defaults (what MJX runs) and the MJCF's ``<option>`` (what native
+    MuJoCo runs in the parity tests) are written in two places; they must agree."""
+    model = mujoco.MjModel.from_xml_string(a1.world_xml())
+    config = QuadrupedConfig()
+    solvers = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}
+    assert (solvers[config.solver], config.solver_iterations, config.ls_iterations) == (
+        model.opt.solver,
+        model.opt.iterations,
+        model.opt.ls_iterations,
+    )
+
+
 def test_max_chunk_size_keeps_the_batched_cholesky_on_its_calling_thread():
     """jaxlib 0.10's LAPACK Cholesky splits a batch over XLA's intra-op pool, and blocks on it,
     from ``batch * (nv**3 // 3) >= 200,000`` (jaxlib/cpu/lapack_kernels.cc,
