@@ -174,7 +174,8 @@ def test_unknown_difficulty_lists_the_valid_ones(tmp_path):
 @pytest.mark.parametrize("setting", [dict(size=0), dict(num_frames=0), dict(size=2.5), dict(num_frames=True)])
 def test_bad_sizes_are_named(setting):
     (name,) = setting
-    with pytest.raises(ValueError, match=f"background {name} must be an int >= 1"):
+    setting_name = {"size": "env.background_size", "num_frames": "env.background_frames"}[name]
+    with pytest.raises(ValueError, match=rf"background {name} must be an int >= 1 \(the setting {setting_name}\)"):
         backgrounds.load("easy", **setting)
 
 

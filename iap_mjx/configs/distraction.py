@@ -273,9 +273,13 @@ def num_videos(difficulty: str) -> int | None:
 # ---- background sets ---------------------------------------------------------------------
 
 
+_SETTING_OF = {"size": "env.background_size", "num_frames": "env.background_frames"}
+
+
 def _check_count(name: str, value: int) -> None:
+    """``name``: ``backgrounds.load``'s argument, named with the env setting that gives it."""
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"background {name} must be an int >= 1, got {value!r}.")
+        raise ValueError(f"background {name} must be an int >= 1 (the setting {_SETTING_OF[name]}), got {value!r}.")
 
 
 def _check_video_set(videos: str) -> None:
