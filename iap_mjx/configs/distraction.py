@@ -314,7 +314,7 @@ def davis_frame_paths(
     """
     _check_video_set(videos)
     kind = "training" if videos == "train" else "validation"
-    videos = _first(DAVIS17_TRAINING_VIDEOS if videos == "train" else DAVIS17_VALIDATION_VIDEOS, difficulty)
+    names = _first(DAVIS17_TRAINING_VIDEOS if videos == "train" else DAVIS17_VALIDATION_VIDEOS, difficulty)
     root = Path(root).expanduser()
     if not root.is_dir():
         raise ValueError(
@@ -322,15 +322,15 @@ def davis_frame_paths(
             f"directory ({_LAYOUTS}) or None for the built-in photographs."
         )
     video_root = root / _DAVIS_SUBDIR if (root / _DAVIS_SUBDIR).is_dir() else root
-    missing = [name for name in videos if not (video_root / name).is_dir()]
+    missing = [name for name in names if not (video_root / name).is_dir()]
     if missing:
         raise ValueError(
-            f"background_dir {str(video_root)!r} lacks {len(missing)} of the {len(videos)} DAVIS-2017 {kind} "
+            f"background_dir {str(video_root)!r} lacks {len(missing)} of the {len(names)} DAVIS-2017 {kind} "
             f"videos that difficulty {difficulty!r} uses: missing {missing}; expected {_LAYOUTS} with the videos "
-            f"{list(videos)}."
+            f"{list(names)}."
         )
     paths = {}
-    for name in videos:
+    for name in names:
         frames = sorted(
             path
             for path in (video_root / name).iterdir()
