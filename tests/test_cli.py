@@ -229,6 +229,39 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     assert len(built) == 2
 
 
+def test_importing_the_command_line_imports_no_jax():
+    """``main`` splits the CPU into devices and turns on constant hoisting before jax starts;
+    a command module that imports jax (e.g. through ``iap_mjx.configs``) at import time would
+    leave one device, and a chaotic evaluation then ends otherwise than the tables'."""
+    code = "import sys, iap_mjx.cli; print('jax' in sys.modules)"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert loaded.strip() == "False"
+
+
+def test_eval_defaults_to_the_tables_seed_and_says_so(monkeypatch, capsys):
+    """``iap-mjx eval RUN`` draws the episodes the paper's tables drew (``EVAL_SEED``)."""
+    import inspect
+
+    import iap_mjx.es
+    from iap_mjx.configs.training import EVAL_SEED
+
+    for evaluate in (runs.evaluate_run_episodes, runs.evaluate_run):
+        assert inspect.signature(evaluate).parameters["seed"].default == EVAL_SEED
+    calls = []
+
+    def evaluate(run_dir, **kwargs):
+        calls.append(kwargs)
+        raise ValueError("stop")
+
+    monkeypatch.setattr(iap_mjx.es, "evaluate_run_episodes", evaluate)
+    assert cli.main(["eval", "some-run"]) == 2 and "seed" not in calls[-1]  # the evaluation's default
+    assert cli.main(["eval", "some-run", "--seed", "7"]) == 2 and calls[-1]["seed"] == 7
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        cli.main(["eval", "-h"])
+    assert f"default {EVAL_SEED}" in " ".join(capsys.readouterr().out.split())
+
+
 def test_eval_refuses_a_condition_that_is_not_an_env_setting(tmp_path, capsys):
     assert cli.main(["eval", str(tmp_path), "run.seed=3"]) == 2
     assert "set the env (env.<field>=<value>) or policy.blind=<value>, got ['run.seed=3']" in capsys.readouterr().err

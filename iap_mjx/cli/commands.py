@@ -147,8 +147,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from iap_mjx import es
 
     try:
+        seed = {} if args.seed is None else {"seed": args.seed}  # else the evaluation's own default
         results = es.evaluate_run_episodes(
-            args.run_dir, episodes=args.episodes, seed=args.seed, overrides=tuple(args.overrides)
+            args.run_dir, episodes=args.episodes, overrides=tuple(args.overrides), **seed
         )
     except (FileNotFoundError, ValueError) as error:
         return usage_error(error)
@@ -261,7 +262,12 @@ def add_commands(commands: Any) -> None:
         "policy with its eyes closed)",
     )
     evaluate.add_argument("--episodes", type=arguments.count, default=8)
-    evaluate.add_argument("--seed", type=int, default=12345, help="evaluation seed (distinct from the training seeds)")
+    evaluate.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="evaluation seed (default 2021: the paper's tables', so their episodes; distinct from the training seeds)",
+    )
     evaluate.set_defaults(func=cmd_eval, command_parser=evaluate)
 
     video = commands.add_parser(

@@ -18,6 +18,9 @@ SHAPINGS = ("centred_rank", "z_score", "identity")
 these (configs import nothing of ``es``, whose ``__init__`` loads orbax)."""
 SIGMA_SCHEDULES = ("constant", "linear", "exponential")
 OPEN_ES = "open_es"
+EVAL_SEED = 2021
+"""The seed of a finished run's evaluations (``iap-mjx eval``, ``es.evaluate_run``, the paper's
+tables): its episodes are fresh draws, none of them a training episode."""
 
 
 def one_per_name(names: tuple[str, ...], table: dict[str, Any]) -> dict[str, Any]:

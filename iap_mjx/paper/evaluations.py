@@ -17,9 +17,10 @@ from typing import Any
 
 import numpy as np
 
+from iap_mjx.configs.training import EVAL_SEED
+
 logger = logging.getLogger(__name__)
 
-EVAL_SEED = 2021  # not a training seed: evaluation episodes are fresh draws
 EVAL_FILE = "eval.json"
 
 

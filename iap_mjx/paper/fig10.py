@@ -4,7 +4,7 @@ episode, for a small and a large patch size.
 For each trained ``quadruped-walls-iap`` run (by default Table 2's runs in ``out``: patch size 1,
 stride 1, and the preset's own 4x4, :mod:`iap_mjx.paper.table2`), one episode of the centre of its
 latest checkpoint (the final one once the run is finished) on a course not seen in training (keys
-of :data:`iap_mjx.paper.evaluations.EVAL_SEED`) is written as a PNG
+of :data:`iap_mjx.configs.training.EVAL_SEED`) is written as a PNG
 strip: ``frames`` frames evenly spaced over the episode, each the course seen from the camera
 that follows the robot with the first-person camera inset, scaled up, the patches the high level
 selects in red (``iap_mjx.viz.video.episode_strip``; the high level is evaluated at every step,

@@ -12,7 +12,7 @@ passed, fell off the platform, control steps touching a wall, distance along the
 The evaluation's courses are unseen in training: the walls (their positions along the course,
 sides and gaps) are drawn per episode from the episode's reset key
 (``QuadrupedWalls._place_world``), and the evaluation's keys derive from
-:data:`iap_mjx.paper.evaluations.EVAL_SEED`, which no training run uses; a course is a draw of
+:data:`iap_mjx.configs.training.EVAL_SEED`, which no training run uses; a course is a draw of
 continuous positions, so none of them is, but for probability zero, a course trained on.
 Evaluations are stored in the run directory (``eval.json``, :mod:`iap_mjx.paper.evaluations`), so a
 report reads them instead of evaluating again.
