@@ -109,9 +109,10 @@ def stored_shapes(run_dir: str | Path, step: int) -> dict[str, tuple[int, ...]]:
 
 
 def _check_shapes(run_dir: str | Path, step: int, like: Any) -> None:
-    """``ValueError`` naming every leaf whose stored shape is not ``like``'s: a checkpoint
-    restored into a run built with other settings (a policy of another size, a frame another
-    policy input) fails here with the sizes, not inside orbax."""
+    """``ValueError`` when a leaf's stored shape is not ``like``'s, naming the first such leaf
+    with both shapes and counting the others: a checkpoint restored into a run built with other
+    settings (a policy of another size, a frame another policy input) fails here with the
+    sizes, not inside orbax."""
     stored = stored_shapes(run_dir, step)
     wrong = [
         f"{name} {stored[name]} stored, {np.shape(leaf)} built"
