@@ -254,7 +254,7 @@ def test_eval_defaults_to_the_tables_seed_and_says_so(monkeypatch, capsys):
         raise ValueError("stop")
 
     monkeypatch.setattr(iap_mjx.es, "evaluate_run_episodes", evaluate)
-    assert cli.main(["eval", "some-run"]) == 2 and "seed" not in calls[-1]  # the evaluation's default
+    assert cli.main(["eval", "some-run"]) == 2 and calls[-1]["seed"] == EVAL_SEED
     assert cli.main(["eval", "some-run", "--seed", "7"]) == 2 and calls[-1]["seed"] == 7
     capsys.readouterr()
     with pytest.raises(SystemExit):

@@ -81,7 +81,7 @@ def test_a_checkpoint_restored_into_other_shapes_names_the_leaf_and_both_shapes(
     assert step == 3 and np.array_equal(restored.strategy_state["mean"], np.arange(5.0))
     grown = State(iteration=np.array(0), strategy_state={"mean": np.zeros(6), "step": np.array(0)})
     with pytest.raises(
-        ValueError,
+        checkpoint.ShapeMismatch,
         match=r"^checkpoint 3 in .* does not fit the run as built: strategy_state.mean \(5,\) stored, \(6,\) built \(",
     ):
         checkpoint.restore(tmp_path, grown)

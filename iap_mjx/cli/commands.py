@@ -145,11 +145,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     its overrides set (``env.*``, ``policy.blind``); prints mean and std return (and the mean of
     each per-episode statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
     from iap_mjx import es
+    from iap_mjx.configs.training import EVAL_SEED  # here, not at import: it loads jax
 
     try:
-        seed = {} if args.seed is None else {"seed": args.seed}  # else the evaluation's own default
+        seed = EVAL_SEED if args.seed is None else args.seed
         results = es.evaluate_run_episodes(
-            args.run_dir, episodes=args.episodes, overrides=tuple(args.overrides), **seed
+            args.run_dir, episodes=args.episodes, seed=seed, overrides=tuple(args.overrides)
         )
     except (FileNotFoundError, ValueError) as error:
         return usage_error(error)

@@ -65,8 +65,8 @@ class EnvConfig:
         closest candidate contacts win). MJX otherwise carries a constraint row block for
         every candidate geom pair at every step where native MuJoCo carries only the
         touching ones (on cheetah, a few of some thirty candidates), and the solver's cost
-        grows with the rows (BENCHMARKS.md, the physics section's contact-slot rows). ``"task"`` is the
-        task's measured default (``DmControlEnv.default_max_contacts``), ``"all"`` keeps
+        grows with the rows (BENCHMARKS.md, the physics section's contact-slot rows).
+        ``"task"`` is the task's measured default (``DmControlEnv.default_max_contacts``), ``"all"`` keeps
         every candidate, an int sets the number. ``metrics["contact_saturated"]`` reports
         an episode in which every kept slot was touching at once (a contact may have
         been dropped).

@@ -20,6 +20,10 @@ logger = logging.getLogger(__name__)
 CHECKPOINT_DIR = "checkpoints"
 
 
+class ShapeMismatch(ValueError):
+    """A checkpoint's arrays do not have the shapes of the state it is restored into."""
+
+
 def _manager(run_dir: str | Path, max_to_keep: int = 3, *, create: bool = True) -> ocp.CheckpointManager:
     options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=create, enable_async_checkpointing=False)
     return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options)
@@ -109,7 +113,7 @@ def stored_shapes(run_dir: str | Path, step: int) -> dict[str, tuple[int, ...]]:
 
 
 def _check_shapes(run_dir: str | Path, step: int, like: Any) -> None:
-    """``ValueError`` when a leaf's stored shape is not ``like``'s, naming the first such leaf
+    """:class:`ShapeMismatch` when a leaf's stored shape is not ``like``'s, naming the first such leaf
     with both shapes and counting the others: a checkpoint restored into a run built with other
     settings (a policy of another size, a frame another policy input) fails here with the
     sizes, not inside orbax."""
@@ -121,7 +125,7 @@ def _check_shapes(run_dir: str | Path, step: int, like: Any) -> None:
     ]
     if wrong:
         more = f" and {len(wrong) - 1} more" if len(wrong) > 1 else ""
-        raise ValueError(
+        raise ShapeMismatch(
             f"checkpoint {step} in {run_dir} does not fit the run as built: {wrong[0]}{more} (a setting "
             "that sizes the policy or what it sees is not the one the run trained with)"
         )

@@ -192,7 +192,7 @@ def evaluate_run_episodes(
     parts = build(config, env=env, policy=policy)
     try:
         state = restore_state(parts, run_dir, init_state(parts))
-    except ValueError as error:
+    except checkpoint.ShapeMismatch as error:
         if not overrides:
             raise
         raise ValueError(
