@@ -40,6 +40,7 @@ def test_unknown_preset_lists_the_valid_ones():
         (lambda: ESConfig(shaping="ranks"), "es.shaping"),
         (lambda: ESConfig(strategy="NotAnES"), "es.strategy"),
         (lambda: ESConfig(n_episodes=0), "es.n_episodes"),
+        (lambda: ESConfig(shared_episodes=1), "es.shared_episodes"),
         (lambda: ESConfig(sigma_schedule="cosine"), "es.sigma_schedule"),
         (lambda: RunConfig(iterations=-1), "run.iterations"),
         (lambda: RunConfig(iterations_per_call=4, checkpoint_every=10), "run.checkpoint_every"),

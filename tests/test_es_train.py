@@ -155,6 +155,26 @@ def test_contact_saturated_episodes_count_the_population_episodes_flagged():
     assert all(0 < count < members for count in some), some
 
 
+def test_shared_episodes_give_every_member_the_same_draws():
+    """With ``es.shared_episodes`` each member's episode j starts where every other member's
+    episode j does, so each start flagged (``x > 0``, about half) is flagged once per member:
+    the count of flagged member episodes is a multiple of the population in every iteration;
+    without it the members' own draws give counts between."""
+    config = small_config(checkpoint_every=0, iterations=4)
+    population = config.es.population_size
+    shared = dataclasses.replace(config, es=dataclasses.replace(config.es, shared_episodes=True))
+    counts = [
+        row["contact_saturated_episodes"]
+        for row in train(shared, env=FlaggingPointMass(flag="right"), progress=False).history
+    ]
+    assert all(count % population == 0 for count in counts), counts
+    own = [
+        row["contact_saturated_episodes"]
+        for row in train(config, env=FlaggingPointMass(flag="right"), progress=False).history
+    ]
+    assert any(count % population for count in own), own
+
+
 @pytest.mark.parametrize("at, saved", [(4, ["3"]), (5, ["3", "4"])])
 def test_interrupt_saves_checkpoint_and_resume_is_exact(tmp_path, at, saved):
     """An interrupt while iteration ``at`` is being recorded keeps the last finished iteration:

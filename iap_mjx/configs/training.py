@@ -113,6 +113,10 @@ class ESConfig:
       shaping: fitness shaping: ``centred_rank``, ``z_score`` or ``identity``.
       antithetic: mirrored perturbations ``+eps, -eps`` (OpenES).
       n_episodes: episodes per member; fitness is their mean return.
+      shared_episodes: every member runs the same ``n_episodes`` episodes in an iteration
+        (the same env keys, drawn anew each iteration; EvoJAX trains so), so that members
+        are ranked on equal draws (common random numbers), not each on its own draw's luck;
+        ``False``: each member's episodes are its own.
       normalize_observations: running mean/std normalisation of vector observations,
         updated from every population rollout (Salimans et al.).
       evosax_options: extra constructor arguments for an evosax strategy.
@@ -129,6 +133,7 @@ class ESConfig:
     shaping: str = "centred_rank"
     antithetic: bool = True
     n_episodes: int = 1
+    shared_episodes: bool = False
     normalize_observations: bool = True
     evosax_options: tuple[tuple[str, Any], ...] = ()
 
@@ -152,6 +157,8 @@ class ESConfig:
         if not isinstance(self.antithetic, bool):
             _fail("es", "antithetic", self.antithetic, "must be true or false")
         _positive_int("es", "n_episodes", self.n_episodes)
+        if not isinstance(self.shared_episodes, bool):
+            _fail("es", "shared_episodes", self.shared_episodes, "must be true or false")
         if not isinstance(self.normalize_observations, bool):
             _fail("es", "normalize_observations", self.normalize_observations, "must be true or false")
         _pairs("es", "evosax_options", self.evosax_options)

@@ -2,9 +2,10 @@
 fuses several, and the evaluation of the centre alone.
 
 One iteration, all inside one ``jit``: ``ask`` (perturb the centre) -> evaluate every member on
-``n_episodes`` episodes, and the centre itself on ``run.eval_episodes`` episodes of separate
-seeds, in the same batch (:mod:`iap_mjx.es.rollout`; one rollout program to compile) ->
-``tell`` (shape, estimate, update) -> merge the observation statistics.
+``n_episodes`` episodes (its own, or with ``es.shared_episodes`` the same for all), and the
+centre itself on ``run.eval_episodes`` episodes of separate seeds, in the same batch
+(:mod:`iap_mjx.es.rollout`; one rollout program to compile) -> ``tell`` (shape, estimate,
+update) -> merge the observation statistics.
 ``run.iterations_per_call`` iterations are fused by a ``lax.scan``
 (:func:`make_train_call`). Each iteration's keys are ``fold_in(stream key, iteration)``, so a
 resumed run continues bit for bit; the centre's evaluation seeds come from the evaluation
@@ -55,7 +56,11 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
                 jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
             ]
         )
-        keys = jnp.concatenate([jax.random.split(episode_key, member_episodes), _eval_keys(state, eval_episodes)])
+        if es.shared_episodes:  # member i's episode j is episode j of every member
+            member_keys = jnp.tile(jax.random.split(episode_key, n_episodes), (population_size, 1))
+        else:
+            member_keys = jax.random.split(episode_key, member_episodes)
+        keys = jnp.concatenate([member_keys, _eval_keys(state, eval_episodes)])
         # the members' episodes, then the centre's evaluation episodes
         episodes = parts.rollout(flat, keys, _stats_or_none(parts, state.obs_stats))
         members = jax.tree_util.tree_map(lambda x: x[:member_episodes], episodes)
