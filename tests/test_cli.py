@@ -136,6 +136,25 @@ def test_reproduce_refuses_the_options_of_another_figure(argv, capsys):
     assert exit_.value.code == 2 and "unrecognized arguments" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("figure", ["fig1", "fig6", "fig7", "fig8", "table1", "fig11", "table2"])
+@pytest.mark.parametrize("override", ["run.seed=1", "seed=1"])
+def test_reproduce_refuses_a_seed_override_which_its_own_seeds_would_replace(
+    figure, override, tmp_path, capsys, monkeypatch
+):
+    from iap_mjx.cli import reproduce
+
+    def trains(args):
+        raise AssertionError(f"{args.figure} ran with {override}")
+
+    for name in ("_fig1_or_fig6", "_fig7", "_fig8", "_table1", "_fig11", "_table2"):  # nothing may start
+        monkeypatch.setattr(reproduce, name, trains)
+    out = tmp_path / "out"
+    assert cli.main(["reproduce", figure, "es.sigma=0.1", override, "--out", str(out)]) == 2
+    message = f"error: reproduce {figure} sets each run's seed itself (with --seeds, or --seed, where the figure has one); remove {override}"
+    assert message in capsys.readouterr().err
+    assert not out.exists()  # refused before anything was trained or written
+
+
 def test_an_unknown_option_is_refused_by_its_commands_parser_naming_the_options_it_takes(capsys):
     with pytest.raises(SystemExit) as exit_:
         cli.main(["eval", "no-such-run", "--bogus", "1"])

@@ -113,6 +113,19 @@ def test_bad_overrides_fail_with_the_field(override, message):
         apply_overrides(configs.get("cheetah-run-state"), [override])
 
 
+@pytest.mark.parametrize(
+    "override, path",
+    [
+        ("iterations=5", "run.iterations"),
+        ("es.sigma = 1", "es.sigma"),
+        ("policy.patch_size=2", "policy.patch_size"),
+        ("env.distraction=none", "env.distraction"),
+    ],
+)
+def test_override_path_names_the_setting_an_override_sets(override, path):
+    assert configs.override_path(override) == path
+
+
 def test_configs_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         configs.get("cheetah-run-state").run.iterations = 3

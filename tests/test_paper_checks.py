@@ -38,6 +38,8 @@ def test_check_not_swept_names_every_swept_override_and_nothing_else():
     check_not_swept("t", ("es.sigma=0.1", "policy.patch_size_extra=1"), swept, "x")  # no swept key
     with pytest.raises(ValueError, match=r"^t sets the sizes; remove policy.patch_size=2, policy.stride = 1$"):
         check_not_swept("t", ("policy.patch_size=2", "es.sigma=0.1", "policy.stride = 1"), swept, "the sizes")
+    with pytest.raises(ValueError, match=r"^t sets the seed; remove seed=2$"):  # a key without its section
+        check_not_swept("t", ("iterations=3", "seed=2"), ("run.seed",), "the seed")
 
 
 def test_check_evaluated_reads_every_config():

@@ -9,7 +9,8 @@
   kinds, background sets and ``DistractionConfig``, which validates ``EnvConfig``'s
   distraction fields.
 - the presets (``presets.py``): one table of named rows; ``get(name)`` gives its ``TrainConfig``.
-- ``apply_overrides`` (``overrides.py``): ``key=value`` strings as typed on the command line.
+- ``apply_overrides`` (``overrides.py``): ``key=value`` strings as typed on the command line;
+  ``override_path`` names the setting one of them sets.
 
 The settings of the parts themselves (``iap_mjx.attention.AttentionConfig``,
 ``iap_mjx.render.CameraConfig``) are reached through the policy options and env settings.
@@ -21,7 +22,7 @@ from iap_mjx.configs import (
     quadruped_presets,  # noqa: F401,E402  (registers the quadruped presets)
 )
 from iap_mjx.configs.env import EnvConfig
-from iap_mjx.configs.overrides import apply_overrides, parse_value
+from iap_mjx.configs.overrides import apply_overrides, override_path, parse_value
 from iap_mjx.configs.presets import Preset, describe, get, lookup, names, register
 from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 
@@ -38,6 +39,7 @@ __all__ = [
     "get",
     "lookup",
     "names",
+    "override_path",
     "parse_value",
     "register",
 ]

@@ -63,13 +63,26 @@ def _split(path: str, config: TrainConfig) -> tuple[str, str]:
     return owners[0], path
 
 
+def _parse(item: str, config: TrainConfig) -> tuple[str, str, str]:
+    """``(section, name, value text)`` of the override ``item`` on ``config``."""
+    if "=" not in item:
+        raise ValueError(f"override {item!r} must look like key=value")
+    path, _, text = item.partition("=")
+    return (*_split(path.strip(), config), text)
+
+
+def override_path(item: str) -> str:
+    """The ``section.name`` that the override ``item`` sets (``iterations=5`` ->
+    ``run.iterations``; ``policy.patch_size=2`` -> ``policy.patch_size``). A malformed item or
+    an unknown key fails as in :func:`apply_overrides`."""
+    section_name, name, _ = _parse(item, TrainConfig())
+    return f"{section_name}.{name}"
+
+
 def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfig:
     """Returns ``config`` with every ``key=value`` in ``overrides`` applied, validated."""
     for item in overrides:
-        if "=" not in item:
-            raise ValueError(f"override {item!r} must look like key=value")
-        path, _, text = item.partition("=")
-        section_name, name = _split(path.strip(), config)
+        section_name, name, text = _parse(item, config)
         section = getattr(config, section_name)
         fields = {f.name for f in dataclasses.fields(section)}
         value = parse_value(text)
@@ -81,6 +94,7 @@ def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfi
             pairs[name] = value
             section = dataclasses.replace(section, **{bag: tuple(sorted(pairs.items()))})
         else:
+            path = f"{section_name}.{name}"
             raise ValueError(f"override {path!r}: {section_name} has no field {name!r}; valid: {sorted(fields)}")
         config = dataclasses.replace(config, **{section_name: section})
     return config

@@ -24,9 +24,10 @@ def check_evaluated(report: str, checked: Iterable[configs.TrainConfig]) -> None
 
 def check_not_swept(report: str, overrides: Iterable[str], swept: Iterable[str], what: str) -> None:
     """``ValueError`` naming every override of a setting in ``swept`` (e.g. ``policy.patch_size``),
-    which ``report`` sets itself per run (``what``, e.g. "the kernel and patch size per curve")."""
+    which ``report`` sets itself per run (``what``, e.g. "the kernel and patch size per curve");
+    a key without its section counts too (``seed=1`` is ``run.seed``)."""
     swept = tuple(swept)
-    given = [item for item in overrides if item.split("=", 1)[0].strip() in swept]
+    given = [item for item in overrides if configs.override_path(item) in swept]
     if given:
         raise ValueError(f"{report} sets {what}; remove {', '.join(given)}")
 
