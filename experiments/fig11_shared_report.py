@@ -1,5 +1,6 @@
-"""Shared courses or each member's own (RESULTS.md, section ``fig11-shared``): a markdown table of
-iterations 41-60 of the seed-0 runs on each, and what the rule fixed before the runs decides.
+"""Shared courses or each member's own (RESULTS.md, section ``fig11-shared-tuning``): a
+markdown table of iterations 41-60 of the seed-0 runs on each, and what the rule fixed before
+the runs decides.
 
 The rule: per run, the walls passed by the centre in its evaluations of iterations 41-60 (8
 fresh courses each, 160 episodes); per way of drawing courses, the mean over the IAP and the CNN
@@ -9,8 +10,9 @@ own courses' by more than ``MARGIN``. The blind control is reported, never tuned
     python experiments/fig11_shared_report.py [SHARED_DIR [OWN_DIR]]
 
 ``SHARED_DIR`` holds ``quadruped-walls-<p>-seed0`` trained with ``es.shared_episodes=true``
-(default ``experiments/fig11-shared``), ``OWN_DIR`` the same runs without it (default
-``pretrained/quadruped-turn``, the ``fig11-turn`` runs).
+(default ``experiments/fig11-shared-tuning``: copies of the runs' ``config.json`` and
+``metrics.csv``), ``OWN_DIR`` the same runs without it (default ``pretrained/quadruped-turn``,
+the ``fig11-turn`` runs).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ def read(run: Path) -> dict[str, float]:
     }
 
 
-def main(shared_dir: str = "experiments/fig11-shared", own_dir: str = "pretrained/quadruped-turn") -> None:
+def main(shared_dir: str = "experiments/fig11-shared-tuning", own_dir: str = "pretrained/quadruped-turn") -> None:
     runs = {
         (way, p): read(Path(folder) / f"quadruped-walls-{p}-seed0")
         for way, folder in (("shared", shared_dir), ("own", own_dir))
