@@ -239,6 +239,9 @@ def test_task_settings_are_validated_by_the_task_config():
     assert envs.make("quadruped-walls").max_geom_pairs is None
     with pytest.raises(ValueError, match="solver"):
         envs.check("quadruped-flat", solver="pgs")
+    for bad in (-1.0, True, "1"):
+        with pytest.raises(ValueError, match=r"fall_penalty must be a number >= 0 \(m\)"):
+            envs.check("quadruped-walls", fall_penalty=bad)
 
 
 def test_the_config_defaults_are_the_models_own_solver_settings():
@@ -268,6 +271,28 @@ def test_max_chunk_size_keeps_the_batched_cholesky_on_its_calling_thread():
         assert env.max_chunk_size == 102
     else:  # open-source jaxlib >= 0.11.1 never splits the batch
         assert env.max_chunk_size is None
+
+
+def test_a_fall_penalty_is_taken_once_at_a_fall_and_never_at_the_finish(walls):
+    """``fall_penalty`` takes its metres from the reward of the step that falls (off the
+    platform's side, the trunk on the ground), not from a step past the far end (the finish),
+    a standing step, a step after the fall or a non-finite one; the rest of the state is the
+    penalty-free env's."""
+    env, reset, step = walls
+    penalised = envs.make("quadruped-walls", fall_penalty=2.0)
+    step2 = jax.jit(penalised.step)
+    state = reset(jax.random.key(2))
+    hold = a1.targets_to_action(state.data.qpos[7:])
+    off, down = _placed(state, y=1.05), _placed(state, z=0.0)
+    finish = _placed(state, x=env.PLATFORM[1] + 0.02)
+    for start, taken in ((off, 2.0), (down, 2.0), (finish, 0.0), (state, 0.0)):
+        base, after = step(start, hold), step2(start, hold)
+        np.testing.assert_allclose(float(after.reward), float(base.reward) - taken, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(after.data.qpos, base.data.qpos)
+        assert float(after.done) == float(base.done) == (1.0 if start is not state else 0.0)
+    fallen = step2(off, hold)
+    assert float(step2(fallen, hold).reward) == 0.0  # once: an ended episode's steps pay nothing
+    assert float(step2(state, jnp.full((12,), jnp.nan)).reward) == 0.0  # a bad state is no fall
 
 
 def test_course_statistics_count_walls_passed_falls_contacts_and_distance(walls):

@@ -200,6 +200,9 @@ class QuadrupedConfig(EnvConfig):
         lunges or falls forward (many times that per 0.02 s step) are not.
       joint_noise: the first joint angles are the standing pose plus uniform noise of this
         half-width (rad).
+      fall_penalty: metres taken from the return at the control step that ends the episode
+        early: the trunk on the ground, or off the platform or out of the corridor anywhere
+        but past the course's end. 0 (the default): a fall costs only the distance not walked.
       max_geom_pairs: candidate geom pairs MJX runs each collision function on per step (its
         ``max_geom_pairs``: the pairs whose bounding spheres are nearest win; plane pairs are
         never culled). ``"task"`` is the task's default (no culling: the course has one
@@ -218,6 +221,7 @@ class QuadrupedConfig(EnvConfig):
     width: int = 32
     v_cap: float = 1.0
     joint_noise: float = 0.05
+    fall_penalty: float = 0.0
     max_geom_pairs: int | str = "task"
     solver: str = "newton"
 
@@ -233,6 +237,12 @@ class QuadrupedConfig(EnvConfig):
             raise ValueError(f"QuadrupedConfig.v_cap must be a number > 0 (m/s), got {self.v_cap!r}.")
         if not isinstance(self.joint_noise, (int, float)) or not 0 <= self.joint_noise <= 0.5:
             raise ValueError(f"QuadrupedConfig.joint_noise must be in [0, 0.5] rad, got {self.joint_noise!r}.")
+        if (
+            not isinstance(self.fall_penalty, (int, float))
+            or isinstance(self.fall_penalty, bool)
+            or self.fall_penalty < 0
+        ):
+            raise ValueError(f"QuadrupedConfig.fall_penalty must be a number >= 0 (m), got {self.fall_penalty!r}.")
         if self.max_geom_pairs not in ("task", "all") and (
             not isinstance(self.max_geom_pairs, int) or isinstance(self.max_geom_pairs, bool) or self.max_geom_pairs < 1
         ):

@@ -15,7 +15,9 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
   and a fast trot for a robot of this size, so the reward pays for walking well and nothing
   for lunges and falls forward, which in a 0.02 s step can cover many times that.
 - The episode ends early when the trunk touches the ground (its lowest box corner at or below
-  the ground) or, on the platform, when the trunk's centre leaves the platform's footprint.
+  the ground) or, on the platform, when the trunk's centre leaves the platform's footprint;
+  past the far end that is the finish, anywhere else a fall, which costs ``fall_penalty``
+  metres of reward at that step (default 0: only the distance not walked).
 - Control step 0.02 s = 5 physics steps of 0.004 s (Playground's MJX quadrupeds). Episodes:
   500 control steps (10 s) on the flat, 1000 (20 s) on the course.
 - On the course ``State.metrics`` also keeps the episode's course statistics (walls passed,
@@ -142,7 +144,24 @@ class QuadrupedFlat(DmControlEnv):
         return data
 
     def step(self, state, action):
-        return super().step(state, action_to_targets(self._checked_action(action)))
+        after = super().step(state, action_to_targets(self._checked_action(action)))
+        if self.config.fall_penalty:  # 0, the default, leaves the step (and its program) as it was
+            after = after.replace(reward=after.reward - self.config.fall_penalty * self.fell(state, after))
+        return after
+
+    def fell(self, before, after) -> jax.Array:
+        """``()`` float32: 1.0 if the control step ``before -> after`` (two ``State``) ended the
+        episode early, the task ending it (:meth:`_terminated`: the trunk on the ground, off the
+        platform) anywhere but past the course's end (:meth:`finished`), else 0.0. A step
+        that met a non-finite state keeps the state before it, so it is no fall."""
+        data = after.data
+        ended_here = (before.done == 0) & (after.done > 0)
+        return jnp.where(ended_here & self._terminated(data) & ~self.finished(data), 1.0, 0.0)
+
+    def finished(self, data: mjx.Data) -> jax.Array:
+        """``()`` bool: the trunk has passed the course's end (never, on the flat)."""
+        del data
+        return jnp.zeros((), bool)
 
     def state_observation(self, data: mjx.Data) -> jax.Array:
         s = data.sensordata
@@ -266,6 +285,10 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
     def _terminated(self, data: mjx.Data) -> jax.Array:
         return super()._terminated(data) | ~self.on_platform(data)
 
+    def finished(self, data: mjx.Data) -> jax.Array:
+        """``()`` bool: the trunk's centre is past the platform's far end (every wall behind it)."""
+        return data.qpos[0] > self.PLATFORM[1]
+
     def walls(self, data: mjx.Data) -> jax.Array:
         """``(n_walls, 3)`` the walls' centres (``mocap_pos``'s last row is the colliding
         wall's)."""
@@ -292,7 +315,7 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
         beyond = self.walls(data)[:, 0] + self.WALL_HALF_SIZE[0] + a1.TRUNK_HALF_SIZE[0]
         passed = jnp.sum(data.qpos[0] > beyond).astype(jnp.float32)
         counts = lambda flag: jnp.where(live & flag, 1.0, 0.0)  # noqa: E731
-        finished = data.qpos[0] > self.PLATFORM[1]
+        finished = self.finished(data)
         return {
             "walls_passed": jnp.where(live & on, jnp.maximum(metrics["walls_passed"], passed), metrics["walls_passed"]),
             "fell_off": jnp.maximum(metrics["fell_off"], counts(~on & ~finished)),
