@@ -38,6 +38,24 @@ run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
 # export of quadruped-turn-pmtg seed 0 (RESULTS.md, section quadruped-turn, says how it was made)
 run reproduce fig11 policy.low_level_init=pretrained/quadruped-turn/low-level-seed0.npz --seeds 3 \
     --out "$OUT/fig11-turn" --export "$EXPORT/quadruped-turn" --section fig11-turn
+# two settings tried on short runs before another Figure 11 (RESULTS.md, sections fig11-shared-tuning
+# and fig11-fall-tuning: the rules), then Figure 11 with the one adopted, shared courses, its seed 0
+# continuing the first test's runs to 200 iterations
+LOW=policy.low_level_init=pretrained/quadruped-turn/low-level-seed0.npz
+short() {  # short RUN_DIR PRESET OVERRIDES...: 60 iterations, unless RUN_DIR has got that far already
+    local dir=$1 last
+    shift
+    last=$(ls "$dir/checkpoints" 2>/dev/null | sort -n | tail -1)
+    [ "${last:-0}" -ge 60 ] || run train "$@" run.iterations=60 --run-dir "$dir" --no-progress
+}
+for p in iap blind cnn; do
+    short "$OUT/fig11-shared/quadruped-walls-$p-seed0" "quadruped-walls-$p" "$LOW" es.shared_episodes=true
+done
+for p in iap cnn blind; do
+    short "$OUT/fig11-fall/quadruped-walls-$p-seed0" "quadruped-walls-$p" "$LOW" es.shared_episodes=true env.fall_penalty=1.0
+done
+run reproduce fig11 "$LOW" es.shared_episodes=true --seeds 3 --out "$OUT/fig11-shared" \
+    --export "$EXPORT/quadruped-shared" --section fig11-shared
 # Table 2's 4x4 setting is the preset's own run, Figure 11's seed 0: the same directory reuses it
 run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/fig11" --export "$EXPORT/quadruped"
 run reproduce fig10 --out "$OUT/fig11"

@@ -3,7 +3,8 @@
 # (OUT, default results/), so that on a new machine the queue skips what is finished and resumes
 # what is not from its exported checkpoint. A run directory already under OUT is left alone.
 # Figures 7 and 8 and the course's tuning runs are not exported (their curves and tables are in
-# experiments/): on a new machine reproduce-all.sh trains them again.
+# experiments/): on a new machine reproduce-all.sh trains them again. The shared-courses tuning
+# runs are fig11-shared's seed 0, exported with it.
 #
 #   bash experiments/restore-runs.sh && bash experiments/reproduce-all.sh
 set -euo pipefail
@@ -28,3 +29,4 @@ restore "$EXPORT/dcs" "$OUT/table1" dcs-                 # reproduce table1 name
 restore "$EXPORT/quadruped" "$OUT/fig11"                 # fig11's runs and table2's beside them
 restore "$EXPORT/quadruped-turn" "$OUT/fig11-turn" "" "quadruped-walls-*"   # fig11-turn's runs
 restore "$EXPORT/quadruped-turn" "$OUT/turn" "" "quadruped-turn-*"            # the run its low level came from
+restore "$EXPORT/quadruped-shared" "$OUT/fig11-shared"  # Figure 11 on shared courses (seed 0 began as a tuning run)
