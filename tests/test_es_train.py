@@ -158,8 +158,9 @@ def test_contact_saturated_episodes_count_the_population_episodes_flagged():
 def test_shared_episodes_give_every_member_the_same_draws():
     """With ``es.shared_episodes`` each member's episode j starts where every other member's
     episode j does, so each start flagged (``x > 0``, about half) is flagged once per member:
-    the count of flagged member episodes is a multiple of the population in every iteration;
-    without it the members' own draws give counts between."""
+    the count of flagged member episodes is a multiple of the population in every iteration
+    (and, with two episodes a member, is the population itself where one of the two starts is
+    flagged); without it the members' own draws give counts between."""
     config = small_config(checkpoint_every=0, iterations=4)
     population = config.es.population_size
     shared = dataclasses.replace(config, es=dataclasses.replace(config.es, shared_episodes=True))
@@ -168,6 +169,7 @@ def test_shared_episodes_give_every_member_the_same_draws():
         for row in train(shared, env=FlaggingPointMass(flag="right"), progress=False).history
     ]
     assert all(count % population == 0 for count in counts), counts
+    assert population in counts, counts  # a member's two episodes are two draws, not one
     own = [
         row["contact_saturated_episodes"]
         for row in train(config, env=FlaggingPointMass(flag="right"), progress=False).history
