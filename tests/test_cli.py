@@ -141,16 +141,15 @@ def test_reproduce_refuses_the_options_of_another_figure(argv, capsys):
 def test_reproduce_refuses_a_seed_override_which_its_own_seeds_would_replace(
     figure, override, tmp_path, capsys, monkeypatch
 ):
-    from iap_mjx.cli import reproduce
+    import iap_mjx.es
 
-    def trains(args):
-        raise AssertionError(f"{args.figure} ran with {override}")
+    def trains(config, **kwargs):
+        raise AssertionError(f"{figure} trained with {override}")
 
-    for name in ("_fig1_or_fig6", "_fig7", "_fig8", "_table1", "_fig11", "_table2"):  # nothing may start
-        monkeypatch.setattr(reproduce, name, trains)
+    monkeypatch.setattr(iap_mjx.es, "train", trains)  # nothing may start
     out = tmp_path / "out"
     assert cli.main(["reproduce", figure, "es.sigma=0.1", override, "--out", str(out)]) == 2
-    message = f"error: reproduce {figure} sets each run's seed itself (with --seeds, or --seed, where the figure has one); remove {override}"
+    message = f"error: {figure} sets each run's seed itself (how many: seeds, --seeds on the command line, where it has them); remove {override}"
     assert message in capsys.readouterr().err
     assert not out.exists()  # refused before anything was trained or written
 

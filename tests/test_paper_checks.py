@@ -3,7 +3,7 @@ read (no evaluation episodes) or that it sets itself per run (what it sweeps).""
 
 import pytest
 
-from iap_mjx.paper import fig7, fig8, fig11, table1, table2
+from iap_mjx.paper import fig1_fig6, fig7, fig8, fig11, table1, table2
 from iap_mjx.paper.runs import check_evaluated, check_not_swept
 
 NO_EVALUATION = ("run.eval_episodes=0",)
@@ -31,6 +31,27 @@ def test_every_report_refuses_a_run_without_evaluation(report):
 def test_sweeps_refuse_an_override_of_what_they_vary(report, override):
     with pytest.raises(ValueError, match=f"^{report} sets .*; remove {override}$"):
         CHECKS[report](("es.sigma=0.1", override))
+
+
+@pytest.mark.parametrize("override", ["run.seed=1", "seed=1"])
+@pytest.mark.parametrize("report", sorted(CHECKS))
+def test_every_report_refuses_a_seed_override_which_its_own_seeds_would_replace(report, override):
+    with pytest.raises(ValueError, match=f"^{report} sets each run's seed itself .*; remove {override}$"):
+        CHECKS[report](("es.sigma=0.1", override))
+
+
+@pytest.mark.parametrize("figure", ["fig1", "fig6"])
+def test_fig1_and_fig6_refuse_a_seed_override_before_writing_anything(figure, tmp_path, monkeypatch):
+    import iap_mjx.es
+
+    def trains(config, **kwargs):
+        raise AssertionError(f"{figure} trained with seed=1")
+
+    monkeypatch.setattr(iap_mjx.es, "train", trains)  # nothing may start
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match=f"^{figure} sets each run's seed itself .*; remove seed=1$"):
+        fig1_fig6.reproduce(figure, out, overrides=("seed=1",))
+    assert not out.exists()
 
 
 def test_check_not_swept_names_every_swept_override_and_nothing_else():

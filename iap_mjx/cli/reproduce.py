@@ -105,7 +105,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     """Runs the figure's function (``args.run_figure``) and prints its markdown; a bad setting
     exits 2 before anything trains, Ctrl-C exits 130 with a hint that the command resumes."""
     try:
-        _refuse_a_seed(args)
         markdown = args.run_figure(args)
     except ValueError as error:
         return usage_error(error)
@@ -119,15 +118,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return 130
     print(markdown)
     return 0
-
-
-def _refuse_a_seed(args: argparse.Namespace) -> None:
-    """Every figure sets each run's seed itself, so a ``run.seed`` override (``seed=...`` too)
-    would be ignored: ``ValueError`` instead."""
-    from iap_mjx.paper.runs import check_not_swept
-
-    what = "each run's seed itself (with --seeds, or --seed, where the figure has one)"
-    check_not_swept(f"reproduce {args.figure}", getattr(args, "overrides", ()), ("run.seed",), what)
 
 
 # the options that several figures share

@@ -41,7 +41,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
-from iap_mjx.paper.runs import built_policies, check_evaluated, run_summary
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -61,6 +61,7 @@ def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
     """Every policy's config, validated (env settings included) before anything compiles."""
     from iap_mjx import envs
 
+    check_seed_not_set("fig11", overrides)
     checked = {}
     for label, preset in POLICIES.items():
         config = configs.apply_overrides(configs.get(preset), overrides)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.paper.runs import check_evaluated, inference_seconds, trained_curve
+from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
 
@@ -58,6 +58,7 @@ def reproduce(
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
     from iap_mjx import envs
 
+    check_seed_not_set(figure, overrides)
     variants = [
         (label, configs.apply_overrides(configs.get(preset), overrides), preset) for label, preset in VARIANTS[figure]
     ]  # every config validated before any compile

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.paper.runs import check_evaluated, check_not_swept, run_summary
+from iap_mjx.paper.runs import check_evaluated, check_not_swept, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -52,6 +52,7 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.Trai
     compiles; ``overrides`` may not set what the sweep varies."""
     from iap_mjx import envs
 
+    check_seed_not_set("fig7", overrides)
     check_not_swept(
         "fig7",
         overrides,

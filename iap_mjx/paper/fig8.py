@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs, runtime
-from iap_mjx.paper.runs import check_evaluated, check_not_swept, inference_seconds, trained_curve
+from iap_mjx.paper.runs import check_evaluated, check_not_swept, check_seed_not_set, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
 
@@ -56,6 +56,7 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[str, int], configs.TrainConf
     before anything compiles; ``overrides`` may not set what the figure varies."""
     from iap_mjx import envs
 
+    check_seed_not_set("fig8", overrides)
     check_not_swept("fig8", overrides, ("policy.kernel", "policy.patch_size"), "the kernel and patch size per curve")
     result = {}
     for kernel, patch in (*VARIANTS, ("brute", 2)):

@@ -32,6 +32,13 @@ def check_not_swept(report: str, overrides: Iterable[str], swept: Iterable[str],
         raise ValueError(f"{report} sets {what}; remove {', '.join(given)}")
 
 
+def check_seed_not_set(report: str, overrides: Iterable[str]) -> None:
+    """``ValueError`` naming a ``run.seed`` override (``seed=...`` too): every report sets each
+    run's seed itself, so the override would be replaced without a word."""
+    what = "each run's seed itself (how many: seeds, --seeds on the command line, where it has them)"
+    check_not_swept(report, overrides, ("run.seed",), what)
+
+
 def trained_curve(
     config: configs.TrainConfig, seed: int, run_dir: Path, *, train: bool = True
 ) -> tuple[list[float], float] | None:

@@ -34,7 +34,7 @@ from iap_mjx import configs
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
-from iap_mjx.paper.runs import check_evaluated, run_summary
+from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -80,6 +80,7 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap
     """Every task's config and every condition's env, validated before anything compiles."""
     from iap_mjx import envs
 
+    check_seed_not_set("table1", overrides)
     if policy not in POLICIES:
         raise ValueError(f"policy {policy!r}: choose from {', '.join(POLICIES)}")
     unknown = [task for task in tasks if task not in TASKS]

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, run_summary
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -77,6 +77,7 @@ def check(
 
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed = {seed!r} must be an int >= 0")
+    check_seed_not_set("table2", overrides)
     check_not_swept("table2", overrides, SWEPT, "the patch size and stride per setting")
     settings = tuple(tuple(setting) for setting in settings)
     if (
