@@ -13,13 +13,39 @@ import scipy.stats
 from iap_mjx.configs import ESConfig, training
 from iap_mjx.es.components import make_optimizer
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks, identity, z_scores
-from iap_mjx.es.strategy import EvosaxStrategy, OpenES, antithetic_noise
+from iap_mjx.es.strategy import EvosaxStrategy, OpenES, antithetic_noise, estimate_gradient
 
 
-def test_centred_ranks_match_scipy_ordinal_ranks():
-    fitness = np.random.default_rng(0).normal(size=37).astype(np.float32)
-    want = (scipy.stats.rankdata(fitness, method="ordinal") - 1) / 36 - 0.5
+def test_centred_ranks_without_ties_are_the_ordinal_ranks_to_the_bit():
+    """Tie-free returns (every continuous reward) shape as they did when ties went by position,
+    compiled, to the bit: the runs trained then stay the runs trained now."""
+    fitness = jnp.asarray(np.random.default_rng(0).normal(size=37).astype(np.float32))
+    want = (scipy.stats.rankdata(np.asarray(fitness), method="ordinal") - 1) / 36 - 0.5
+    np.testing.assert_allclose(centred_ranks(fitness), want, atol=1e-7)
+
+    @jax.jit
+    def by_position(f):  # ordinal ranks, ties by position: the shaping before ties were shared
+        return jnp.argsort(jnp.argsort(f, stable=True), stable=True).astype(jnp.float32) / (f.shape[0] - 1) - 0.5
+
+    np.testing.assert_array_equal(jax.jit(centred_ranks)(fitness), by_position(fitness))
+
+
+def test_tied_members_share_scipys_average_rank():
+    # sparse returns as reacher's: whole steps, most members none, a NaN among them
+    fitness = np.random.default_rng(1).choice([0.0, 0.0, 0.0, 3.0, 7.0, 12.0], size=64).astype(np.float32)
+    fitness[5] = np.nan
+    rankable = np.where(np.isnan(fitness), -np.inf, fitness)
+    want = (scipy.stats.rankdata(rankable, method="average") - 1) / 63 - 0.5
     np.testing.assert_allclose(centred_ranks(jnp.asarray(fitness)), want, atol=1e-7)
+
+
+def test_a_population_tied_throughout_takes_no_step():
+    """Ranked by position, 64 members all scoring 0 would step along ``-sum(eps)`` as far as an
+    informative iteration does; tied pairs must cancel instead."""
+    eps = antithetic_noise(jax.random.PRNGKey(0), 64, 5)
+    for fitness in (jnp.zeros(64), jnp.zeros(64).at[3].set(1.0).at[35].set(1.0)):  # all tied; one pair apart, tied
+        grad = estimate_gradient(eps, centred_ranks(fitness), 0.1)
+        np.testing.assert_allclose(grad, 0.0, atol=1e-6)
 
 
 def test_nan_fitness_ranks_and_scores_lowest():

@@ -18,18 +18,29 @@ ShapingFn = Callable[[jax.Array], jax.Array]
 
 
 def _ranks(fitness: jax.Array) -> jax.Array:
-    """Ordinal ranks ``0..P-1`` of ``(P,)`` fitness, NaN lowest, ties by position."""
+    """Ranks ``0..P-1`` (float32) of ``(P,)`` fitness, NaN lowest; tied members share the mean
+    of the ranks they span (scipy's ``rankdata(method="average")`` minus one).
+
+    Sparse rewards tie often (reacher, ball_in_cup and finger score whole steps, most members
+    none). Ranked by position, as ``argsort`` would, a tie is not neutral: with antithetic
+    ``[eps, -eps]`` every pair tied at 0 ranks ``-eps`` above ``eps`` and steps along ``-eps``, so a
+    population that all scores 0 still takes a full-sized random step. Shared ranks weight a
+    tied pair equally and it cancels. Without ties these are the ordinal ranks, exactly.
+    """
     rankable = jnp.where(jnp.isnan(fitness), -jnp.inf, fitness)
-    return jnp.argsort(jnp.argsort(rankable, stable=True), stable=True)
+    ordered = jnp.sort(rankable)
+    below = jnp.searchsorted(ordered, rankable, side="left")  # members strictly worse
+    up_to = jnp.searchsorted(ordered, rankable, side="right")  # ... and those tied, itself included
+    return (below + up_to - 1).astype(jnp.float32) / 2
 
 
 def centred_ranks(fitness: jax.Array) -> jax.Array:
-    """Centred ranks in ``[-0.5, 0.5]`` (Salimans et al. 2017): the best gets ``0.5``.
+    """Centred ranks in ``[-0.5, 0.5]`` (Salimans et al. 2017): the best gets ``0.5``, tied
+    members the same value (:func:`_ranks`), a population tied throughout ``0`` (no step).
 
     ``fitness`` is ``(P,)`` with ``P >= 2``; returns ``(P,)`` float32.
     """
-    ranks = _ranks(fitness).astype(jnp.float32)
-    return ranks / (fitness.shape[0] - 1) - 0.5
+    return _ranks(fitness) / (fitness.shape[0] - 1) - 0.5
 
 
 def z_scores(fitness: jax.Array) -> jax.Array:
