@@ -26,6 +26,7 @@ restore() {  # restore SOURCE_DIR TARGET_DIR [PREFIX [GLOB]]: each SOURCE_DIR/<G
     done
 }
 restore "$EXPORT/dcs" "$OUT/table1" dcs-                 # reproduce table1 names its runs dcs-<task>[-cnn]-seed<k>
+# (pretrained/dcs-position-ties is not restored: runs of an earlier ranking that Table 1 trains again)
 restore "$EXPORT/quadruped" "$OUT/fig11"                 # fig11's runs and table2's beside them
 restore "$EXPORT/quadruped-turn" "$OUT/fig11-turn" "" "quadruped-walls-*"   # fig11-turn's runs
 restore "$EXPORT/quadruped-turn" "$OUT/turn" "" "quadruped-turn-*"            # the run its low level came from
