@@ -89,6 +89,7 @@ def _table2(args: argparse.Namespace) -> str:
         settings=args.settings or table2.SETTINGS,
         seed=args.seed,
         overrides=tuple(args.overrides),
+        episodes=args.episodes,
         train=not args.report_only,
         results=args.results,
         export=args.export,
@@ -251,7 +252,7 @@ def add_commands(commands: Any) -> None:
         "table2",
         "the quadruped's patch sizes and strides",
         "quadruped-walls-iap at each --settings patch size and stride, one --seed, reporting the "
-        "maximum episode return",
+        "maximum episode return and the walls passed on unseen courses",
         _table2,
     )
     parser.add_argument(
@@ -262,6 +263,7 @@ def add_commands(commands: Any) -> None:
         help="comma-separated patch size x stride (default 1x1,2x2,4x4,4x2)",
     )
     parser.add_argument("--seed", type=arguments.index, default=0, help="the training seed (default 0)")
+    _add_episodes(parser, "per finished run, each on a course not seen in training")
     _add_results(parser)
     _add_export(parser, "DIR/table2-p<p>-s<s>-seed<k> (e.g. pretrained/quadruped)")
     _add_report_only(parser)

@@ -12,9 +12,13 @@ The table's return is the maximum episode return reached in training, as the pap
 largest ``return_max`` of the run's metrics (per iteration, the best population member's
 return, its mean over ``es.n_episodes`` episodes: one episode's return at the preset's 1),
 maximised over the iterations; beside it the largest ``eval_return`` (the centre's mean over
-``run.eval_episodes`` evaluation episodes at an iteration's start). ``L`` is the number of
-patches on the course's 24x32 camera. Writes ``<out>/table2.json`` and ``<out>/table2.png``
-and returns the markdown table.
+``run.eval_episodes`` evaluation episodes at an iteration's start). A run that walks the whole
+course scores its length, so the maximum saturates there and ties between settings: each
+finished run's final centre is also evaluated on ``episodes`` courses never seen in training
+(the same courses as Figure 11's, :func:`iap_mjx.paper.fig11.evaluate_course`), walls passed
+and return per course, which tells the settings apart where the maximum cannot. ``L`` is the
+number of patches on the course's 24x32 camera. Writes ``<out>/table2.json`` and
+``<out>/table2.png`` and returns the markdown table.
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ def fits(patch_size: int, stride: int, height: int, width: int, top_l: int) -> s
 
 
 def check(
-    settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...], seed: int
+    settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...], seed: int, episodes: int = 20
 ) -> dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]]:
     """``{setting: (config, run name, the setting's overrides)}`` (the preset's own setting: its
     own run, no overrides), every setting validated before anything compiles (``ValueError``
@@ -77,6 +81,8 @@ def check(
 
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed = {seed!r} must be an int >= 0")
+    if not isinstance(episodes, int) or isinstance(episodes, bool) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
     check_seed_not_set("table2", overrides)
     check_not_swept("table2", overrides, SWEPT, "the patch size and stride per setting")
     settings = tuple(tuple(setting) for setting in settings)
@@ -127,19 +133,22 @@ def reproduce_table2(
     settings: tuple[tuple[int, int], ...] = SETTINGS,
     seed: int = 0,
     overrides: tuple[str, ...] = (),
+    episodes: int = 20,
     train: bool = True,
     results: str | Path | None = None,
     export: str | Path | None = None,
 ) -> str:
-    """Trains (``train=False``: only reads) every setting on ``seed``, writes ``table2.json`` /
+    """Trains (``train=False``: only reads) every setting on ``seed``, evaluates each finished
+    run on ``episodes`` unseen courses, writes ``table2.json`` /
     ``table2.png`` in ``out_dir`` and returns the markdown table; ``results``: a markdown file
     whose ``table2`` section is rewritten with it; ``export``: a folder (e.g.
     ``pretrained/quadruped``, tracked by git) that receives each run's newest checkpoint, config
     and metrics under its run directory's name, finished or not."""
     from iap_mjx import policies
     from iap_mjx.es import checkpoint
+    from iap_mjx.paper.fig11 import evaluate_course
 
-    checked = check(tuple(settings), tuple(overrides), seed)
+    checked = check(tuple(settings), tuple(overrides), seed, episodes)
     built = built_policies({setting: config for setting, (config, _, _) in checked.items()})
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -153,6 +162,8 @@ def reproduce_table2(
         if export is not None:
             checkpoint.export_latest(out_dir / name, Path(export) / name)
         best = [float(entry["return_max"]) for entry in history]
+        if row["finished"]:
+            row["course"] = evaluate_course(out_dir / name, checkpoint.latest_step(out_dir / name), episodes=episodes)
         rows.append(
             {
                 "patch_size": setting[0],
@@ -175,37 +186,58 @@ def reproduce_table2(
     png = plot(rows, out_dir / "table2.png")
     markdown = table(rows, settings=len(checked))
     if results is not None:
-        write_results(Path(results), markdown, png, settings=tuple(checked), seed=seed, overrides=tuple(overrides))
+        write_results(
+            Path(results),
+            markdown,
+            png,
+            settings=tuple(checked),
+            seed=seed,
+            overrides=tuple(overrides),
+            episodes=episodes,
+        )
     return markdown
 
 
 def table(rows: list[dict[str, Any]], *, settings: int) -> str:
-    """Markdown: per setting its patches, parameters, maximum returns, how far it got and its
-    command; then the best setting, once all are finished."""
+    """Markdown: per setting its patches, parameters, maximum returns, its final centre on unseen
+    courses (finished runs), how far it got and its command; then the best setting, once all are
+    finished."""
     lines = [
         "| patch size | stride | patches L | parameters | max episode return (population) | "
-        "max centre evaluation return | iterations | wall-clock (s) | command |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "max centre evaluation return | unseen courses: walls passed | unseen courses: return | "
+        "iterations | wall-clock (s) | command |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for row in rows:
+        course = row.get("course")
+        walls, ret = (
+            ("", "")
+            if course is None
+            else (f"{np.mean(course['walls_passed']):.2f}", f"{np.mean(course['return']):.2f}")
+        )
         lines.append(
             f"| {row['patch_size']} | {row['stride']} | {row['patches']:,} | {row['parameters']:,} | "
-            f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {row['iterations']}"
+            f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {walls} | {ret} | {row['iterations']}"
             f"{'' if row['finished'] else ' (running)'} | {row['seconds']:.0f} | `{row['command']}` |"
         )
     lines.append("")
     finished = [row for row in rows if row["finished"]]
     if len(finished) < settings:
         lines.append(f"Best setting: not decided yet ({len(finished)} of {settings} settings finished).")
-    else:
-        best = max(rows, key=lambda row: row["max_return"])
-        most = max(rows, key=lambda row: row["patches"])
-        lines.append(
-            f"Best setting: patch size {best['patch_size']}, stride {best['stride']} "
-            f"(L = {best['patches']:,}, max return {best['max_return']:.1f}); the paper's best had the most "
-            f"patches, here patch size {most['patch_size']}, stride {most['stride']} "
-            f"(L = {most['patches']:,}, max return {most['max_return']:.1f})."
-        )
+        return "\n".join(lines)
+    top = max(row["max_return"] for row in rows)
+    best = [row for row in rows if row["max_return"] == top]
+    most = max(rows, key=lambda row: row["patches"])
+    walls = max(rows, key=lambda row: np.mean(row["course"]["walls_passed"]))
+    named = " and ".join(f"patch size {row['patch_size']}, stride {row['stride']}" for row in best)
+    lines.append(
+        f"Best setting by the paper's metric: {named} (max return {top:.1f}"
+        f"{', tied' if len(best) > 1 else ''}); the paper's best had the most patches, here patch size "
+        f"{most['patch_size']}, stride {most['stride']} (L = {most['patches']:,}, max return "
+        f"{most['max_return']:.1f}). Most walls passed on unseen courses: patch size {walls['patch_size']}, "
+        f"stride {walls['stride']} ({np.mean(walls['course']['walls_passed']):.2f} a course, "
+        f"{len(walls['course']['walls_passed'])} courses)."
+    )
     return "\n".join(lines)
 
 
@@ -236,15 +268,24 @@ def write_results(
     settings: tuple[tuple[int, int], ...],
     seed: int,
     overrides: tuple[str, ...],
+    episodes: int,
 ) -> None:
     """The ``table2`` section of ``path``: the command, the table and the curves."""
-    options = [*overrides, "--settings " + ",".join(f"{p}x{s}" for p, s in settings), f"--seed {seed}"]
+    options = [
+        *overrides,
+        "--settings " + ",".join(f"{p}x{s}" for p, s in settings),
+        f"--seed {seed}",
+        f"--episodes {episodes}",
+    ]
     command_line = reproduce_command("table2", options, out=png.parent, results=path)
     body = (
         f"## Table 2: patch size and stride of the quadruped's IAP high level\n\nCommand: `{command_line}`. "
         f"One seed (seed {seed}) per setting, the same budget. Max episode return: the largest `return_max` "
         "of the run's metrics (each iteration's best population member), over the iterations trained; "
-        "beside it the largest `eval_return` (the centre's mean over its evaluation episodes). L: patches "
-        f"on the course's camera.\n\n![table2]({image_link(png, path, 'table2')})\n\n{markdown}\n"
+        "beside it the largest `eval_return` (the centre's mean over its evaluation episodes); a run that "
+        "walks the whole course scores its length, so both saturate there. Unseen courses: each finished "
+        f"run's final centre on {episodes} courses never seen in training (Figure 11's), the mean walls "
+        "passed and return per course. L: patches on the course's camera."
+        f"\n\n![table2]({image_link(png, path, 'table2')})\n\n{markdown}\n"
     )
     write_results_section(path, "table2", body)
