@@ -8,8 +8,7 @@ import mujoco
 from mujoco import mjx
 
 from iap_mjx.envs.dm_control_suite import ball_in_cup
-from iap_mjx.envs.dmc import DmControlEnv
-from iap_mjx.loops import batched_like
+from iap_mjx.envs.dmc import DmControlEnv, first_contact_free
 
 
 class BallInCupCatch(DmControlEnv):
@@ -44,20 +43,7 @@ class BallInCupCatch(DmControlEnv):
             qpos = qpos.at[self._ball_z].set(jax.random.uniform(key_z, (), minval=0.2, maxval=0.5))
             return self.forward(blank.replace(qpos=qpos))
 
-        def penetrating(data):
-            # mj_collision keeps a contact iff dist < margin (0 here); MJX keeps the closest
-            # candidates (max_contacts) with their distances, the closest always among them.
-            contact = data._impl.contact
-            return jnp.any(contact.dist < contact.includemargin)
-
-        def redraw(carry):
-            key, _ = carry
-            key, sub = jax.random.split(key)
-            return key, place(sub)
-
-        key, sub = jax.random.split(key)
-        _, data = jax.lax.while_loop(lambda c: penetrating(c[1]), redraw, batched_like((key, place(sub)), key))
-        return data, {}
+        return first_contact_free(place, key), {}
 
     def ball_to_target(self, data: mjx.Data) -> jax.Array:
         target = data.site_xpos[self._target_site, jnp.array([0, 2])]

@@ -23,7 +23,8 @@ It is one module at over 400 lines because most of it is one class, ``DmControlE
 every task subclasses: building the model, the env protocol, the task hooks with their
 defaults and the bad-state and contact bookkeeping of ``step``, each method short. The rest is
 what the class and its tasks use: the physics stages, the batch limit of jaxlib's CPU LAPACK
-(``serial_lapack_batch``) and the port of dm_control's joint randomiser.
+(``serial_lapack_batch``) and the ports of dm_control's joint randomiser and of its
+redraw-while-in-contact loop (``first_contact_free``).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import jax
@@ -411,3 +413,39 @@ def randomize_limited_and_rotational_joints(mj_model: mujoco.MjModel, key: jax.A
         addresses.append(mj_model.jnt_qposadr[joint])
     values = jax.random.uniform(key, (len(addresses),), minval=np.asarray(lows), maxval=np.asarray(highs))
     return qpos.at[np.asarray(addresses, np.int32)].set(values)
+
+
+def in_contact(data: mjx.Data) -> jax.Array:
+    """``()`` bool: anything touches, dm_control's ``physics.data.ncon > 0``.
+
+    ``mj_collision`` keeps a contact iff ``dist < margin``; MJX keeps the closest candidates
+    (``max_contacts``) with their distances, the closest always among them.
+    """
+    contact = data._impl.contact
+    return jnp.any(contact.dist < contact.includemargin)
+
+
+def first_contact_free(
+    place: Callable[[jax.Array], mjx.Data], key: jax.Array, max_attempts: int | None = None
+) -> mjx.Data:
+    """dm_control's rejection sampling of an initial state: ``place(k)`` (a forwarded
+    ``mjx.Data`` drawn from key ``k``) on fresh keys split from ``key`` until nothing is in
+    contact, so the result has exactly the distribution of the first contact-free draw.
+
+    ``max_attempts``: draws after which the last is kept where dm_control raises (``None``: no
+    cap, as dm_control's loops without one). A ``while_loop`` under ``vmap`` draws again only
+    where still in contact.
+    """
+
+    def redraw(carry):
+        key, attempts, _ = carry
+        key, sub = jax.random.split(key)
+        return key, attempts + 1, place(sub)
+
+    def again(carry):
+        touching = in_contact(carry[2])
+        return touching if max_attempts is None else touching & (carry[1] < max_attempts)
+
+    key, sub = jax.random.split(key)
+    first = batched_like((key, jnp.ones((), jnp.int32), place(sub)), key)
+    return jax.lax.while_loop(again, redraw, first)[2]

@@ -8,8 +8,7 @@ import mujoco
 from mujoco import mjx
 
 from iap_mjx.envs.dm_control_suite import finger
-from iap_mjx.envs.dmc import DmControlEnv, randomize_limited_and_rotational_joints
-from iap_mjx.loops import batched_like
+from iap_mjx.envs.dmc import DmControlEnv, first_contact_free, randomize_limited_and_rotational_joints
 
 _SPIN_VELOCITY = 15.0
 _HINGE_DAMPING = 0.03
@@ -83,10 +82,9 @@ class FingerSpin(DmControlEnv):
         """dm_control's ``_set_random_joint_angles``: limited hinges uniform in their range,
         the spinner uniform in ``[-pi, pi]``, redrawn while anything is in contact.
 
-        A ``while_loop`` draws exactly dm_control's distribution (the first collision-free
-        draw of i.i.d. candidates; about 90% of draws are collision-free). After
-        ``_MAX_ATTEMPTS`` draws, where dm_control raises, the last draw is kept (probability
-        ~``0.1 ** 1000``).
+        Exactly dm_control's distribution (the first collision-free draw of i.i.d. candidates;
+        about 90% of draws are collision-free); after ``_MAX_ATTEMPTS`` draws, where dm_control
+        raises, the last draw is kept (probability ~``0.1 ** 1000``).
         """
         blank = mjx.make_data(self.mj_model)
 
@@ -94,21 +92,7 @@ class FingerSpin(DmControlEnv):
             qpos = randomize_limited_and_rotational_joints(self.mj_model, key, blank.qpos)
             return self.forward(blank.replace(qpos=qpos))
 
-        def in_contact(data):
-            # mj_collision keeps a contact iff dist < margin (0 here), so dm_control's
-            # ncon == 0; MJX keeps the closest candidates, the closest always among them.
-            contact = data._impl.contact
-            return jnp.any(contact.dist < contact.includemargin)
-
-        def redraw(carry):
-            key, attempts, _ = carry
-            key, sub = jax.random.split(key)
-            return key, attempts + 1, place(sub)
-
-        key, sub = jax.random.split(key)
-        first = batched_like((key, jnp.ones((), jnp.int32), place(sub)), key)
-        _, _, data = jax.lax.while_loop(lambda c: in_contact(c[2]) & (c[1] < _MAX_ATTEMPTS), redraw, first)
-        return data, {}
+        return first_contact_free(place, key, _MAX_ATTEMPTS), {}
 
     def hinge_velocity(self, data: mjx.Data) -> jax.Array:
         return data.sensordata[self._hinge_velocity]
