@@ -134,6 +134,13 @@ def test_nan_rewards_are_masked_and_counted():
     result = run_episode(env, policy, params, jax.random.PRNGKey(1), None, False)
     assert np.isfinite(float(result.ret))
     assert float(result.bad) == 1.0
+    # the diverged step was simulated, so it counts among the steps taken; its reward does not
+    rewards, state = [], env.reset(jax.random.split(jax.random.PRNGKey(1))[0])  # as run_episode resets
+    while np.isfinite(float(state.reward)):
+        state = env.step(state, policy.apply(params, state.obs, None)[0])
+        rewards.append(float(state.reward))
+    assert 1 < len(rewards) < env.episode_length and int(result.steps) == len(rewards)
+    np.testing.assert_allclose(float(result.ret), sum(rewards[:-1]), rtol=1e-5)
     still = run_episode(env, LinearPolicy(6, 2), LinearPolicy(6, 2).init(None), jax.random.PRNGKey(1), None, False)
     assert float(still.bad) == 0.0
 

@@ -32,7 +32,9 @@ class EpisodeResult:
 
     Attributes:
       ret: ``()`` the return.
-      steps: ``()`` env steps before ``done``.
+      steps: ``()`` env steps taken while the episode was live: up to and including the one
+        that set ``done`` or met a non-finite reward/observation (a step that diverged was
+        still simulated, so the env-step budget counts it; its reward does not).
       bad: ``()`` 1.0 if a non-finite reward/observation was met or the env flagged
         ``metrics["nan_terminations"]``.
       saturated: ``()`` 1.0 if the env flagged ``metrics["contact_saturated"]`` (every contact
