@@ -167,7 +167,9 @@ def test_table_reports_maximum_returns_unseen_courses_patches_and_commands(tmp_p
 def test_a_saturated_maximum_is_reported_as_a_tie(tmp_path, evaluations):
     """The course's length caps the return: settings that both reach it tie by the paper's metric."""
     for setting in table2.SETTINGS:
-        _run(tmp_path, setting, [4.0, 10.0, 10.0] if setting in ((1, 1), (4, 4)) else [4.0, 6.0, 8.0])
+        # a few cm past the course's end either way: tied at the table's precision
+        best = {(1, 1): [4.0, 10.004, 10.0], (4, 4): [4.0, 6.0, 10.0147]}
+        _run(tmp_path, setting, best.get(setting, [4.0, 6.0, 9.94]))
     markdown = table2.reproduce_table2(tmp_path, overrides=ITERATIONS, train=False, episodes=2)
     assert markdown.splitlines()[-1].startswith(
         "Best setting by the paper's metric: patch size 1, stride 1 and patch size 4, stride 4 (max return 10.0, tied);"

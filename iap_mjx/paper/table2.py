@@ -13,7 +13,7 @@ largest ``return_max`` of the run's metrics (per iteration, the best population 
 return, its mean over ``es.n_episodes`` episodes: one episode's return at the preset's 1),
 maximised over the iterations; beside it the largest ``eval_return`` (the centre's mean over
 ``run.eval_episodes`` evaluation episodes at an iteration's start). A run that walks the whole
-course scores its length, so the maximum saturates there and ties between settings: each
+course scores its length, so the maximum saturates there and ties between settings (compared at the table's precision, 0.1 m): each
 finished run's final centre is also evaluated on ``episodes`` courses never seen in training
 (the same courses as Figure 11's, :func:`iap_mjx.paper.fig11.evaluate_course`), walls passed
 and return per course, which tells the settings apart where the maximum cannot. ``L`` is the
@@ -225,11 +225,15 @@ def table(rows: list[dict[str, Any]], *, settings: int) -> str:
     if len(finished) < settings:
         lines.append(f"Best setting: not decided yet ({len(finished)} of {settings} settings finished).")
         return "\n".join(lines)
-    top = max(row["max_return"] for row in rows)
-    best = [row for row in rows if row["max_return"] == top]
+    # compared as shown (one decimal): a run that walks the whole course ends a few cm past its
+    # length, and such centimetres tell no setting apart
+    shown = {row["run"]: round(row["max_return"], 1) for row in rows}
+    top = max(shown.values())
+    best = [row for row in rows if shown[row["run"]] == top]
     most = max(rows, key=lambda row: row["patches"])
     walls = max(rows, key=lambda row: np.mean(row["course"]["walls_passed"]))
-    named = " and ".join(f"patch size {row['patch_size']}, stride {row['stride']}" for row in best)
+    settings_named = [f"patch size {row['patch_size']}, stride {row['stride']}" for row in best]
+    named = "; ".join(settings_named[:-1]) + (" and " if len(best) > 1 else "") + settings_named[-1]
     lines.append(
         f"Best setting by the paper's metric: {named} (max return {top:.1f}"
         f"{', tied' if len(best) > 1 else ''}); the paper's best had the most patches, here patch size "
