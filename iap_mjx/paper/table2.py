@@ -13,12 +13,13 @@ largest ``return_max`` of the run's metrics (per iteration, the best population 
 return, its mean over ``es.n_episodes`` episodes: one episode's return at the preset's 1),
 maximised over the iterations; beside it the largest ``eval_return`` (the centre's mean over
 ``run.eval_episodes`` evaluation episodes at an iteration's start). A run that walks the whole
-course scores its length, so the maximum saturates there and ties between settings (compared at the table's precision, 0.1 m): each
-finished run's final centre is also evaluated on ``episodes`` courses never seen in training
-(the same courses as Figure 11's, :func:`iap_mjx.paper.fig11.evaluate_course`), walls passed
-and return per course, which tells the settings apart where the maximum cannot. ``L`` is the
-number of patches on the course's 24x32 camera. Writes ``<out>/table2.json`` and
-``<out>/table2.png`` and returns the markdown table.
+course scores its length, so the maximum saturates there and settings tie (compared at the
+table's precision, 0.1 m). So each finished run's final centre is also evaluated on
+``episodes`` courses never seen in training (Figure 11's courses,
+:func:`iap_mjx.paper.fig11.evaluate_course`): walls passed and return per course, which tell
+the settings apart where the maximum cannot. ``L`` is the number of patches on the course's
+24x32 camera. Writes ``<out>/table2.json`` and ``<out>/table2.png`` and returns the markdown
+table.
 """
 
 from __future__ import annotations
