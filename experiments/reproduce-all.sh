@@ -73,6 +73,14 @@ run $T1 --tasks reacher-easy,ball_in_cup-catch,walker-walk
 run $T1 --policy cnn --tasks cartpole-swingup,cheetah-run
 # finger-spin last of the suite: its seed 0 shows no learning signal from pixels (RESULTS.md, table1-analysis)
 run $T1 --tasks finger-spin
+# Figure 11's nine runs continued from 200 to 400 iterations (RESULTS.md, fig11-analysis: the one
+# setting left to try on the course, decided before it ran), on copies so that the 200-iteration
+# runs stay as they are
+mkdir -p "$OUT/fig11-400"
+for d in "$OUT"/fig11/quadruped-walls-*-seed*; do
+    [ -e "$OUT/fig11-400/$(basename "$d")" ] || cp -r "$d" "$OUT/fig11-400/"
+done
+run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400"
 # beyond the paper (issue 24), after the paper's tables: the gates corridor seen through depth, IAP
 # and the blind control
 run train quadruped-gates-iap --run-dir "$OUT/gates/quadruped-gates-iap-seed0" --no-progress
