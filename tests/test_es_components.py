@@ -5,14 +5,13 @@ other shapes. No program is compiled."""
 
 from __future__ import annotations
 
-import time
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from iap_mjx.configs import ESConfig, RunConfig
-from iap_mjx.es import checkpoint
+from iap_mjx.es import bookkeeping, checkpoint
 from iap_mjx.es.bookkeeping import checkpoint_due, metric_rows, past_time_limit
 from iap_mjx.es.components import describe_parameters, make_sigma
 
@@ -55,11 +54,12 @@ def test_checkpoints_are_due_periodically_at_the_end_and_when_out_of_time():
     assert [done for done in range(1, 11) if checkpoint_due(at_the_end_only, done, False)] == [10]
 
 
-def test_the_time_limit_counts_from_the_start_and_zero_means_none():
-    now = time.perf_counter()
+def test_the_time_limit_counts_from_the_start_and_zero_means_none(monkeypatch):
+    now = 1000.0
+    monkeypatch.setattr(bookkeeping.time, "perf_counter", lambda: now)
     assert not past_time_limit(RunConfig(max_minutes=0), now - 1e6)
-    assert not past_time_limit(RunConfig(max_minutes=1), now)
-    assert past_time_limit(RunConfig(max_minutes=1), now - 61)
+    assert not past_time_limit(RunConfig(max_minutes=1), now - 60)
+    assert past_time_limit(RunConfig(max_minutes=1), now - 60.5)
 
 
 def test_a_checkpoint_restored_into_other_shapes_names_the_leaf_and_both_shapes(tmp_path):

@@ -51,7 +51,7 @@ def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
     env.pop("MUJOCO_GL", None)  # as on a newcomer's machine (the tests' conftest sets it)
     return subprocess.run(
-        [sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=1500
+        [sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=env, capture_output=True, text=True
     )
 
 
