@@ -203,7 +203,11 @@ def test_pixel_modes_go_through_the_camera_wrapper():
     env = envs.make("cartpole-swingup", obs_mode="pixels", height=16, width=24, frame_stack=2)
     assert isinstance(env, PixelEnv)
     assert env.config.obs_mode == "pixels" and env.frame_stack == 2
-    assert env.env.state_observation is not None
+    # the wrapped env is cartpole's state env: its state observation is the plain env's
+    plain = envs.make("cartpole-swingup")
+    state = jax.jit(plain.reset)(jax.random.PRNGKey(0))
+    assert type(env.env) is type(plain) and env.env.observation_shape == (5,)
+    np.testing.assert_array_equal(env.env.state_observation(state.data), state.obs)
 
 
 @pytest.mark.parametrize("n_steps", [0, 1, 5])

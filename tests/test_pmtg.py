@@ -62,7 +62,7 @@ def test_period_and_stance_split_at_constant_frequency(ratio):
         phase = pmtg.advance(phase, f, ratio, config.dt)
         phases.append(float(phase))
     phases = np.array(phases)
-    start = float(pmtg.phase_to_time(jnp.float32(0.3), ratio))
+    start = 0.3 / math.pi * ratio / (ratio + 1)  # 0.3 < pi: in stance, a k / (k + 1) share of the period
     np.testing.assert_allclose(phases[steps - 1], 0.3, atol=1e-4)  # one period: back at the start
     np.testing.assert_allclose(phases[steps:], phases[:steps], atol=1e-4)  # and it repeats
     assert np.all(np.abs(phases[: steps - 1] - 0.3) > 1e-2)  # no earlier return

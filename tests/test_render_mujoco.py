@@ -85,6 +85,8 @@ def test_checker_floor_matches_mujoco_renderer():
         mujoco_white = ref["rgb"][0, camera_id][..., 0] > 127
         agreement = float(np.mean((ours_white == mujoco_white)[plane]))
         assert agreement >= 0.97, (camera_id, agreement)
+        other_phase = float(np.mean((~ours_white == mujoco_white)[plane]))
+        assert other_phase <= 0.6, (camera_id, other_phase)
 
 
 ALPHA_XML = """
