@@ -2,14 +2,15 @@
 
 Test workers share ``.jax_cache/`` and users may run two trainings on one cache directory; JAX's
 own cache writes ``<key>-cache`` in place, so a process reading it meanwhile gets a truncated
-stream. The race below, given JAX's own ``LRUCache`` instead of the writer
-``runtime.enable_compilation_cache`` installs, saw torn reads in 3 runs of 3 (118 to 8,909 of
-them, sizes from 0 to half an entry).
+stream. Below, a write is held halfway while the entry is read: JAX's own ``LRUCache`` hands out
+half an entry, the writer ``runtime.enable_compilation_cache`` installs hands out none.
 """
 
 from __future__ import annotations
 
+import io
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -22,48 +23,70 @@ from jax._src import compilation_cache, lru_cache
 
 from iap_mjx import runtime
 
-ENTRY_BYTES = 8 << 20
-WRITES = 40
+VALUE = bytes(range(256)) * 64
 
 
-def _race(cache_class, directory: Path) -> list[int]:
-    """A writer puts ``WRITES`` entries of ``ENTRY_BYTES`` under fresh keys while a reader
-    reads each key as soon as its file exists. Returns the sizes of the reads that were not
-    whole."""
-    cache = cache_class(str(directory), max_size=-1)
-    value = bytes(range(256)) * (ENTRY_BYTES // 256)
-    current = {"key": None}
-    done = threading.Event()
-    torn: list[int] = []
+class _HeldWrite(io.RawIOBase):
+    """A binary file whose ``write`` writes the first half, signals ``halfway``, waits for
+    ``release`` and writes the rest."""
 
-    def read():
-        while not done.is_set():
-            key = current["key"]
-            if key is not None:
-                got = cache.get(key)
-                if got is not None and len(got) != len(value):
-                    torn.append(len(got))
+    def __init__(self, file, halfway: threading.Event, release: threading.Event):
+        self.file, self.halfway, self.release = file, halfway, release
 
-    reader = threading.Thread(target=read)
-    reader.start()
-    try:
-        for i in range(WRITES):
-            current["key"] = f"entry{i}"
-            cache.put(f"entry{i}", value)
-    finally:
-        done.set()
-        reader.join()
-    return torn
+    def write(self, value) -> int:
+        half = len(value) // 2
+        self.file.write(value[:half])
+        self.file.flush()
+        self.halfway.set()
+        self.release.wait()
+        self.file.write(value[half:])
+        return len(value)
+
+    def close(self) -> None:
+        self.file.close()
+        super().close()
 
 
-def test_a_reader_never_sees_a_half_written_entry(tmp_path):
-    """The writer ``enable_compilation_cache`` installs: every read is whole (JAX's own cache
-    fails this, see the module docstring)."""
+def _read_while_half_written(cache, halfway: threading.Event, release: threading.Event):
+    """``cache.put("entry", VALUE)`` in a thread, held halfway (the test patches the file
+    write to hold): what ``cache.get("entry")`` returns then, and after the write."""
+    writer = threading.Thread(target=cache.put, args=("entry", VALUE))
+    writer.start()
+    while not halfway.wait(0.05):  # a poll, not a time limit
+        assert writer.is_alive(), "the write went past the patched file write"
+    during = cache.get("entry")
+    release.set()
+    writer.join()
+    return during, cache.get("entry")
+
+
+def test_a_reader_never_sees_a_half_written_entry(tmp_path, monkeypatch):
+    """The writer ``enable_compilation_cache`` installs: a read during the write finds no
+    entry, a read after it the whole one."""
     assert runtime.write_entries_atomically()
     atomic = compilation_cache.LRUCache
     assert atomic is not lru_cache.LRUCache and issubclass(atomic, lru_cache.LRUCache)
-    assert _race(atomic, tmp_path) == []
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"entry{i}-cache" for i in range(WRITES))
+    halfway, release = threading.Event(), threading.Event()
+    fdopen = os.fdopen
+    monkeypatch.setattr(os, "fdopen", lambda fd, mode: _HeldWrite(fdopen(fd, mode), halfway, release))
+    during, after = _read_while_half_written(atomic(str(tmp_path), max_size=-1), halfway, release)
+    assert during is None and after == VALUE
+    assert [p.name for p in tmp_path.iterdir()] == ["entry-cache"]  # no temporary file left
+
+
+def test_jax_s_own_cache_hands_out_a_half_written_entry(tmp_path, monkeypatch):
+    """The failure the writer prevents, seen by the same check: JAX's ``LRUCache`` writes in
+    place (``Path.write_bytes``), so the read during the write gets half the entry."""
+    halfway, release = threading.Event(), threading.Event()
+
+    def write_bytes(path, data: bytes) -> int:
+        with _HeldWrite(open(path, "wb"), halfway, release) as f:
+            return f.write(data)
+
+    cache = lru_cache.LRUCache(str(tmp_path), max_size=-1)
+    monkeypatch.setattr(type(cache.path), "write_bytes", write_bytes)
+    during, after = _read_while_half_written(cache, halfway, release)
+    assert during == VALUE[: len(VALUE) // 2] and after == VALUE
 
 
 def test_jax_writes_its_entries_through_the_atomic_writer(tmp_path):
