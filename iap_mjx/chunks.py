@@ -36,7 +36,7 @@ def map_chunks(fn: Callable[[Any], Any], args: Any, chunk: int, axis_size: int) 
       ``fn``'s outputs with leading axis ``axis_size``.
     """
     chunk = min(chunk, axis_size)
-    n_chunks = -(-axis_size // chunk)
+    n_chunks = ceil_div(axis_size, chunk)
     padded = n_chunks * chunk
 
     def split(x):

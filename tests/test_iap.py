@@ -195,6 +195,8 @@ def test_layer_errors_are_clear_and_early():
         AttentionConfig(kernel="softmax")
     with pytest.raises(ValueError, match="AttentionConfig.m must be a positive integer"):
         AttentionConfig(m=0)
+    with pytest.raises(ValueError, match="AttentionConfig.stride must be a positive integer or None"):
+        AttentionConfig(stride=True)
     with pytest.raises(ValueError, match="valid scalings"):
         AttentionConfig(scaling="eq6")
     with pytest.raises(ValueError, match="row_normalize applies to kernel='brute' only"):

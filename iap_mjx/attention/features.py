@@ -32,19 +32,17 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
+from iap_mjx.chunks import ceil_div
+
 KINDS = ("relu", "exp", "trig", "hybrid", "angular")
 ROLES = ("query", "key")
 MSE_KINDS = ("exp", "trig", "hybrid")
 RELU_EPSILON = 1e-3
-
-Kind = Literal["relu", "exp", "trig", "hybrid", "angular"]
-Role = Literal["query", "key"]
 
 
 @struct.dataclass
@@ -97,13 +95,13 @@ def gaussian_directions(key: jax.Array, count: int, d: int, *, orthogonal: bool)
     """``(count, d)`` rows with ``N(0, I_d)`` marginals.
 
     ``orthogonal=False``: iid Gaussian rows. ``orthogonal=True``: Performer's block-orthogonal
-    ensemble: rows come in blocks of ``d`` exactly orthogonal directions (QR of a Gaussian
-    ``d x d`` matrix), each row rescaled to the norm of an independent Gaussian vector (chi
+    ensemble: rows come in blocks of ``d`` exactly orthogonal directions (Gram-Schmidt on a
+    Gaussian ``d x d`` matrix, :func:`_orthonormal_rows`), each row rescaled to the norm of an independent Gaussian vector (chi
     distributed with ``d`` degrees of freedom), so each row is still marginally ``N(0, I_d)``.
     """
     if not orthogonal:
         return jax.random.normal(key, (count, d))
-    n_blocks = -(-count // d)
+    n_blocks = ceil_div(count, d)
     block_key, norm_key = jax.random.split(key)
     blocks = jax.vmap(_orthonormal_rows)(jax.random.normal(block_key, (n_blocks, d, d)))
     rows = blocks.reshape(n_blocks * d, d)[:count]
@@ -167,8 +165,7 @@ class Components:
 
     Attributes:
       trig_log: ``(..., 1)`` ``|z|^2 / 2``, log-magnitude of the trigonometric features.
-      sin, cos: ``(..., m)`` ``sin(omega z)`` and ``cos(omega z)``, kept apart: a
-        concatenation along the last axis inside a fusion stops XLA CPU from vectorising it.
+      sin, cos: ``(..., m)`` ``sin(omega z)`` and ``cos(omega z)``.
       exp_log: ``(..., m)`` ``omega z - |z|^2 / 2``, log-magnitude of the positive features.
       signs: ``(..., r)`` ``sgn(xi z)`` in ``{-1, +1}``, or ``None`` without ``xi``.
     """
@@ -191,9 +188,7 @@ def sincos(x: jax.Array) -> tuple[jax.Array, jax.Array]:
 
     Cody-Waite reduction to ``x = n pi + r``, ``|r| <= pi/2``; Taylor polynomials of ``sin r``
     (to ``r^11``) and ``cos r`` (to ``r^12``), then ``(-1)^n`` applied by flipping the sign bit
-    (no quadrant selects). Within 2e-7 of the true values for ``|x| < 1e3`` (``jnp.sin``'s
-    error is 3e-8), and faster than ``jnp.sin`` plus ``jnp.cos`` on XLA CPU, where they are the
-    cost of the trigonometric features.
+    (no quadrant selects). Within 2e-7 of the true values for ``|x| < 1e3``.
     """
     n = jnp.round(x * (1.0 / math.pi))
     r = ((x - n * _PI_HI) - n * _PI_MID) - n * _PI_LO
@@ -322,11 +317,6 @@ def angle_between(x: jax.Array, y: jax.Array) -> jax.Array:
     return 2.0 * jnp.arctan2(
         jnp.linalg.norm(norm_x * y - norm_y * x, axis=-1), jnp.linalg.norm(norm_x * y + norm_y * x, axis=-1)
     )
-
-
-def angular_kernel(x: jax.Array, y: jax.Array) -> jax.Array:
-    """``1 - 2 theta / pi`` for ``x, y (..., d)`` -> ``(...)``."""
-    return 1.0 - 2.0 * angle_between(x, y) / jnp.pi
 
 
 def closed_form_mse(kind: str, x: jax.Array, y: jax.Array, *, m: int, r: int | None = None) -> jax.Array:

@@ -18,7 +18,7 @@ from flax import struct
 
 from iap_mjx import chunks
 from iap_mjx.attention import features as ft
-from iap_mjx.attention.patches import extract_patches, patch_centres, patch_grid
+from iap_mjx.attention.patches import extract_patches, patch_centres, patch_corner, patch_grid
 from iap_mjx.attention.scores import brute_scores, hybrid_scores_rows, linear_scores, relu_scores_rows
 from iap_mjx.attention.selection import top_l
 
@@ -40,8 +40,8 @@ class AttentionConfig:
       d_qk: query/key dimension ``d``.
       top_l: number of patches ``l`` passed on to the controller.
       kernel: ``"brute"`` (explicit softmax) or a feature map kind (:data:`features.KINDS`).
-      m: random features (``exp``/``trig``/``hybrid``; sign features of ``angular``).
-      r: sign features of ``hybrid``.
+      m: random features (``exp``/``trig``/``hybrid``).
+      r: sign features (``hybrid``, ``angular``).
       orthogonal: block-orthogonal random projections (else iid Gaussian).
       scaling: ``"eq4"`` (``x = d^{-1/4} u``), ``"eq5"`` (``x = c u / |u|``) or ``"none"``.
       eq5_scale: the constant ``c`` of eq. 5.
@@ -79,7 +79,9 @@ class AttentionConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise ValueError(f"AttentionConfig.{name} must be a positive integer, got {value!r}")
-        if self.stride is not None and (not isinstance(self.stride, int) or self.stride <= 0):
+        if self.stride is not None and (
+            not isinstance(self.stride, int) or isinstance(self.stride, bool) or self.stride <= 0
+        ):
             raise ValueError(f"AttentionConfig.stride must be a positive integer or None, got {self.stride!r}")
         if self.batch_chunk is not None and (
             not isinstance(self.batch_chunk, int) or isinstance(self.batch_chunk, bool) or self.batch_chunk <= 0
@@ -306,7 +308,7 @@ class IAPAttention:
             # At least two chunks: with the whole batch in one step (a loop of one trip is
             # removed), XLA's CPU backend fuses the scores' computation into both of top_l's
             # consumers and computes it twice (BENCHMARKS.md, full pixel pipeline at 100x100).
-            chunk = min(self.batch_chunk, -(-axis_size // 2))
+            chunk = min(self.batch_chunk, chunks.ceil_div(axis_size, 2))
             return chunks.map_chunks(one_chunk, per_image, chunk, axis_size), True
 
         return batched
@@ -343,7 +345,7 @@ class IAPAttention:
         _, cols = self.grid
 
         def one(index):
-            corner = (index // cols * stride, index % cols * stride, 0)
+            corner = (*patch_corner(index, cols, stride), 0)
             return jax.lax.dynamic_slice(image, corner, (p, p, self.image_shape[2])).reshape(-1)
 
         return jax.vmap(one)(indices)

@@ -1,4 +1,4 @@
-"""Image patches: the patch grid, the patches' centres and the flattened patches.
+"""Image patches: the patch grid, the patches' centres and corners, and the flattened patches.
 
 An image ``(H, W, C)`` is cut into ``L`` patches of side ``p`` with stride ``s``, row-major
 over the patch grid; each patch is flattened in ``(row, col, channel)`` order, ``c = p*p*C``
@@ -6,6 +6,8 @@ values.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -43,6 +45,13 @@ def patch_centres(height: int, width: int, patch_size: int, stride: int) -> np.n
     col_centres = (np.arange(cols) * stride + patch_size / 2) / width
     grid = np.stack(np.meshgrid(row_centres, col_centres, indexing="ij"), axis=-1)
     return grid.reshape(rows * cols, 2).astype(np.float32)
+
+
+def patch_corner(index: Any, cols: int, stride: int) -> tuple[Any, Any]:
+    """The top-left pixel ``(row, column)`` of patch ``index`` in a grid of ``cols`` patches per
+    row (row-major order) at ``stride``; ``index`` an int or an integer array (NumPy or JAX),
+    the result alike."""
+    return index // cols * stride, index % cols * stride
 
 
 def extract_patches(image: jax.Array, patch_size: int, stride: int | None = None) -> tuple[jax.Array, jax.Array]:

@@ -181,7 +181,8 @@ def hybrid_scores(
     """The hybrid kernel's linear scores without building the ``3m(r+1)`` features.
 
     Equal to ``linear_scores(feature_map("hybrid", Q, query), feature_map("hybrid", K, key))``
-    (up to float rounding) but in ``O(L m r)`` with ``m + r`` transcendentals per token; see
+    (up to float rounding) but in ``O(L m r)``, per token ``m`` exponentials, ``m`` polynomial
+    sine-cosine pairs and ``r`` sign tests; see
     :func:`hybrid_scores_rows`, which this calls on the transposed inputs.
 
     Args:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.chunks import ceil_div
+
 TOP_L_BLOCK = 128  # scores per block of top_l's two-level search
 
 
@@ -21,7 +23,7 @@ def top_l(scores: jax.Array, l: int) -> jax.Array:
     """
     size = scores.shape[-1]
     block = min(size, TOP_L_BLOCK)
-    n_blocks = -(-size // block)
+    n_blocks = ceil_div(size, block)
     if n_blocks * block != size:  # padding at the end is never picked while finite scores remain
         scores = jnp.concatenate([scores, jnp.full((n_blocks * block - size,), -jnp.inf, scores.dtype)])
     blocks = scores.reshape(n_blocks, block)

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs, runtime
+from iap_mjx.chunks import ceil_div
 from iap_mjx.paper.runs import check_evaluated, check_not_swept, check_seed_not_set, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
@@ -74,7 +75,7 @@ def frames_per_iteration(config: configs.TrainConfig) -> int:
     from iap_mjx import envs
 
     env = envs.check(config.env.name, **dict(config.env.overrides))
-    length = env.episode_length if env.episode_length is not None else -(-1000 // env.action_repeat)
+    length = env.episode_length if env.episode_length is not None else ceil_div(1000, env.action_repeat)
     return (config.es.population_size * config.es.n_episodes + config.run.eval_episodes) * length
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.chunks import ceil_div
 from iap_mjx.policies.base import check_options, check_positive, check_sizes, constructor_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
@@ -81,7 +82,7 @@ class ConvNet:
         """``(rows, cols)`` after the convolutions ("SAME": ``ceil(size / stride)``) and the pool."""
         rows, cols = self.image_shape[:2]
         for stride in self.strides:
-            rows, cols = -(-rows // stride), -(-cols // stride)
+            rows, cols = ceil_div(rows, stride), ceil_div(cols, stride)
         return rows // self.pool, cols // self.pool
 
     @property

@@ -37,6 +37,13 @@ from iap_mjx.render import sky as sky_lib
 
 SHADINGS = ("lambert", "flat")
 SKIES = ("skybox", "color")
+CHUNK_PIXELS = 40_000
+"""Pixels rendered together under ``vmap`` when ``batch_chunk`` is ``None``."""
+
+
+def _is_int(value: object) -> bool:
+    """An ``int`` that is not a ``bool`` (``True`` is not an image size)."""
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +64,7 @@ class CameraConfig:
       checker_floor: draw textured planes as dm_control's 2x2 checker (else flat material colour).
       batch_chunk: under ``vmap``, images rendered together per step of the loop over the batch
         (small enough for the intermediates to stay in cache); ``None`` (default):
-        ``40,000 // pixels`` per image, between 1 and 4 (4 up to 10,000 pixels, 1 above
+        ``CHUNK_PIXELS // pixels`` per image, between 1 and 4 (4 up to 10,000 pixels, 1 above
         20,000).
       tile: side in pixels of the square screen tiles used for culling.
       cull_pairs_per_tile: budget of (tile, geom) pairs per culled type group, per tile on
@@ -79,18 +86,17 @@ class CameraConfig:
     cull_pairs_per_tile: float = 1.0
 
     def __post_init__(self):
-        if not isinstance(self.camera_id, int) or self.camera_id < 0:
+        if not _is_int(self.camera_id) or self.camera_id < 0:
             raise ValueError(f"camera_id must be an int >= 0 (a model camera), got {self.camera_id!r}")
         for name in ("height", "width"):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
+            if not _is_int(value) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
         if not (
-            isinstance(self.geom_groups, (tuple, list))
-            and all(isinstance(g, int) and 0 <= g < 6 for g in self.geom_groups)
+            isinstance(self.geom_groups, (tuple, list)) and all(_is_int(g) and 0 <= g < 6 for g in self.geom_groups)
         ):
             raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
-        if not isinstance(self.tile, int) or self.tile < 1:
+        if not _is_int(self.tile) or self.tile < 1:
             raise ValueError(f"tile must be a positive int, got {self.tile!r}")
         if (
             not isinstance(self.cull_pairs_per_tile, (int, float))
@@ -99,8 +105,8 @@ class CameraConfig:
         ):
             raise ValueError(f"cull_pairs_per_tile must be a finite number >= 0, got {self.cull_pairs_per_tile!r}")
         if self.batch_chunk is None:
-            object.__setattr__(self, "batch_chunk", max(1, min(4, 40_000 // (self.height * self.width))))
-        if not isinstance(self.batch_chunk, int) or self.batch_chunk < 1:
+            object.__setattr__(self, "batch_chunk", max(1, min(4, CHUNK_PIXELS // (self.height * self.width))))
+        if not _is_int(self.batch_chunk) or self.batch_chunk < 1:
             raise ValueError(f"batch_chunk must be a positive int or None, got {self.batch_chunk!r}")
         if self.shading not in SHADINGS:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")

@@ -21,14 +21,6 @@ ELLIPSOID = int(mujoco.mjtGeom.mjGEOM_ELLIPSOID)
 CYLINDER = int(mujoco.mjtGeom.mjGEOM_CYLINDER)
 BOX = int(mujoco.mjtGeom.mjGEOM_BOX)
 SUPPORTED_TYPES = (PLANE, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX)
-TYPE_NAMES = {
-    PLANE: "plane",
-    SPHERE: "sphere",
-    CAPSULE: "capsule",
-    ELLIPSOID: "ellipsoid",
-    CYLINDER: "cylinder",
-    BOX: "box",
-}
 
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
 

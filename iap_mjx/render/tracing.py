@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from iap_mjx.chunks import ceil_div
 from iap_mjx.render import intersect
 from iap_mjx.render import scene as scene_lib
 
@@ -79,7 +80,7 @@ class Tracer:
         """Static tile layout: pixel image coordinates per tile and each tile's bounds."""
         height, width = self.height, self.width
         th, tw = min(tile, height), min(tile, width)
-        ny, nx = -(-height // th), -(-width // tw)
+        ny, nx = ceil_div(height, th), ceil_div(width, tw)
         cols = ((np.arange(nx * tw) + 0.5) / width * 2.0 - 1.0) * half_w
         rows = (1.0 - (np.arange(ny * th) + 0.5) / height * 2.0) * half_h
         x = np.broadcast_to(cols[None, :], (ny * th, nx * tw)).reshape(ny, th, nx, tw)

@@ -70,13 +70,11 @@ ARMATURE = 0.01
 PHYSICS_DT = 0.004
 CONTROL_DT = 0.02
 
-# The constraint solver (MuJoCo's ``opt.solver``, ``opt.iterations``, ``opt.ls_iterations``),
-# chosen by the solver sweep in BENCHMARKS.md (section physics-quadruped; `python
-# benchmarks/physics.py --quadruped --parts sweep`): Newton with 8 / 4 is the smallest budget
-# whose trajectories match native MuJoCo at its defaults (Newton 100 / 50, float64) as closely
-# as 100 / 50 does (float32 noise). Newton with 1, 2 or 4 iterations, or 8 with 2 line-search
-# steps, and CG with 8 or 16, leave the contact solve unconverged: errors thousands of times
-# larger, and the robot falls where the converged one stands. More iterations only cost time.
+# The constraint solver (MuJoCo's ``opt.solver``, ``opt.iterations``, ``opt.ls_iterations``):
+# the smallest budget whose trajectories match native MuJoCo at its defaults as closely as
+# those defaults in float32 do; smaller budgets leave the contact solve unconverged (the solver
+# sweep in BENCHMARKS.md, section physics-quadruped: `python benchmarks/physics.py --quadruped
+# --parts sweep`).
 SOLVER = "newton"
 ITERATIONS = 8
 LS_ITERATIONS = 4

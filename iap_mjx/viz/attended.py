@@ -16,6 +16,7 @@ import jax
 import mujoco
 import numpy as np
 
+from iap_mjx.attention.patches import patch_corner
 from iap_mjx.viz import video
 
 BACKGROUND = "background"
@@ -34,11 +35,11 @@ def geom_label(model: mujoco.MjModel, geom: int) -> str:
 
 def patch_pixels(layer: Any, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rows and columns ``(..., p * p)`` of the pixels of patches ``indices (...)``."""
-    patch, stride = layer.config.patch_size, layer.config.effective_stride
-    _, cols = layer.grid
+    patch = layer.config.patch_size
+    top, left = patch_corner(indices, layer.grid[1], layer.config.effective_stride)
     offsets = np.arange(patch)
-    rows = (indices // cols * stride)[..., None, None] + offsets[:, None]
-    columns = (indices % cols * stride)[..., None, None] + offsets[None, :]
+    rows = top[..., None, None] + offsets[:, None]
+    columns = left[..., None, None] + offsets[None, :]
     rows, columns = np.broadcast_arrays(rows, columns)
     shape = indices.shape + (patch * patch,)
     return rows.reshape(shape), columns.reshape(shape)

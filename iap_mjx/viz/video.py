@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from iap_mjx.attention.patches import patch_corner
+
 logger = logging.getLogger(__name__)
 
 RED = (230, 30, 30)
@@ -293,13 +295,10 @@ def annotate(
     canvas.paste(image, (0, CAPTION_HEIGHT))
     draw = ImageDraw.Draw(canvas)
     if indices is not None and layer is not None:
-        patch, stride = layer.config.patch_size, layer.config.effective_stride
-        _, cols = layer.grid
-        boxes = [
-            ((int(index) % cols) * stride * scale, CAPTION_HEIGHT + (int(index) // cols) * stride * scale)
-            for index in indices
-        ]
-        size = patch * scale
+        cols, stride = layer.grid[1], layer.config.effective_stride
+        corners = [patch_corner(int(index), cols, stride) for index in indices]
+        boxes = [(column * scale, CAPTION_HEIGHT + row * scale) for row, column in corners]
+        size = layer.config.patch_size * scale
         if size >= MARK_BELOW:  # white lines inside the red ones, all drawn first: overlapping
             for left, top in boxes:  # patches (stride < patch) keep every red edge whole
                 draw.rectangle([left + 1, top + 1, left + size - 2, top + size - 2], outline=WHITE)
