@@ -11,7 +11,7 @@ checks on their inputs, and how a batch is run. An image is made in two passes:
 
 Under ``vmap`` the batch is rendered in chunks (``batch_chunk`` images per step of a loop) so
 intermediates stay in cache (``Camera._chunked_over_batch``); each pass's results are
-materialised once (``Camera._trace_and_shade``).
+materialised once (``Camera._trace`` and ``Camera._shade``).
 
 It is one module at over 400 lines because it is one class and what it takes: ``CameraConfig``
 and its checks, ``Camera``'s public methods, the checks of their inputs, and the one program
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -120,6 +121,22 @@ class CameraConfig:
             raise ValueError(f"background_color must be 3 numbers in [0, 1], got {self.background_color!r}")
         object.__setattr__(self, "geom_groups", tuple(self.geom_groups))
         object.__setattr__(self, "background_color", tuple(float(c) for c in self.background_color))
+
+
+class _Traced(NamedTuple):
+    """What :meth:`Camera._trace` hands the colour pass, per image (a leading axis when
+    batched): the geoms' frames, ``seen`` (the camera pose is finite) and its ``(..., 1, 1)``
+    broadcast ``seen_px``, ``finite`` (some image of the batch is seen), the padded planes
+    ``(depth_p, best_p)`` ``(H + 2, W + 2)``, and the image's ``depth`` and geom ``ids``
+    ``(H, W)``."""
+
+    frames: dict
+    seen: jax.Array
+    seen_px: jax.Array
+    finite: jax.Array
+    padded: tuple[jax.Array, jax.Array]
+    depth: jax.Array
+    ids: jax.Array
 
 
 class Camera:
@@ -344,17 +361,21 @@ class Camera:
 
     def _trace_and_shade(self, poses, background, geom_rgb, sky_texture, sky_frame, colour: bool, batched: bool):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
-        depth (H, W), geom id (H, W))``. Culled tracing first; if any image of the batch has
-        more (tile, geom) pairs than the budget, dense tracing.
-
-        The trace ends in a ``lax.cond`` (on some camera pose of the batch being finite): its
-        results are materialised once, where XLA would otherwise fuse the nearest-hit
-        selection into every shading consumer and redo it many times. An image whose camera
-        pose is not finite sees nothing (depth ``zfar``, id ``-1``, black), whatever the other
-        images of its batch.
-        """
-        tracer, shader = self.tracer, self.shader
+        depth (H, W), geom id (H, W))``: :meth:`_trace`, then (``colour``) :meth:`_shade`. An
+        image whose camera pose is not finite sees nothing (depth ``zfar``, id ``-1``, black),
+        whatever the other images of its batch."""
         lift = jax.vmap if batched else (lambda f: f)
+        traced = self._trace(poses, lift)
+        if not colour:
+            return None, traced.depth, traced.ids
+        rgb = self._shade(poses, traced, background, geom_rgb, sky_texture, sky_frame, lift)
+        return rgb, traced.depth, traced.ids
+
+    def _trace(self, poses, lift) -> _Traced:
+        """The geometry pass: culled tracing first; if any image of the batch has more (tile,
+        geom) pairs than the budget, dense tracing. ``lift``: ``jax.vmap`` over a batch, or the
+        identity for one image."""
+        tracer = self.tracer
         frames = lift(tracer.geom_frames)(poses)
         seen = jnp.all(jnp.isfinite(poses["cam_pos"]), axis=-1) & jnp.all(
             jnp.isfinite(poses["cam_mat"]), axis=(-2, -1)
@@ -399,13 +420,17 @@ class Camera:
         depth = jnp.where(seen_px, depth_p[..., 1:-1, 1:-1], jnp.float32(self.scene.zfar))
         best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
         ids = jnp.where(seen_px, jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best], -1)
-        if not colour:
-            return None, depth, ids
+        return _Traced(frames, seen, seen_px, finite, (depth_p, best_p), depth, ids)
+
+    def _shade(self, poses, traced: _Traced, background, geom_rgb, sky_texture, sky_frame, lift) -> jax.Array:
+        """The colour pass over :meth:`_trace`'s planes: ``(H, W, 3)`` (per image)."""
+        shader = self.shader
+        frames, seen, seen_px, finite, padded, depth, _ = traced
+        depth_p, best_p = padded
         # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
         # CPU loops do not vectorise). The light (normals, lights) and a skybox texture's
         # texels are materialised, then the colour and composition in planes (fused into the
         # interleaved output they would run per element, unvectorised).
-        padded = (depth_p, best_p)
         if self.config.shading == "flat":
             light = (jnp.ones_like(depth),)
         else:
@@ -421,7 +446,7 @@ class Camera:
             ),
             finite,
         )
-        return jnp.where(seen_px[..., None], jnp.stack(planes, axis=-1), 0.0), depth, ids
+        return jnp.where(seen_px[..., None], jnp.stack(planes, axis=-1), 0.0)
 
 
 def _materialised(fn, pred):
