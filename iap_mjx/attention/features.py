@@ -96,8 +96,9 @@ def gaussian_directions(key: jax.Array, count: int, d: int, *, orthogonal: bool)
 
     ``orthogonal=False``: iid Gaussian rows. ``orthogonal=True``: Performer's block-orthogonal
     ensemble: rows come in blocks of ``d`` exactly orthogonal directions (Gram-Schmidt on a
-    Gaussian ``d x d`` matrix, :func:`_orthonormal_rows`), each row rescaled to the norm of an independent Gaussian vector (chi
-    distributed with ``d`` degrees of freedom), so each row is still marginally ``N(0, I_d)``.
+    Gaussian ``d x d`` matrix, :func:`_orthonormal_rows`), each row rescaled to the norm of an
+    independent Gaussian vector (chi distributed with ``d`` degrees of freedom), so each row is
+    still marginally ``N(0, I_d)``.
     """
     if not orthogonal:
         return jax.random.normal(key, (count, d))
