@@ -175,7 +175,7 @@ def test_unknown_difficulty_lists_the_valid_ones(tmp_path):
 def test_bad_sizes_are_named(setting):
     (name,) = setting
     setting_name = {"size": "env.background_size", "num_frames": "env.background_frames"}[name]
-    with pytest.raises(ValueError, match=rf"background {name} must be an int >= 1 \(the setting {setting_name}\)"):
+    with pytest.raises(ValueError, match=rf"background {name} \(the setting {setting_name}\) must be an int >= 1"):
         backgrounds.load("easy", **setting)
 
 

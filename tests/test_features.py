@@ -224,9 +224,9 @@ def test_bad_arguments_raise_clear_errors():
     key = jax.random.PRNGKey(0)
     with pytest.raises(ValueError, match="valid kinds: relu, exp, trig, hybrid, angular"):
         ft.draw_projections(key, "favor", m=4, d=4)
-    with pytest.raises(ValueError, match="m must be a positive integer"):
+    with pytest.raises(ValueError, match="m must be an int >= 1"):
         ft.draw_projections(key, "exp", m=0, d=4)
-    with pytest.raises(ValueError, match="r must be a positive integer"):
+    with pytest.raises(ValueError, match="r must be an int >= 1"):
         ft.draw_projections(key, "hybrid", m=4, d=4, r=-1)
     proj = ft.draw_projections(key, "exp", m=4, d=4)
     with pytest.raises(ValueError, match="valid roles: query, key"):

@@ -48,7 +48,7 @@ def test_patches_that_do_not_tile_raise():
         extract_patches(jnp.zeros((10, 10, 3)), 3)
     with pytest.raises(ValueError, match="larger than the image"):
         extract_patches(jnp.zeros((4, 4, 3)), 5)
-    with pytest.raises(ValueError, match="stride must be a positive integer"):
+    with pytest.raises(ValueError, match="stride must be an int >= 1"):
         extract_patches(jnp.zeros((4, 4, 3)), 2, 0)
 
 
@@ -193,9 +193,9 @@ def test_layer_errors_are_clear_and_early():
         IAPAttention(AttentionConfig(patch_size=3), (20, 20, 3))
     with pytest.raises(ValueError, match="valid kernels: brute, relu, exp, trig, hybrid, angular"):
         AttentionConfig(kernel="softmax")
-    with pytest.raises(ValueError, match="AttentionConfig.m must be a positive integer"):
+    with pytest.raises(ValueError, match="AttentionConfig.m must be an int >= 1"):
         AttentionConfig(m=0)
-    with pytest.raises(ValueError, match="AttentionConfig.stride must be a positive integer or None"):
+    with pytest.raises(ValueError, match="AttentionConfig.stride must be an int >= 1 or None"):
         AttentionConfig(stride=True)
     with pytest.raises(ValueError, match="valid scalings"):
         AttentionConfig(scaling="eq6")
@@ -292,7 +292,7 @@ def test_vmap_in_chunks_equals_one_image_at_a_time(batched_projections):
 
 
 def test_batch_chunk_must_be_positive():
-    with pytest.raises(ValueError, match="AttentionConfig.batch_chunk must be a positive integer or None"):
+    with pytest.raises(ValueError, match="AttentionConfig.batch_chunk must be an int >= 1 or None"):
         AttentionConfig(batch_chunk=0)
 
 

@@ -52,7 +52,7 @@ def test_background_image_replaces_the_sky_and_config_is_validated():
     with pytest.raises(ValueError, match="camera_id"):
         Camera(model, camera_id=model.ncam)
     for name in ("height", "width", "tile", "batch_chunk"):  # a bool is not a size
-        with pytest.raises(ValueError, match=f"{name} must be a positive int"):
+        with pytest.raises(ValueError, match=f"{name} must be an int >= 1"):
             Camera(model, **{name: True})
     assert hash(Camera(model, height=24, width=32)) == hash(cam)
     assert Camera(model, height=24, width=32) == cam

@@ -78,7 +78,7 @@ def test_bad_settings_fail_before_anything_runs(tmp_path, capsys):
         table2.reproduce_table2(tmp_path, settings=((1.0, 1),))
     with pytest.raises(ValueError, match="heigth"):
         table2.reproduce_table2(tmp_path, overrides=("env.heigth=48",))
-    with pytest.raises(ValueError, match="episodes = 0 must be an int >= 1"):
+    with pytest.raises(ValueError, match="episodes must be an int >= 1, got 0"):
         table2.reproduce_table2(tmp_path, episodes=0)
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "table2", "--settings", "1x1,3x3", "--out", str(tmp_path)]) == 2

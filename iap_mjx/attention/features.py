@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from iap_mjx.checks import require_int
 from iap_mjx.chunks import ceil_div
 
 KINDS = ("relu", "exp", "trig", "hybrid", "angular")
@@ -71,8 +72,7 @@ def check_role(role: str) -> None:
 
 
 def _check_count(name: str, value: int | None) -> int:
-    if value is None or not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    require_int(name, value)
     return value
 
 

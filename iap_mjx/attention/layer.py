@@ -21,6 +21,7 @@ from iap_mjx.attention import features as ft
 from iap_mjx.attention.patches import extract_patches, patch_centres, patch_corner, patch_grid
 from iap_mjx.attention.scores import brute_scores, hybrid_scores_rows, linear_scores, relu_scores_rows
 from iap_mjx.attention.selection import top_l
+from iap_mjx.checks import require_int
 
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
@@ -76,19 +77,9 @@ class AttentionConfig:
         if self.scaling not in SCALINGS:
             raise ValueError(f"unknown scaling {self.scaling!r}; valid scalings: {', '.join(SCALINGS)}")
         for name in ("patch_size", "d_qk", "top_l", "m", "r"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-                raise ValueError(f"AttentionConfig.{name} must be a positive integer, got {value!r}")
-        if self.stride is not None and (
-            not isinstance(self.stride, int) or isinstance(self.stride, bool) or self.stride <= 0
-        ):
-            raise ValueError(f"AttentionConfig.stride must be a positive integer or None, got {self.stride!r}")
-        if self.batch_chunk is not None and (
-            not isinstance(self.batch_chunk, int) or isinstance(self.batch_chunk, bool) or self.batch_chunk <= 0
-        ):
-            raise ValueError(
-                f"AttentionConfig.batch_chunk must be a positive integer or None, got {self.batch_chunk!r}"
-            )
+            require_int(f"AttentionConfig.{name}", getattr(self, name))
+        require_int("AttentionConfig.stride", self.stride, none_ok=True)
+        require_int("AttentionConfig.batch_chunk", self.batch_chunk, none_ok=True)
         if not self.eq5_scale > 0:
             raise ValueError(f"AttentionConfig.eq5_scale must be positive, got {self.eq5_scale!r}")
         if self.row_normalize and self.kernel != "brute":

@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from iap_mjx.checks import require_int
+
 
 def patch_grid(height: int, width: int, patch_size: int, stride: int) -> tuple[int, int]:
     """The ``(rows, cols)`` of the patch grid; raises ``ValueError`` if patches do not tile.
@@ -20,8 +22,8 @@ def patch_grid(height: int, width: int, patch_size: int, stride: int) -> tuple[i
     Patches must cover the image exactly: ``(H - p)`` and ``(W - p)`` divisible by ``s``.
     """
     for name, value in (("patch_size", patch_size), ("stride", stride)):
-        if not isinstance(value, (int, np.integer)) or value <= 0:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        # numpy's integers pass: the grid is computed from arrays' shapes too
+        require_int(name, int(value) if isinstance(value, np.integer) else value)
     if patch_size > height or patch_size > width:
         raise ValueError(f"patch_size {patch_size} is larger than the image ({height} x {width})")
     bad = [f"{name} {size}" for name, size in (("height", height), ("width", width)) if (size - patch_size) % stride]

@@ -27,6 +27,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from iap_mjx.checks import require_int
+
 TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
 """The suite's tasks (the reference's six domains; each renders camera 0, fixed or trackcom)."""
 KINDS = ("background", "camera", "colour")
@@ -278,8 +280,7 @@ _SETTING_OF = {"size": "env.background_size", "num_frames": "env.background_fram
 
 def _check_count(name: str, value: int) -> None:
     """``name``: ``backgrounds.load``'s argument, named with the env setting that gives it."""
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"background {name} must be an int >= 1 (the setting {_SETTING_OF[name]}), got {value!r}.")
+    require_int(f"background {name} (the setting {_SETTING_OF[name]})", value)
 
 
 def _check_video_set(videos: str) -> None:
@@ -409,9 +410,7 @@ class DistractionConfig:
         if self.background_dir is not None and not isinstance(self.background_dir, str):
             raise ValueError(f"background_dir must be a path (str), got {self.background_dir!r}.")
         for name in ("background_size", "background_frames"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}.")
+            require_int(name, getattr(self, name))
         if self.background_size > MAX_BACKGROUND_SIZE:
             raise ValueError(
                 f"background_size = {self.background_size} texels: valid 1 to "

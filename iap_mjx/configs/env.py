@@ -11,6 +11,7 @@ import dataclasses
 import math
 from typing import Any
 
+from iap_mjx.checks import is_int, is_number, require_int
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
 PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
@@ -47,7 +48,7 @@ def check_depth_max(depth_max: Any, obs_mode: str, owner: str = "") -> None:
             f"{owner}depth_max = {depth_max!r} scales the depth of obs_mode 'depth+state' only, "
             f"got obs_mode={obs_mode!r}; leave depth_max unset (None) or set obs_mode='depth+state'."
         )
-    if not isinstance(depth_max, (int, float)) or isinstance(depth_max, bool) or not 0 < depth_max < math.inf:
+    if not is_number(depth_max) or not 0 < depth_max < math.inf:
         raise ValueError(f"{owner}depth_max must be None or a finite number of metres > 0, got {depth_max!r}.")
 
 
@@ -121,23 +122,15 @@ class EnvConfig:
     def __post_init__(self):
         positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height", "width", "frame_stack")
         for name in positive_ints:
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"EnvConfig.{name} must be an int >= 1, got {value!r}.")
-        if self.max_contacts not in ("task", "all") and (
-            not isinstance(self.max_contacts, int) or isinstance(self.max_contacts, bool) or self.max_contacts < 1
-        ):
+            require_int(f"EnvConfig.{name}", getattr(self, name))
+        if self.max_contacts not in ("task", "all") and not (is_int(self.max_contacts) and self.max_contacts >= 1):
             raise ValueError(f'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got {self.max_contacts!r}.')
-        if self.episode_length is not None and (
-            not isinstance(self.episode_length, int) or isinstance(self.episode_length, bool) or self.episode_length < 1
-        ):
-            raise ValueError(f"EnvConfig.episode_length must be None or an int >= 1, got {self.episode_length!r}.")
+        require_int("EnvConfig.episode_length", self.episode_length, none_ok=True)
         if not self.max_abs_state > 0:
             raise ValueError(f"EnvConfig.max_abs_state must be > 0, got {self.max_abs_state!r}.")
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
-        if not isinstance(self.camera_id, int) or isinstance(self.camera_id, bool) or self.camera_id < 0:
-            raise ValueError(f"EnvConfig.camera_id must be an int >= 0, got {self.camera_id!r}.")
+        require_int("EnvConfig.camera_id", self.camera_id, 0)
         check_depth_max(self.depth_max, self.obs_mode, "EnvConfig.")
         self._check_distraction()
 
@@ -233,18 +226,14 @@ class QuadrupedConfig(EnvConfig):
             raise ValueError(
                 f"QuadrupedConfig.action_repeat must be 1 (one action per 0.02 s control step), got {self.action_repeat!r}."
             )
-        if not isinstance(self.v_cap, (int, float)) or isinstance(self.v_cap, bool) or not self.v_cap > 0:
+        if not is_number(self.v_cap) or not self.v_cap > 0:
             raise ValueError(f"QuadrupedConfig.v_cap must be a number > 0 (m/s), got {self.v_cap!r}.")
-        if not isinstance(self.joint_noise, (int, float)) or not 0 <= self.joint_noise <= 0.5:
+        if not is_number(self.joint_noise) or not 0 <= self.joint_noise <= 0.5:
             raise ValueError(f"QuadrupedConfig.joint_noise must be in [0, 0.5] rad, got {self.joint_noise!r}.")
-        if (
-            not isinstance(self.fall_penalty, (int, float))
-            or isinstance(self.fall_penalty, bool)
-            or self.fall_penalty < 0
-        ):
+        if not is_number(self.fall_penalty) or self.fall_penalty < 0:
             raise ValueError(f"QuadrupedConfig.fall_penalty must be a number >= 0 (m), got {self.fall_penalty!r}.")
-        if self.max_geom_pairs not in ("task", "all") and (
-            not isinstance(self.max_geom_pairs, int) or isinstance(self.max_geom_pairs, bool) or self.max_geom_pairs < 1
+        if self.max_geom_pairs not in ("task", "all") and not (
+            is_int(self.max_geom_pairs) and self.max_geom_pairs >= 1
         ):
             raise ValueError(
                 f'QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got {self.max_geom_pairs!r}.'
@@ -266,8 +255,7 @@ class QuadrupedWallsConfig(QuadrupedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if not isinstance(self.n_walls, int) or isinstance(self.n_walls, bool) or self.n_walls < 1:
-            raise ValueError(f"QuadrupedWallsConfig.n_walls must be an int >= 1, got {self.n_walls!r}.")
+        require_int("QuadrupedWallsConfig.n_walls", self.n_walls)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -286,7 +274,7 @@ class QuadrupedTurnConfig(QuadrupedConfig):
     def __post_init__(self):
         super().__post_init__()
         rate = self.max_turn_rate
-        if not isinstance(rate, (int, float)) or isinstance(rate, bool) or not 0 < rate <= 3:
+        if not is_number(rate) or not 0 < rate <= 3:
             raise ValueError(f"QuadrupedTurnConfig.max_turn_rate must be a number in (0, 3] rad/s, got {rate!r}.")
 
 
@@ -303,5 +291,4 @@ class QuadrupedGatesConfig(QuadrupedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if not isinstance(self.n_gates, int) or isinstance(self.n_gates, bool) or self.n_gates < 1:
-            raise ValueError(f"QuadrupedGatesConfig.n_gates must be an int >= 1, got {self.n_gates!r}.")
+        require_int("QuadrupedGatesConfig.n_gates", self.n_gates)

@@ -15,6 +15,7 @@ import dataclasses
 from collections.abc import Iterable
 from typing import Any
 
+from iap_mjx.checks import is_int
 from iap_mjx.configs.env import DISTRACTION_SETTINGS
 from iap_mjx.configs.training import TrainConfig
 
@@ -41,7 +42,7 @@ def _coerce(current: Any, value: Any) -> Any:
     """Matches the type of the field's current value where that is unambiguous."""
     if isinstance(current, bool) or current is None:
         return value
-    if isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+    if isinstance(current, float) and is_int(value):
         return float(value)
     if isinstance(current, tuple) and not isinstance(value, tuple):
         return (value,)

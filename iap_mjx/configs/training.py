@@ -12,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from iap_mjx.checks import is_number, require_int
+
 OPTIMIZERS = ("adam", "sgd", "momentum")
 SHAPINGS = ("centred_rank", "z_score", "identity")
 """The names ``es.optimizer`` and ``es.shaping`` take; ``iap_mjx.es`` builds its tables from
@@ -36,14 +38,11 @@ def _fail(owner: str, field: str, value: Any, why: str) -> None:
 
 
 def _positive_int(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
-    if not isinstance(value, int) or isinstance(value, bool):
-        _fail(owner, field, value, "must be an integer")
-    if value < 0 or (value == 0 and not allow_zero):
-        _fail(owner, field, value, "must be >= 0" if allow_zero else "must be > 0")
+    require_int(f"{owner}.{field}", value, 0 if allow_zero else 1)
 
 
 def _positive_float(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
-    if not isinstance(value, (int, float)) or isinstance(value, bool):
+    if not is_number(value):
         _fail(owner, field, value, "must be a number")
     if value < 0 or (value == 0 and not allow_zero):
         _fail(owner, field, value, "must be >= 0" if allow_zero else "must be > 0")

@@ -29,6 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.checks import require_int
 from iap_mjx.configs.distraction import DistractionConfig
 from iap_mjx.configs.env import DEPTH_MAX, PIXEL_MODES, check_depth_max
 from iap_mjx.envs import distraction as distraction_lib
@@ -77,8 +78,7 @@ class PixelEnv:
     ):
         if obs_mode not in PIXEL_MODES:
             raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
-        if not isinstance(frame_stack, int) or isinstance(frame_stack, bool) or frame_stack < 1:
-            raise ValueError(f"frame_stack must be an int >= 1, got {frame_stack!r}")
+        require_int("frame_stack", frame_stack)
         check_depth_max(depth_max, obs_mode)
         self.env = env
         self.obs_mode = obs_mode

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.checks import is_int, require_int
 from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
@@ -80,20 +81,15 @@ def check(
     from iap_mjx import envs
     from iap_mjx.attention import AttentionConfig
 
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-        raise ValueError(f"seed = {seed!r} must be an int >= 0")
-    if not isinstance(episodes, int) or isinstance(episodes, bool) or episodes < 1:
-        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    require_int("seed", seed, 0)
+    require_int("episodes", episodes)
     check_seed_not_set("table2", overrides)
     check_not_swept("table2", overrides, SWEPT, "the patch size and stride per setting")
     settings = tuple(tuple(setting) for setting in settings)
     if (
         not settings
         or len(set(settings)) != len(settings)
-        or not all(
-            len(setting) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in setting)
-            for setting in settings
-        )
+        or not all(len(setting) == 2 and all(is_int(v) for v in setting) for setting in settings)
     ):
         raise ValueError(f"settings = {settings!r} must be distinct (patch size, stride) pairs of ints")
     base = configs.apply_overrides(configs.get(PRESET), overrides)

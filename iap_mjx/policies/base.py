@@ -20,6 +20,8 @@ from typing import Any, Protocol
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.checks import require_int
+
 Params = Any
 PolicyState = Any
 
@@ -85,9 +87,8 @@ def check_options(kind: str, options: Mapping[str, Any], valid: Iterable[str]) -
 
 
 def check_positive(owner: str, field: str, value: Any) -> None:
-    """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not a positive int."""
-    if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
-        raise ValueError(f"{owner}.{field} = {value!r} must be a positive integer")
+    """Raises ``ValueError`` naming ``owner.field`` unless ``value`` is an int >= 1."""
+    require_int(f"{owner}.{field}", value)
 
 
 def check_sizes(owner: str, field: str, value: Any, *, non_empty: bool = False) -> None:

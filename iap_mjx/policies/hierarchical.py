@@ -51,6 +51,7 @@ import numpy as np
 from flax import struct
 
 from iap_mjx.attention import AttentionConfig
+from iap_mjx.checks import is_int
 from iap_mjx.policies.attention import IAPPolicy
 from iap_mjx.policies.base import check_choice, check_options, check_positive, constructor_options, param_count
 from iap_mjx.policies.convnet import ConvNet
@@ -125,11 +126,7 @@ class HierarchicalPolicy:
 
     def __post_init__(self):
         lo_hi = tuple(self.duration_range)
-        if (
-            len(lo_hi) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) for v in lo_hi)
-            or not 1 <= lo_hi[0] <= lo_hi[1]
-        ):
+        if len(lo_hi) != 2 or not all(is_int(v) for v in lo_hi) or not 1 <= lo_hi[0] <= lo_hi[1]:
             raise ValueError(
                 f"HierarchicalPolicy.duration_range = {self.duration_range!r} must be (lo, hi) "
                 "control steps, integers with 1 <= lo <= hi"

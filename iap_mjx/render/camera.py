@@ -32,6 +32,7 @@ import numpy as np
 from mujoco import mjx
 
 from iap_mjx import chunks
+from iap_mjx.checks import is_int, is_number, require_int
 from iap_mjx.render import scene as scene_lib
 from iap_mjx.render import shading, tracing
 from iap_mjx.render import sky as sky_lib
@@ -40,11 +41,6 @@ SHADINGS = ("lambert", "flat")
 SKIES = ("skybox", "color")
 CHUNK_PIXELS = 40_000
 """Pixels rendered together under ``vmap`` when ``batch_chunk`` is ``None``."""
-
-
-def _is_int(value: object) -> bool:
-    """An ``int`` that is not a ``bool`` (``True`` is not an image size)."""
-    return isinstance(value, int) and not isinstance(value, bool)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,28 +83,23 @@ class CameraConfig:
     cull_pairs_per_tile: float = 1.0
 
     def __post_init__(self):
-        if not _is_int(self.camera_id) or self.camera_id < 0:
+        if not is_int(self.camera_id) or self.camera_id < 0:
             raise ValueError(f"camera_id must be an int >= 0 (a model camera), got {self.camera_id!r}")
-        for name in ("height", "width"):
-            value = getattr(self, name)
-            if not _is_int(value) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        for name in ("height", "width", "tile"):
+            require_int(name, getattr(self, name))
         if not (
-            isinstance(self.geom_groups, (tuple, list)) and all(_is_int(g) and 0 <= g < 6 for g in self.geom_groups)
+            isinstance(self.geom_groups, (tuple, list)) and all(is_int(g) and 0 <= g < 6 for g in self.geom_groups)
         ):
             raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
-        if not _is_int(self.tile) or self.tile < 1:
-            raise ValueError(f"tile must be a positive int, got {self.tile!r}")
         if (
-            not isinstance(self.cull_pairs_per_tile, (int, float))
+            not is_number(self.cull_pairs_per_tile)
             or not math.isfinite(self.cull_pairs_per_tile)
             or self.cull_pairs_per_tile < 0
         ):
             raise ValueError(f"cull_pairs_per_tile must be a finite number >= 0, got {self.cull_pairs_per_tile!r}")
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, CHUNK_PIXELS // (self.height * self.width))))
-        if not _is_int(self.batch_chunk) or self.batch_chunk < 1:
-            raise ValueError(f"batch_chunk must be a positive int or None, got {self.batch_chunk!r}")
+        require_int("batch_chunk", self.batch_chunk)
         if self.shading not in SHADINGS:
             raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.sky not in SKIES:
@@ -116,7 +107,7 @@ class CameraConfig:
         if not (
             isinstance(self.background_color, (tuple, list))
             and len(self.background_color) == 3
-            and all(isinstance(c, (int, float)) and 0 <= c <= 1 for c in self.background_color)
+            and all(is_number(c) and 0 <= c <= 1 for c in self.background_color)
         ):
             raise ValueError(f"background_color must be 3 numbers in [0, 1], got {self.background_color!r}")
         object.__setattr__(self, "geom_groups", tuple(self.geom_groups))
