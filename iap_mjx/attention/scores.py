@@ -13,6 +13,8 @@ eq. 1 with ``r = 1``), for queries and keys ``(L, d)`` or, in the layer's layout
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 
@@ -45,22 +47,26 @@ def linear_scores(query_features: jax.Array, key_features: jax.Array) -> jax.Arr
     return key_features @ jnp.sum(query_features, axis=0)
 
 
-def _rows(matrix: jax.Array, x: jax.Array) -> jax.Array:
-    """``matrix (n, d)`` times token rows ``x (..., d, L)`` -> ``(..., n, L)``, as ``d``
-    broadcast multiply-adds (one elementwise loop on XLA CPU, where a dot with inner
-    dimension ``d = 4`` would be its own kernel and a materialised buffer)."""
-    out = matrix[:, 0, None] * x[..., 0:1, :]
-    for e in range(1, x.shape[-2]):
-        out = out + matrix[:, e, None] * x[..., e : e + 1, :]
+def _unrolled_sum(term: Callable[[int], jax.Array], n: int) -> jax.Array:
+    """``term(0) + term(1) + ... + term(n - 1)``, added left to right.
+
+    A sum over the ``d`` entries of a token written out as elementwise adds: XLA's CPU backend
+    fuses them into the loop over tokens around them, where a reduction or a dot with inner
+    dimension ``d = 4`` would be its own kernel and a materialised buffer."""
+    out = term(0)
+    for e in range(1, n):
+        out = out + term(e)
     return out
+
+
+def _rows(matrix: jax.Array, x: jax.Array) -> jax.Array:
+    """``matrix (n, d)`` times token rows ``x (..., d, L)`` -> ``(..., n, L)``."""
+    return _unrolled_sum(lambda e: matrix[:, e, None] * x[..., e : e + 1, :], x.shape[-2])
 
 
 def _half_sq_norm(x: jax.Array) -> jax.Array:
     """``|x|^2 / 2`` of token rows ``x (..., d, L)`` -> ``(..., 1, L)``."""
-    out = x[..., 0:1, :] * x[..., 0:1, :]
-    for e in range(1, x.shape[-2]):
-        out = out + x[..., e : e + 1, :] * x[..., e : e + 1, :]
-    return 0.5 * out
+    return 0.5 * _unrolled_sum(lambda e: x[..., e : e + 1, :] * x[..., e : e + 1, :], x.shape[-2])
 
 
 def _larger(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -200,7 +206,4 @@ def relu_scores_rows(queries: jax.Array, keys: jax.Array) -> jax.Array:
     """``linear_scores`` of the ReLU features for token rows ``queries, keys (..., d, L)`` -> ``(..., L)``."""
     query_sums = jnp.sum(jax.nn.relu(queries) + ft.RELU_EPSILON, axis=-1, keepdims=True)  # (..., d, 1)
     key_features = jax.nn.relu(keys) + ft.RELU_EPSILON
-    scores = key_features[..., 0, :] * query_sums[..., 0, :]
-    for e in range(1, keys.shape[-2]):
-        scores = scores + key_features[..., e, :] * query_sums[..., e, :]
-    return scores
+    return _unrolled_sum(lambda e: key_features[..., e, :] * query_sums[..., e, :], keys.shape[-2])
