@@ -18,6 +18,8 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
+from iap_mjx.checks import require_int
+
 BATCH_AXIS = "batch"
 
 
@@ -28,8 +30,7 @@ def chunked_vmap(fn: Callable[..., Any], chunk_size: int) -> Callable[..., Any]:
     (``n`` a multiple of ``chunk_size``, or at most ``chunk_size``) and returns
     ``vmap(fn)(*args)``, computed as ``n / chunk_size`` sequential chunks.
     """
-    if not isinstance(chunk_size, int) or chunk_size < 1:
-        raise ValueError(f"chunk_size must be an int >= 1, got {chunk_size!r}.")
+    require_int("chunk_size", chunk_size)
     batched = jax.vmap(fn)
 
     def run(*args: Any) -> Any:

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
+from iap_mjx.checks import require_int
 from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import EVAL_SEED, TrainConfig
 from iap_mjx.es import checkpoint
@@ -180,8 +181,7 @@ def evaluate_run_episodes(
     """:func:`evaluate_run` with the env's per-episode statistics: ``{"return": (episodes,),
     name: (episodes,) ...}`` for each of the env's ``episode_metrics`` (the quadruped course's
     walls passed, falls, wall contacts, distance; nothing more for other envs)."""
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    require_int("episodes", episodes)
     check_condition(overrides)
     config = apply_condition(trained_config(run_dir), overrides)
     if env is None:

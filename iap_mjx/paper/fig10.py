@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from iap_mjx import configs
+from iap_mjx.checks import require_int
 from iap_mjx.paper.evaluations import EVAL_SEED
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
@@ -73,8 +74,7 @@ def reproduce_fig10(
     from iap_mjx import es
     from iap_mjx.viz import video
 
-    if not isinstance(frames, int) or frames < 1:
-        raise ValueError(f"frames = {frames!r} must be an int >= 1")
+    require_int("frames", frames)
     out_dir = Path(out_dir)
     checked = check(tuple(Path(run_dir) for run_dir in (run_dirs or [out_dir / name for name in DEFAULT_RUNS])))
     names = [strip_name(policy) for _, _, policy in checked.values()]

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.checks import require_int
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
 from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, run_summary
@@ -136,10 +137,8 @@ def reproduce_fig11(
     with it, its figure copied to ``experiments/<section>/``;
     ``export``: a folder (e.g. ``pretrained/quadruped``, tracked by git) that receives each run's
     newest checkpoint, config and metrics as ``<preset>-seed<k>``, finished or not."""
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
-    if not isinstance(seeds, int) or seeds < 1:
-        raise ValueError(f"seeds = {seeds!r} must be an int >= 1")
+    require_int("episodes", episodes)
+    require_int("seeds", seeds)
     if not isinstance(section, str) or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", section):
         raise ValueError(f"section = {section!r} must be lower-case letters, digits and dashes, e.g. fig11-turn")
     from iap_mjx import policies

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.checks import require_int
 from iap_mjx.paper.runs import check_evaluated, check_not_swept, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
@@ -111,8 +112,7 @@ def reproduce_fig7(
     """Trains (``train=False``: only reads) the grid, then the ``d_qk`` row at its best cell;
     writes ``fig7.json`` / ``fig7.png`` in ``out_dir`` and returns the markdown table;
     ``results``: a markdown file whose ``fig7`` section is rewritten with it."""
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    require_int("episodes", episodes)
     cells = check(tuple(overrides))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

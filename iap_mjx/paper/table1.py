@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.checks import require_int
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
@@ -167,8 +168,7 @@ def reproduce_table1(
     folder (e.g. ``pretrained/dcs``, tracked by git) that receives each run's newest checkpoint,
     config and metrics as ``<task><suffix>-seed<k>`` as soon as the run is trained (finished or
     not), so trained policies ship and unfinished runs survive a lost ``out_dir``."""
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    require_int("episodes", episodes)
     task_configs = check(tuple(tasks), tuple(overrides), policy)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
+from iap_mjx.checks import require_int
 from iap_mjx.policies.base import check_options, check_positive, constructor_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.observations import pixel_shape, split_observation
@@ -55,8 +56,7 @@ class IAPPolicy:
 
     def __post_init__(self):
         check_positive("IAPPolicy", "action_size", self.action_size)
-        if not isinstance(self.state_size, int) or self.state_size < 0:
-            raise ValueError(f"IAPPolicy.state_size = {self.state_size!r} must be a non-negative int")
+        require_int("IAPPolicy.state_size", self.state_size, 0)
         IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
         _ = self.head  # builds the controller, which checks its settings
 

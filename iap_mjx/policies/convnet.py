@@ -27,6 +27,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from iap_mjx.checks import require_int
 from iap_mjx.chunks import ceil_div
 from iap_mjx.policies.base import check_options, check_positive, check_sizes, constructor_options
 from iap_mjx.policies.controller import Controller
@@ -68,8 +69,7 @@ class ConvNet:
             )
         for name in ("filter_size", "pool", "hidden_size"):
             check_positive("ConvNet", name, getattr(self, name))
-        if not isinstance(self.state_size, int) or self.state_size < 0:
-            raise ValueError(f"ConvNet.state_size = {self.state_size!r} must be a non-negative int")
+        require_int("ConvNet.state_size", self.state_size, 0)
         rows, cols = self.pooled_grid
         if rows < 1 or cols < 1:
             raise ValueError(

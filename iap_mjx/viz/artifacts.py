@@ -16,6 +16,7 @@ from typing import Any
 
 import jax
 
+from iap_mjx.checks import require_int
 from iap_mjx.viz import curves, video
 
 logger = logging.getLogger(__name__)
@@ -27,8 +28,7 @@ def write_video(
     """An episode of ``result``'s centre params on its env: a pixel env's frames with the
     patches outlined, or a state env rendered from its video camera. ``program``: the episode
     compiled ahead (:func:`compile_video_in_background`) for these ``steps``."""
-    if steps is not None and (not isinstance(steps, int) or steps < 1):
-        raise ValueError(f"steps = {steps!r} must be None (the episode) or an int >= 1")
+    require_int("steps", steps, none_ok=True)  # None: the whole episode
     env, policy = result.env, result.policy
     steps = env.episode_length if steps is None else steps
     logger.info("rendering a %d-step episode of the trained policy to %s", steps, path)

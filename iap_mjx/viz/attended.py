@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from iap_mjx.attention.patches import patch_corner
+from iap_mjx.checks import require_int
 from iap_mjx.viz import video
 
 BACKGROUND = "background"
@@ -83,8 +84,7 @@ def episode_counts(
     ``steps`` (default: built here)."""
     if not (video.has_pixels(env) and hasattr(policy, "select")):
         raise ValueError("attended shares need an attention policy on a pixel env")
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"episodes = {episodes!r} must be an int >= 1")
+    require_int("episodes", episodes)
     steps = env.episode_length if steps is None else steps
     program = episode_program(env, policy, steps=steps) if program is None else program
     out = []

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from iap_mjx.attention.patches import patch_corner
+from iap_mjx.checks import require_int
 
 logger = logging.getLogger(__name__)
 
@@ -402,8 +403,8 @@ def episode_strip(
     ``(path, episode return)``, the return counting the live steps only."""
     from PIL import Image
 
-    if not isinstance(frames, int) or frames < 1 or not isinstance(columns, int) or columns < 1:
-        raise ValueError(f"frames = {frames!r} and columns = {columns!r} must be ints >= 1")
+    require_int("frames", frames)
+    require_int("columns", columns)
     record = record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = live_returns(record)
     picks = np.unique(np.linspace(0, last_live_step(record), frames).round().astype(int))
