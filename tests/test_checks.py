@@ -2,7 +2,7 @@
 
 import pytest
 
-from iap_mjx.checks import is_int, is_number, require_int
+from iap_mjx.checks import is_int, is_number, require_int, require_number
 
 
 def test_bool_is_neither_int_nor_number():
@@ -24,3 +24,19 @@ def test_require_int_names_the_setting_and_the_range():
         require_int("stride", 2.5, none_ok=True)
     with pytest.raises(ValueError, match="got None"):
         require_int("stride", None)
+
+
+def test_require_number_checks_type_before_range():
+    from iap_mjx.configs.env import EnvConfig
+
+    require_number("es.sigma", 0.1, 0, low_open=True)
+    require_number("rate", 3, 0, 3, low_open=True)
+    with pytest.raises(ValueError, match=r"^es\.sigma must be a number > 0, got 0\.$"):
+        require_number("es.sigma", 0, 0, low_open=True)
+    with pytest.raises(ValueError, match=r"^rate must be a number in \(0, 3\] \(rad/s\), got 3\.5\.$"):
+        require_number("rate", 3.5, 0, 3, low_open=True, unit="rad/s")
+    with pytest.raises(ValueError, match=r"^budget must be a finite number >= 0, got inf\.$"):
+        require_number("budget", float("inf"), 0, high_open=True)
+    for bad in ("abc", True, float("nan"), None):  # a ValueError naming the setting, never a TypeError
+        with pytest.raises(ValueError, match="EnvConfig.max_abs_state must be a number > 0"):
+            EnvConfig(max_abs_state=bad)

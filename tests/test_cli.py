@@ -236,7 +236,7 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     assert env["background_videos"] == "val" and env["dynamic"] is True
     unchanged = lambda pairs: {k: v for k, v in pairs if k not in ("background_videos", "dynamic")}  # noqa: E731
     assert unchanged(env.items()) == unchanged(trained.env.overrides) and len(unchanged(env.items())) >= 8
-    assert config.policy == trained.policy and config.es == trained.es and config.run.eval_episodes == 3
+    assert config.policy == trained.policy and config.es == trained.es and config.run == trained.run
     with pytest.raises(Built):
         runs.evaluate_run("run", overrides=("env.distraction=none",))
     assert envs.check(built[-1].env.name, **dict(built[-1].env.overrides)).distraction_config() is None

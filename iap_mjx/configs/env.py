@@ -11,7 +11,7 @@ import dataclasses
 import math
 from typing import Any
 
-from iap_mjx.checks import is_int, is_number, require_int
+from iap_mjx.checks import is_int, is_number, require_int, require_number
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
 PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
@@ -126,8 +126,7 @@ class EnvConfig:
         if self.max_contacts not in ("task", "all") and not (is_int(self.max_contacts) and self.max_contacts >= 1):
             raise ValueError(f'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got {self.max_contacts!r}.')
         require_int("EnvConfig.episode_length", self.episode_length, none_ok=True)
-        if not self.max_abs_state > 0:
-            raise ValueError(f"EnvConfig.max_abs_state must be > 0, got {self.max_abs_state!r}.")
+        require_number("EnvConfig.max_abs_state", self.max_abs_state, 0, low_open=True)
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
         require_int("EnvConfig.camera_id", self.camera_id, 0)
@@ -226,12 +225,9 @@ class QuadrupedConfig(EnvConfig):
             raise ValueError(
                 f"QuadrupedConfig.action_repeat must be 1 (one action per 0.02 s control step), got {self.action_repeat!r}."
             )
-        if not is_number(self.v_cap) or not self.v_cap > 0:
-            raise ValueError(f"QuadrupedConfig.v_cap must be a number > 0 (m/s), got {self.v_cap!r}.")
-        if not is_number(self.joint_noise) or not 0 <= self.joint_noise <= 0.5:
-            raise ValueError(f"QuadrupedConfig.joint_noise must be in [0, 0.5] rad, got {self.joint_noise!r}.")
-        if not is_number(self.fall_penalty) or self.fall_penalty < 0:
-            raise ValueError(f"QuadrupedConfig.fall_penalty must be a number >= 0 (m), got {self.fall_penalty!r}.")
+        require_number("QuadrupedConfig.v_cap", self.v_cap, 0, low_open=True, unit="m/s")
+        require_number("QuadrupedConfig.joint_noise", self.joint_noise, 0, 0.5, unit="rad")
+        require_number("QuadrupedConfig.fall_penalty", self.fall_penalty, 0, unit="m")
         if self.max_geom_pairs not in ("task", "all") and not (
             is_int(self.max_geom_pairs) and self.max_geom_pairs >= 1
         ):
@@ -273,9 +269,7 @@ class QuadrupedTurnConfig(QuadrupedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        rate = self.max_turn_rate
-        if not is_number(rate) or not 0 < rate <= 3:
-            raise ValueError(f"QuadrupedTurnConfig.max_turn_rate must be a number in (0, 3] rad/s, got {rate!r}.")
+        require_number("QuadrupedTurnConfig.max_turn_rate", self.max_turn_rate, 0, 3, low_open=True, unit="rad/s")
 
 
 @dataclasses.dataclass(frozen=True)

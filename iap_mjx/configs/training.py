@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from iap_mjx.checks import is_number, require_int
+from iap_mjx.checks import require_int, require_number
 
 OPTIMIZERS = ("adam", "sgd", "momentum")
 SHAPINGS = ("centred_rank", "z_score", "identity")
@@ -42,10 +42,7 @@ def _positive_int(owner: str, field: str, value: Any, allow_zero: bool = False) 
 
 
 def _positive_float(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
-    if not is_number(value):
-        _fail(owner, field, value, "must be a number")
-    if value < 0 or (value == 0 and not allow_zero):
-        _fail(owner, field, value, "must be >= 0" if allow_zero else "must be > 0")
+    require_number(f"{owner}.{field}", value, 0, low_open=not allow_zero)
 
 
 def _choice(owner: str, field: str, value: Any, valid: Any) -> None:

@@ -46,6 +46,7 @@ class BallInCupCatch(DmControlEnv):
         return first_contact_free(place, key), {}
 
     def ball_to_target(self, data: mjx.Data) -> jax.Array:
+        """The target's position minus the ball's, in the x-z plane: ``(2,)``."""
         target = data.site_xpos[self._target_site, jnp.array([0, 2])]
         ball = data.xpos[self._ball_body, jnp.array([0, 2])]
         return target - ball

@@ -25,7 +25,8 @@ class State:
       reward: ``()`` float32, the reward of the last env step (summed over its action repeat).
       done: ``()`` float32, 1.0 once the episode has ended (time limit or a bad state).
       metrics: named ``()`` scalars to average/sum in logs (e.g. ``"nan_terminations"``).
-      info: anything else the env carries between steps (step count, RNG key, frame stack).
+      info: anything else the env carries between steps (the step count, task variables such
+        as reacher's ``"target"``, the distraction's draw).
     """
 
     data: mjx.Data
@@ -45,8 +46,8 @@ class Env(Protocol):
     Optional members, read with ``getattr`` where present (an env without them still trains):
 
     - ``max_chunk_size``: the most episodes one device may ``vmap`` at once (``train`` refuses a
-      larger ``run.chunk_size`` on two or more devices; the MJX tasks set it: XLA:CPU deadlocks
-      in MJX's batched Cholesky above it with jaxlib 0.10).
+      larger ``run.chunk_size`` on two or more devices; the MJX tasks set it:
+      :func:`iap_mjx.envs.dmc.serial_lapack_batch`).
     - ``episode_metrics``: names of per-episode statistics the final ``State.metrics`` holds
       (the quadruped course's ``walls_passed`` ...), logged as ``metrics.csv`` columns.
     - ``State.metrics["nan_terminations"]`` (the env ended a diverged state itself) and

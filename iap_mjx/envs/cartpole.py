@@ -42,9 +42,11 @@ class CartpoleSwingup(DmControlEnv):
         return self.forward(data.replace(qpos=qpos, qvel=qvel)), {}
 
     def cart_position(self, data: mjx.Data) -> jax.Array:
+        """The slider's position ``()`` (m)."""
         return data.qpos[self._slider]
 
     def pole_angle_cosine(self, data: mjx.Data) -> jax.Array:
+        """Each pole's cosine to the vertical, ``(n_poles,)`` (dm_control's ``pole_angle_cosine``)."""
         return data.xmat[2:, 2, 2]
 
     def state_observation(self, data: mjx.Data) -> jax.Array:

@@ -19,10 +19,7 @@ Bad states: after every env step, an env whose ``qpos``/``qvel`` are not finite 
 the same ``data`` and reward 0, so a batch can run to a fixed horizon with a done mask and
 one bad env never touches another's numbers.
 
-It is one module at over 400 lines because most of it is one class, ``DmControlEnv``, that
-every task subclasses: building the model, the env protocol, the task hooks with their
-defaults and the bad-state and contact bookkeeping of ``step``, each method short. The rest is
-what the class and its tasks use: the physics stages, the batch limit of jaxlib's CPU LAPACK
+Beside ``DmControlEnv``: the physics stages, the batch limit of jaxlib's CPU LAPACK
 (``serial_lapack_batch``) and the ports of dm_control's joint randomiser and of its
 redraw-while-in-contact loop (``first_contact_free``).
 """
@@ -162,6 +159,7 @@ class DmControlEnv:
                     "where MJX would read the wrong cell; use max_contacts='all'"
                 )
             mj_model.numeric_data[slot] = self.max_contacts
+        # MJX does not compute energy (cartpole's XML enables it); no dynamics depend on it
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
         mj_model.opt.ls_iterations = self.config.ls_iterations
@@ -193,8 +191,7 @@ class DmControlEnv:
     @property
     def max_chunk_size(self) -> int | None:
         """Most envs to ``vmap`` together on one device (``None``: no limit): a larger vmapped
-        batch can deadlock XLA:CPU on two or more devices (:func:`serial_lapack_batch`); with
-        jaxlib 0.10, 823 for ``nv`` = 9 (cheetah, walker), 102 for the quadruped (``nv`` = 18)."""
+        batch can deadlock XLA:CPU on two or more devices (:func:`serial_lapack_batch`)."""
         return serial_lapack_batch(int(self.mj_model.nv))
 
     @property
@@ -363,12 +360,13 @@ class DmControlEnv:
         return jnp.all(jnp.isfinite(state)) & jnp.all(jnp.abs(state) <= self.config.max_abs_state)
 
     def _settle(self, data: mjx.Data, n_steps: int) -> mjx.Data:
-        """``n_steps`` physics steps with zero control from ``data`` (its position/velocity
-        stage not computed), then that stage: cheetah's ``physics.step(nstep=200)`` and the
-        ``mj_forward`` of dm_control's reset, whose position/velocity stage the last step has
-        computed (its acceleration fields, which no task here reads, are not refreshed). As
-        before, the first step starts from the stage at ``data``'s own ``qpos``; dm_control's
-        first ``mj_step2`` uses the stage its reset computed at ``qpos0``.
+        """``n_steps`` physics steps from ``data`` (its position/velocity stage not computed)
+        with ``data.ctrl`` held (zero for a fresh ``make_data``), then that stage: cheetah's
+        ``physics.step(nstep=200)`` and the ``mj_forward`` of dm_control's reset, whose
+        position/velocity stage the last step has computed (its acceleration fields, which no
+        task here reads, are not refreshed). Unlike dm_control, whose first ``mj_step2`` uses
+        the stage its reset computed at ``qpos0``, the first step here starts from the stage at
+        ``data``'s own ``qpos``.
 
         One loop of ``n_steps + 1`` rounds, each the position/velocity stage then the dynamics
         (kept in all rounds but the last), so the program holds one copy of each stage, not a

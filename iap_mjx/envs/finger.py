@@ -95,6 +95,7 @@ class FingerSpin(DmControlEnv):
         return first_contact_free(place, key, _MAX_ATTEMPTS), {}
 
     def hinge_velocity(self, data: mjx.Data) -> jax.Array:
+        """The spinner's hinge velocity ``()`` (rad/s), from the model's sensor."""
         return data.sensordata[self._hinge_velocity]
 
     def tip_position(self, data: mjx.Data) -> jax.Array:

@@ -22,11 +22,12 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
   500 control steps (10 s) on the flat, 1000 (20 s) on the course.
 - On the course ``State.metrics`` also keeps the episode's course statistics (walls passed,
   falls off the platform, wall contacts, distance: :meth:`QuadrupedWalls.course_metrics`),
-  which training logs per iteration (``iap_mjx.es.rollout``, ``metrics.csv``).
+  read at the episode's end (``iap_mjx.es.episode.run_episode``) and logged per iteration
+  (``iap_mjx.es.iteration``: ``metrics.csv``'s ``<name>_mean`` and ``eval_<name>`` columns).
 
 Batch size: vmap at most ``max_chunk_size`` (102 for this robot) envs together per device
-(chunk larger populations, ``lax.map``). See :func:`iap_mjx.envs.dmc.serial_lapack_batch`: with
-jaxlib 0.10, larger vmapped batches on two or more XLA CPU devices deadlock XLA:CPU.
+(chunk larger populations, ``lax.map``): a larger vmapped batch can deadlock XLA:CPU on two or
+more devices (:func:`iap_mjx.envs.dmc.serial_lapack_batch`).
 """
 
 from __future__ import annotations
@@ -221,8 +222,8 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
     WALL_HALF_SIZE = (0.05, 0.6, 0.25)
     WALL_START, WALL_SPACING, WALL_JITTER = 1.5, 2.5, 0.3
     GAP_RANGE = (0.6, 1.0)
-    #: Per-episode course statistics in ``State.metrics`` (:meth:`course_metrics`), reported
-    #: by the ES's rollouts at the episode's end (``iap_mjx.es.rollout``).
+    #: Per-episode course statistics in ``State.metrics`` (:meth:`course_metrics`), read at the
+    #: episode's end (``iap_mjx.es.episode.run_episode``).
     episode_metrics = ("walls_passed", "fell_off", "wall_contacts", "distance")
 
     def _world_xml(self) -> str:

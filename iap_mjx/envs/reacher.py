@@ -57,6 +57,7 @@ class ReacherEasy(DmControlEnv):
         return data.replace(geom_xpos=data.geom_xpos.at[self._target].set(position))
 
     def finger_to_target(self, data: mjx.Data) -> jax.Array:
+        """The target's position minus the finger's, in the x-y plane: ``(2,)``."""
         return data.geom_xpos[self._target, :2] - data.geom_xpos[self._finger, :2]
 
     def state_observation(self, data: mjx.Data) -> jax.Array:

@@ -40,12 +40,15 @@ class WalkerWalk(DmControlEnv):
         return self.forward(data.replace(qpos=qpos)), {}
 
     def torso_height(self, data: mjx.Data) -> jax.Array:
+        """The torso's height ``()`` (m)."""
         return data.xpos[self._torso, 2]
 
     def torso_upright(self, data: mjx.Data) -> jax.Array:
+        """The torso's z axis's vertical component ``()`` (1: upright)."""
         return data.xmat[self._torso, 2, 2]
 
     def horizontal_velocity(self, data: mjx.Data) -> jax.Array:
+        """The torso subtree's forward (x) velocity ``()`` (m/s), from its ``subtreelinvel`` sensor."""
         return data.sensordata[self._speed_index]
 
     def state_observation(self, data: mjx.Data) -> jax.Array:

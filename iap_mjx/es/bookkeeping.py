@@ -19,7 +19,7 @@ import jax
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
-from iap_mjx.configs.training import TrainConfig
+from iap_mjx.configs.training import RunConfig, TrainConfig
 from iap_mjx.es import checkpoint
 from iap_mjx.es.components import Components, TrainState, init_state
 from iap_mjx.es.episode import episode_metric_names
@@ -27,10 +27,6 @@ from iap_mjx.es.iteration import make_train_call
 from iap_mjx.es.metrics_log import MetricsWriter, metric_columns, read_history, write_config
 
 logger = logging.getLogger(__name__)
-
-
-def _scalar(x) -> float:
-    return float(checkpoint.to_host(x))
 
 
 def restore_state(parts: Components, run_dir, state: TrainState) -> TrainState:
@@ -80,7 +76,7 @@ def start_state(parts: Components, run_dir: str | Path | None) -> tuple[TrainSta
         return state, 0
     _check_resumable(parts.config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
     state = restore_state(parts, run_dir, state)
-    return state, int(_scalar(state.iteration))
+    return state, int(checkpoint.to_host(state.iteration))
 
 
 class CompiledCalls:
@@ -216,12 +212,12 @@ class Reporter:
             self.writer.close()
 
 
-def past_time_limit(run: Any, started: float) -> bool:
+def past_time_limit(run: RunConfig, started: float) -> bool:
     """Whether ``run.max_minutes`` (0: none) have passed since ``started`` (compile included)."""
     return bool(run.max_minutes) and time.perf_counter() - started > 60 * run.max_minutes
 
 
-def checkpoint_due(run: Any, done: int, out_of_time: bool) -> bool:
+def checkpoint_due(run: RunConfig, done: int, out_of_time: bool) -> bool:
     """Whether to save a checkpoint after ``done`` iterations: at the end of the run (all
     iterations, or the time limit) and every ``run.checkpoint_every`` iterations."""
     return done == run.iterations or out_of_time or bool(run.checkpoint_every and done % run.checkpoint_every == 0)

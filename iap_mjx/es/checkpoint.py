@@ -46,7 +46,9 @@ def _step_or_latest(manager: ocp.CheckpointManager, run_dir: str | Path, step: i
 
 
 def to_host(tree: Any) -> Any:
-    """Numpy copies of a pytree of (possibly replicated, multi-process) arrays."""
+    """Numpy copies of a pytree of replicated (possibly multi-process) arrays: each array's
+    first local copy, so a sharded array gives only its first local shard (replicate it
+    first, as ``iap_mjx.es.runs.evaluate_run_episodes`` does)."""
     return jax.tree_util.tree_map(
         lambda x: np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else np.asarray(x), tree
     )
@@ -87,9 +89,9 @@ def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[in
     """``(step, state)`` restored into the structure, shapes and dtypes of ``like``."""
     with _reader(run_dir) as manager:
         step = _step_or_latest(manager, run_dir, step)
-        abstract = jax.tree_util.tree_map(np.asarray, to_host(like))
-        _check_shapes(run_dir, step, abstract)
-        restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))
+        target = to_host(like)
+        _check_shapes(run_dir, step, target)
+        restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(target)))
         return step, restored["state"]
 
 

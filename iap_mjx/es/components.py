@@ -185,7 +185,7 @@ def check_chunk_size(chunk_size: int, env: Any, num_devices: int) -> None:
     if num_devices > 1 and limit is not None and chunk_size > limit:
         raise ValueError(
             f"run.chunk_size = {chunk_size} is too large for this env on {num_devices} devices: "
-            f"valid values are 1..{limit}. With jaxlib 0.10 a larger vmapped batch splits MJX's "
+            f"valid values are 1..{limit}. With this jaxlib a larger vmapped batch splits MJX's "
             "batched Cholesky over XLA's thread pool and deadlocks XLA:CPU "
             "(see iap_mjx.envs.dmc.serial_lapack_batch)."
         )

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import logging
 
+from iap_mjx.checks import require_int
+
 logger = logging.getLogger(__name__)
 
 
@@ -33,7 +35,9 @@ def initialize(coordinator_address: str, num_processes: int, process_id: int) ->
     """
     import jax
 
-    if not 0 <= process_id < num_processes:
+    require_int("num_processes", num_processes)
+    require_int("process_id", process_id, 0)
+    if process_id >= num_processes:
         raise ValueError(f"process_id = {process_id} must be in [0, num_processes = {num_processes})")
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(

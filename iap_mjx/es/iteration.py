@@ -38,7 +38,8 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
     """One ES iteration ``state -> (state, metrics)``; metrics are ``()`` scalars.
 
     ``eval_return``/``eval_return_std`` are the centre's returns at the start of the
-    iteration (the params after ``iteration - 1`` updates) on the evaluation seeds.
+    iteration (the params after ``state.iteration`` updates, which ``metrics.csv`` logs as
+    iteration ``state.iteration + 1``) on the evaluation seeds.
     """
     es = parts.config.es
     population_size, n_episodes = es.population_size, es.n_episodes

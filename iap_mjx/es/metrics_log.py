@@ -11,7 +11,7 @@ population's fitness (mean return per member);
 iteration; ``parameters`` is the policy's number of trainable scalars (the same in every row),
 ``params_norm`` the L2 norm of the centre's and ``sigma`` OpenES's noise scale at the iteration
 (empty for an evosax strategy);
-``nan_episodes`` counts episodes that met a bad state; ``contact_saturated_episodes``
+``nan_episodes`` counts population episodes that met a bad state; ``contact_saturated_episodes``
 counts population episodes that filled every MJX contact slot at some step (a contact may have
 been dropped: raise ``env.max_contacts`` if it is not 0); ``env_steps_per_s`` counts
 every simulated step (training, evaluation, padding) per second of run time; ``run_s`` is one

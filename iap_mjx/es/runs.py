@@ -115,6 +115,10 @@ def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> Tra
     return result_from_state(parts, state, read_history(run_dir), run_dir)
 
 
+# what a condition whose observations no longer fit the run's parameters should do
+_KEEP_SHAPES = "keep the env settings that shape what the policy sees (env.height, env.width, env.obs_mode) as trained"
+
+
 def in_condition(result: TrainResult, overrides: Sequence[str]) -> TrainResult:
     """A loaded run whose config's env is moved to the condition ``overrides`` set, with the
     policy rebuilt for that env's observations (an IAP policy's parameters do not depend on
@@ -132,8 +136,7 @@ def in_condition(result: TrainResult, overrides: Sequence[str]) -> TrainResult:
     if not fits:
         raise ValueError(
             f"the run's {config.policy.kind!r} parameters do not fit its policy on "
-            f"{env.observation_shape} observations ({' '.join(overrides)}); keep the env settings "
-            "that shape what the policy sees (env.height, env.width, env.obs_mode) as trained"
+            f"{env.observation_shape} observations ({' '.join(overrides)}); {_KEEP_SHAPES}"
         )
     return dataclasses.replace(result, config=config, env=env, policy=policy)
 
@@ -187,18 +190,14 @@ def evaluate_run_episodes(
     if env is None:
         from iap_mjx import envs
 
-        envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here
-    config = dataclasses.replace(config, run=dataclasses.replace(config.run, eval_episodes=episodes))
+        envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here, before building
     parts = build(config, env=env, policy=policy)
     try:
         state = restore_state(parts, run_dir, init_state(parts))
     except checkpoint.ShapeMismatch as error:
         if not overrides:
             raise
-        raise ValueError(
-            f"{error}; here the condition {' '.join(overrides)}: keep the env settings that shape what "
-            "the policy sees (env.height, env.width, env.obs_mode) as trained"
-        ) from None
+        raise ValueError(f"{error}; here the condition {' '.join(overrides)}: {_KEEP_SHAPES}") from None
     state = state.replace(key=jax.random.PRNGKey(seed))
     # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes

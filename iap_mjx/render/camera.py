@@ -32,7 +32,7 @@ import numpy as np
 from mujoco import mjx
 
 from iap_mjx import chunks
-from iap_mjx.checks import is_int, is_number, require_int
+from iap_mjx.checks import is_int, is_number, require_int, require_number
 from iap_mjx.render import scene as scene_lib
 from iap_mjx.render import shading, tracing
 from iap_mjx.render import sky as sky_lib
@@ -91,12 +91,7 @@ class CameraConfig:
             isinstance(self.geom_groups, (tuple, list)) and all(is_int(g) and 0 <= g < 6 for g in self.geom_groups)
         ):
             raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
-        if (
-            not is_number(self.cull_pairs_per_tile)
-            or not math.isfinite(self.cull_pairs_per_tile)
-            or self.cull_pairs_per_tile < 0
-        ):
-            raise ValueError(f"cull_pairs_per_tile must be a finite number >= 0, got {self.cull_pairs_per_tile!r}")
+        require_number("cull_pairs_per_tile", self.cull_pairs_per_tile, 0, high_open=True)
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, CHUNK_PIXELS // (self.height * self.width))))
         require_int("batch_chunk", self.batch_chunk)
