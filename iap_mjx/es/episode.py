@@ -40,7 +40,9 @@ class EpisodeResult:
       saturated: ``()`` 1.0 if the env flagged ``metrics["contact_saturated"]`` (every contact
         slot filled at some step, so a contact may have been dropped; 0.0 for envs without the
         flag).
-      obs_sum, obs_sq_sum: ``(obs_size,)`` sums over the live steps (zeros when not tracked).
+      obs_sum, obs_sq_sum: ``(obs_size,)`` sums over the live steps whose reward and
+        observation are finite (``(1,)`` zeros when not tracked): ``steps`` also counts a
+        diverged step, which these sums leave out.
       metrics: the env's per-episode statistics at the episode's end, ``{name: ()}`` for each
         name in the env's ``episode_metrics`` (e.g. the quadruped course's walls passed; empty
         for envs without them, which then add nothing to the program).
@@ -86,8 +88,8 @@ class Tally:
         is live while ``alive`` is 1.0 before it.
       bad: 1.0 once a live step met a non-finite reward/observation or the env flagged
         ``metrics["nan_terminations"]``.
-      obs_sum, obs_sq_sum: ``(obs_size,)`` sums of the live steps' raw observations (``(1,)``
-        zeros when observations are not tracked).
+      obs_sum, obs_sq_sum: ``(obs_size,)`` sums of the live steps' raw observations where the
+        reward and observation are finite (``(1,)`` zeros when observations are not tracked).
     """
 
     ret: jax.Array
