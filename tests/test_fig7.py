@@ -80,3 +80,12 @@ def test_d_qk_row_waits_for_the_whole_grid_then_runs_at_its_best_cell(tmp_path, 
     count = len(evaluations)
     fig7.reproduce_fig7(tmp_path, overrides=ITERATIONS, episodes=3, train=False)
     assert len(evaluations) == count  # evaluations are read back from each run's eval.json
+
+
+def test_the_patch_count_follows_the_frame(tmp_path, evaluations):
+    """L is the policy's own patch count on the run's frames, not the paper's 240x320."""
+    small = ("env.height=120", "env.width=160")
+    config = configs.apply_overrides(configs.get(fig7.PRESET), (*ITERATIONS, *small, *fig7.cell_overrides(8, 5, 4)))
+    fake_run(tmp_path / fig7.run_name(8, 5, 4, 0), config, 2, [10.0, 20.0])
+    markdown = fig7.reproduce_fig7(tmp_path, overrides=(*ITERATIONS, *small), episodes=3, train=False)
+    assert "| 8 | 5 | 4 | 300 |" in markdown  # (120 / 8) x (160 / 8)

@@ -27,7 +27,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
-from iap_mjx.paper.runs import check_evaluated, check_not_swept, check_seed_not_set, run_summary
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, run_summary
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -113,7 +113,9 @@ def reproduce_fig7(
     writes ``fig7.json`` / ``fig7.png`` in ``out_dir`` and returns the markdown table;
     ``results``: a markdown file whose ``fig7`` section is rewritten with it."""
     require_int("episodes", episodes)
+    require_int("seed", seed, 0)
     cells = check(tuple(overrides))
+    patches = {cell: policy.layer.num_patches for cell, policy in built_policies(cells).items()}
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     grid = [(p, top_l, GRID_D_QK) for p in PATCH_SIZES for top_l in TOP_LS]
@@ -128,6 +130,8 @@ def reproduce_fig7(
         ]
     if not rows:
         raise ValueError(f"no fig7 runs in {out_dir} to report")
+    for row in rows:
+        row["patches"] = patches[row["patch_size"], row["top_l"], row["d_qk"]]
     (out_dir / "fig7.json").write_text(json.dumps({"best": best, "rows": rows}, indent=1))
     png = plot(rows, best, out_dir / "fig7.png")
     markdown = table(rows, best, overrides=tuple(overrides), seed=seed)
@@ -145,15 +149,14 @@ def command(overrides: tuple[str, ...], row: dict[str, Any], seed: int) -> str:
 def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides: tuple[str, ...], seed: int) -> str:
     """Markdown: one line per cell with its command, its return and how far it got."""
     lines = [
-        "| patch size | l | d_qk | patches L (240x320) | return (mean ± std, episodes) | best eval return on the way | "
+        "| patch size | l | d_qk | patches L | return (mean ± std, episodes) | best eval return on the way | "
         "iterations | wall-clock (s) | command |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for row in rows:
-        patches = (240 // row["patch_size"]) * (320 // row["patch_size"])
         final = f"{mean_std(row['returns'])} ({len(row['returns'])})" if row["finished"] else "running"
         lines.append(
-            f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {patches:,} | {final} | "
+            f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {row['patches']:,} | {final} | "
             f"{max(row['curve']):.1f} | {row['iterations']} | {row['seconds']:.0f} | "
             f"`{command(overrides, row, seed)}` |"
         )

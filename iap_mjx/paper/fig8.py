@@ -31,8 +31,16 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs, runtime
+from iap_mjx.checks import require_int
 from iap_mjx.chunks import ceil_div
-from iap_mjx.paper.runs import check_evaluated, check_not_swept, check_seed_not_set, inference_seconds, trained_curve
+from iap_mjx.paper.runs import (
+    built_policies,
+    check_evaluated,
+    check_not_swept,
+    check_seed_not_set,
+    inference_seconds,
+    trained_curve,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -41,7 +49,6 @@ PRESET = "dcs-cartpole-swingup"
 VARIANTS = (("brute", 8), ("relu", 8), ("hybrid", 8), ("relu", 2), ("hybrid", 2))
 LABELS = {"brute": "brute-force softmax", "relu": "IAP ReLU", "hybrid": "IAP hybrid (10,5)"}
 TIMINGS_FILE = "timings.json"
-HEIGHT, WIDTH = 240, 320
 
 
 def variant_overrides(kernel: str, patch_size: int) -> tuple[str, ...]:
@@ -100,8 +107,7 @@ def measure(
     """Every variant's seconds per iteration and compile seconds (each program compiled, none
     loaded from the persistent cache), then brute force's projected cost per iteration at
     ``p = 2`` from the forward passes of brute force and hybrid at ``p = 2``."""
-    if iterations < 2:
-        raise ValueError(f"iterations = {iterations}: timing needs >= 2 (the first one compiles)")
+    require_int("iterations", iterations, 2)  # the first one compiles
     timings: dict[str, Any] = {
         "variants": {},
         "machine": f"{platform.machine()}, {platform.node()}",
@@ -138,7 +144,9 @@ def reproduce_fig8(
     iterations of each variant), trains every variant (``train=False``: only reads), writes
     ``fig8.json`` / ``fig8.png`` and returns the table; ``results``: a markdown file whose ``fig8``
     section is rewritten with it."""
+    require_int("timing_iterations", timing_iterations, 2)  # the first iteration compiles
     checked = check(tuple(overrides))
+    patches = {variant: policy.layer.num_patches for variant, policy in built_policies(checked).items()}
     out_dir = Path(out_dir)
     path = out_dir / TIMINGS_FILE
     if not path.exists():
@@ -161,7 +169,7 @@ def reproduce_fig8(
                 "patch_size": patch,
                 "curve": curve,
                 "iterations": len(curve),
-                "patches": (HEIGHT // patch) * (WIDTH // patch),
+                "patches": patches[kernel, patch],
                 "run_seconds": seconds,
                 **timing,
             }
@@ -170,7 +178,7 @@ def reproduce_fig8(
         raise ValueError(f"no fig8 runs in {out_dir} to report")
     (out_dir / "fig8.json").write_text(json.dumps({"timings": timings, "rows": rows}, indent=1))
     png = plot(rows, out_dir / "fig8.png")
-    markdown = table(rows, timings)
+    markdown = table(rows, timings, brute_patches=patches["brute", 2])
     if results is not None:
         write_results(Path(results), markdown, png, overrides=tuple(overrides), timings=timings)
     return markdown
@@ -202,7 +210,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> Path:
     return save_png(fig, path)
 
 
-def table(rows: list[dict[str, Any]], timings: dict[str, Any]) -> str:
+def table(rows: list[dict[str, Any]], timings: dict[str, Any], *, brute_patches: int) -> str:
     """Markdown: per curve its seconds per iteration, compile, final and best return; then
     brute force at ``p = 2`` projected, as a ratio to hybrid's measured iteration."""
     lines = [
@@ -220,7 +228,7 @@ def table(rows: list[dict[str, Any]], timings: dict[str, Any]) -> str:
     hybrid = timings["variants"][name("hybrid", 2)]["iteration_s"]
     lines += [
         "",
-        f"Brute force at patch size 2 (L = 19,200), not trained: one forward pass measured "
+        f"Brute force at patch size 2 (L = {brute_patches:,}), not trained: one forward pass measured "
         f"{brute['forward_pass_s']:.2f} s against hybrid's {1e3 * brute['hybrid_forward_pass_s']:.2f} ms; "
         f"with {brute['frames_per_iteration']:,} frames per iteration its projected iteration takes "
         f"{brute['projected_iteration_s']:,.0f} s, **{brute['projected_iteration_s'] / hybrid:,.0f}x** "
