@@ -201,7 +201,7 @@ def cmd_video(args: argparse.Namespace) -> int:
             print(json.dumps({"strip": str(path), "return": episode_return}))
             return 0
         out = Path(args.out) if args.out else Path(args.run_dir) / "episode.mp4"
-        path, episode_return = artifacts.write_video(result, out, seed=args.seed, steps=args.steps)
+        path, episode_return = artifacts.write_episode_video(result, out, seed=args.seed, steps=args.steps)
     except (FileNotFoundError, ValueError) as error:
         return usage_error(error)
     print(json.dumps({"video": str(path), "return": episode_return}))
@@ -278,8 +278,9 @@ def add_commands(commands: Any) -> None:
     video.add_argument(
         "overrides",
         nargs="*",
-        metavar="env.key=value",
-        help="the episode's condition, e.g. env.background_videos=val (held-out backgrounds)",
+        metavar="key=value",
+        help="the episode's condition: env.<field>=<value> (e.g. env.background_videos=val, held-out "
+        "backgrounds) or policy.blind=true",
     )
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
@@ -304,7 +305,10 @@ def add_commands(commands: Any) -> None:
     )
     look.add_argument("run_dir")
     look.add_argument(
-        "overrides", nargs="*", metavar="env.key=value", help="the episodes' condition, e.g. env.background_videos=val"
+        "overrides",
+        nargs="*",
+        metavar="key=value",
+        help="the episodes' condition: env.<field>=<value> (e.g. env.background_videos=val) or policy.blind=true",
     )
     look.add_argument("--episodes", type=arguments.count, default=3)
     look.add_argument("--seed", type=int, default=0, help="episode seed")

@@ -226,7 +226,7 @@ def add_commands(commands: Any) -> None:
         "reported beside the IAP runs in --out",
     )
     _add_results(parser)
-    _add_export(parser, "DIR/<task>-seed<k> (e.g. pretrained/dcs)")
+    _add_export(parser, "DIR/<task>-seed<k>, with --policy cnn DIR/<task>-cnn-seed<k> (e.g. pretrained/dcs)")
     _add_report_only(parser)
 
     parser = figure(
@@ -265,7 +265,10 @@ def add_commands(commands: Any) -> None:
     parser.add_argument("--seed", type=arguments.index, default=0, help="the training seed (default 0)")
     _add_episodes(parser, "per finished run, each on a course not seen in training")
     _add_results(parser)
-    _add_export(parser, "DIR/table2-p<p>-s<s>-seed<k> (e.g. pretrained/quadruped)")
+    _add_export(
+        parser,
+        "DIR/table2-p<p>-s<s>-seed<k>, the preset's own setting DIR/quadruped-walls-iap-seed<k> (e.g. pretrained/quadruped)",
+    )
     _add_report_only(parser)
 
     parser = figure(

@@ -8,8 +8,9 @@ OpenES with a population of 64, Adam at learning rate 0.1 and sigma 0.1 (:data:`
 one setting for every task and seed, chosen on short runs of cartpole-swingup and
 cheetah-run (``RESULTS.md``, section ``dcs-tuning``, has every run that informed it).
 ``dcs-<task>-cnn`` swaps the attention for a small convolutional network (:data:`CONVNET`)
-and keeps everything else. ``dcs-<task>-quick`` is the same policy on 10-step episodes, a population of 8 and small
-background frames: a smoke run for tests.
+and keeps everything else. ``dcs-<task>-quick`` (and ``dcs-<task>-cnn-quick``) is the same
+policy on 10-step episodes, a population of 8 and small background frames: a smoke run for
+tests.
 """
 
 from __future__ import annotations

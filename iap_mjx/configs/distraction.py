@@ -1,9 +1,9 @@
 """The Distracting Control Suite's settings: its tasks, difficulties, kinds and background sets.
 
 This is the one home of the suite's settings, and it lives in ``configs`` because a config is
-validated when it is built, before jax or MuJoCo is imported: ``EnvConfig`` turns its
-distraction fields into a :class:`DistractionConfig`, whose checks (the background directory's
-videos included) are plain Python. The layers that do the work import from here:
+validated when it is built, without MuJoCo and before any model is built: ``EnvConfig`` turns
+its distraction fields into a :class:`DistractionConfig`, whose checks (the background
+directory's videos included) are plain Python. The layers that do the work import from here:
 ``iap_mjx.envs.distraction`` (the perturbations) and ``iap_mjx.envs.backgrounds`` (the videos'
 pixels); nothing here imports them.
 
@@ -380,7 +380,7 @@ class DistractionConfig:
       kinds: the perturbations on, a subset of ``("background", "camera", "colour")`` (a
         comma-separated string is parsed; kept in canonical order).
       background_dir: a DAVIS-2017 directory (a path is kept as a ``str``), or ``None`` for
-        the photographs that ship in scikit-image (:data:`PHOTOGRAPHS`).
+        the photographs that ship in scikit-image and matplotlib (:data:`PHOTOGRAPHS`).
       background_size: side of the square frames (the sky texture), in texels.
       background_frames: frames per built-in video.
       background_videos: ``"train"``, the backgrounds training draws from, or ``"val"``, a

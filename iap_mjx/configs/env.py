@@ -52,6 +52,13 @@ def check_depth_max(depth_max: Any, obs_mode: str, owner: str = "") -> None:
         raise ValueError(f"{owner}depth_max must be None or a finite number of metres > 0, got {depth_max!r}.")
 
 
+def _check_slots(setting: str, value: Any) -> None:
+    """A budget of MJX slots: ``"task"``, ``"all"`` (the attribute's docstring says what each
+    means) or an int >= 1."""
+    if value not in ("task", "all") and not (is_int(value) and value >= 1):
+        raise ValueError(f'{setting} must be "task", "all" or an int >= 1, got {value!r}.')
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
     """Static settings of one env (hashable, so jitted code can depend on it).
@@ -90,7 +97,7 @@ class EnvConfig:
       distraction_kinds: which are on: a subset of ``background``, ``camera``, ``colour``
         (a tuple or a comma-separated string; ``None``: all three).
       background_dir: a DAVIS-2017 directory for the backgrounds (``None``: the photographs
-        that ship in scikit-image, ``iap_mjx.envs.backgrounds``); needs the background kind.
+        that ship in scikit-image and matplotlib, ``iap_mjx.envs.backgrounds``); needs the background kind.
       background_size, background_frames: the square sky texture's side in texels, and the
         frames per built-in video (``None``: ``distraction.DEFAULT_SIZE`` /
         ``DEFAULT_NUM_FRAMES``).
@@ -123,8 +130,7 @@ class EnvConfig:
         positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height", "width", "frame_stack")
         for name in positive_ints:
             require_int(f"EnvConfig.{name}", getattr(self, name))
-        if self.max_contacts not in ("task", "all") and not (is_int(self.max_contacts) and self.max_contacts >= 1):
-            raise ValueError(f'EnvConfig.max_contacts must be "task", "all" or an int >= 1, got {self.max_contacts!r}.')
+        _check_slots("EnvConfig.max_contacts", self.max_contacts)
         require_int("EnvConfig.episode_length", self.episode_length, none_ok=True)
         require_number("EnvConfig.max_abs_state", self.max_abs_state, 0, low_open=True)
         if self.obs_mode not in OBS_MODES:
@@ -228,12 +234,7 @@ class QuadrupedConfig(EnvConfig):
         require_number("QuadrupedConfig.v_cap", self.v_cap, 0, low_open=True, unit="m/s")
         require_number("QuadrupedConfig.joint_noise", self.joint_noise, 0, 0.5, unit="rad")
         require_number("QuadrupedConfig.fall_penalty", self.fall_penalty, 0, unit="m")
-        if self.max_geom_pairs not in ("task", "all") and not (
-            is_int(self.max_geom_pairs) and self.max_geom_pairs >= 1
-        ):
-            raise ValueError(
-                f'QuadrupedConfig.max_geom_pairs must be "task", "all" or an int >= 1, got {self.max_geom_pairs!r}.'
-            )
+        _check_slots("QuadrupedConfig.max_geom_pairs", self.max_geom_pairs)
         if self.solver not in SOLVERS:
             raise ValueError(f"QuadrupedConfig.solver must be one of {SOLVERS}, got {self.solver!r}.")
 

@@ -90,12 +90,14 @@ def register_hierarchies(
 ) -> None:
     """Registers ``<course>-<name>`` for each ``(name, high level options, what)`` of ``highs``:
     the hierarchy on ``course`` (``seen``: how the camera is read), the course's ES and budget."""
+    hierarchy = dict(HIERARCHY)
+    lo, hi = hierarchy["duration_range"]
     for name, high, what in highs:
         register(
             Preset(
                 f"{course}-{name}",
-                f"{course}{seen}, hierarchical: {what} -> latent (4) held 10-50 steps -> linear PMTG "
-                "low level; return = metres along the course in 20 s",
+                f"{course}{seen}, hierarchical: {what} -> latent ({hierarchy['latent_size']}) held "
+                f"{lo}-{hi} steps -> linear PMTG low level; return = metres along the course in 20 s",
                 course,
                 "hierarchical",
                 env_options,

@@ -37,14 +37,6 @@ def _fail(owner: str, field: str, value: Any, why: str) -> None:
     raise ValueError(f"{owner}.{field} = {value!r}: {why}")
 
 
-def _positive_int(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
-    require_int(f"{owner}.{field}", value, 0 if allow_zero else 1)
-
-
-def _positive_float(owner: str, field: str, value: Any, allow_zero: bool = False) -> None:
-    require_number(f"{owner}.{field}", value, 0, low_open=not allow_zero)
-
-
 def _choice(owner: str, field: str, value: Any, valid: Any) -> None:
     if value not in valid:
         _fail(owner, field, value, f"choose one of {sorted(valid)}")
@@ -138,21 +130,21 @@ class ESConfig:
             from evosax.algorithms import distribution_based_algorithms
 
             _choice("es", "strategy", self.strategy, [OPEN_ES, *distribution_based_algorithms])
-        _positive_int("es", "population_size", self.population_size)
+        require_int("es.population_size", self.population_size)
         if self.population_size < 2:
             _fail("es", "population_size", self.population_size, "must be >= 2")
         if self.strategy == OPEN_ES and self.antithetic and self.population_size % 2:
             _fail("es", "population_size", self.population_size, "must be even with antithetic sampling")
-        _positive_float("es", "sigma", self.sigma)
+        require_number("es.sigma", self.sigma, 0, low_open=True)
         _choice("es", "sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
-        _positive_float("es", "sigma_final", self.sigma_final)
+        require_number("es.sigma_final", self.sigma_final, 0, low_open=True)
         _choice("es", "optimizer", self.optimizer, OPTIMIZERS)
-        _positive_float("es", "learning_rate", self.learning_rate)
-        _positive_float("es", "weight_decay", self.weight_decay, allow_zero=True)
+        require_number("es.learning_rate", self.learning_rate, 0, low_open=True)
+        require_number("es.weight_decay", self.weight_decay, 0)
         _choice("es", "shaping", self.shaping, SHAPINGS)
         if not isinstance(self.antithetic, bool):
             _fail("es", "antithetic", self.antithetic, "must be true or false")
-        _positive_int("es", "n_episodes", self.n_episodes)
+        require_int("es.n_episodes", self.n_episodes)
         if not isinstance(self.shared_episodes, bool):
             _fail("es", "shared_episodes", self.shared_episodes, "must be true or false")
         if not isinstance(self.normalize_observations, bool):
@@ -191,13 +183,13 @@ class RunConfig:
     max_minutes: float = 0.0
 
     def __post_init__(self):
-        _positive_int("run", "iterations", self.iterations)
-        _positive_int("run", "seed", self.seed, allow_zero=True)
-        _positive_int("run", "eval_episodes", self.eval_episodes, allow_zero=True)
-        _positive_int("run", "checkpoint_every", self.checkpoint_every, allow_zero=True)
-        _positive_int("run", "iterations_per_call", self.iterations_per_call)
-        _positive_int("run", "chunk_size", self.chunk_size)
-        _positive_int("run", "num_devices", self.num_devices, allow_zero=True)
+        require_int("run.iterations", self.iterations)
+        require_int("run.seed", self.seed, 0)
+        require_int("run.eval_episodes", self.eval_episodes, 0)
+        require_int("run.checkpoint_every", self.checkpoint_every, 0)
+        require_int("run.iterations_per_call", self.iterations_per_call)
+        require_int("run.chunk_size", self.chunk_size)
+        require_int("run.num_devices", self.num_devices, 0)
         if self.checkpoint_every % self.iterations_per_call:
             _fail(
                 "run",
@@ -205,7 +197,7 @@ class RunConfig:
                 self.checkpoint_every,
                 f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}",
             )
-        _positive_float("run", "max_minutes", self.max_minutes, allow_zero=True)
+        require_number("run.max_minutes", self.max_minutes, 0)
         if not isinstance(self.tensorboard, bool):
             _fail("run", "tensorboard", self.tensorboard, "must be true or false")
 

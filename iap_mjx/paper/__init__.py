@@ -1,7 +1,7 @@
-"""The paper's results, one module per figure or table, each trained through
-``iap-mjx reproduce <figure>`` into resumable run directories (:mod:`iap_mjx.paper.runs`),
-each writing its figure's PNG and JSON and, given ``--results``, its RESULTS.md section
-(``fig1_fig6``: PNG and JSON only):
+"""The paper's results, one module per figure or table, run by ``iap-mjx reproduce <figure>``:
+each trains into resumable run directories (:mod:`iap_mjx.paper.runs`; ``fig10`` draws runs
+trained elsewhere), writes its figure's PNG (and JSON, but ``fig10``) and, given ``--results``,
+its RESULTS.md section (``fig1_fig6``: PNG and JSON only):
 
 - :mod:`~iap_mjx.paper.fig1_fig6`: inference time per forward pass next to return (Figures 1, 6);
 - :mod:`~iap_mjx.paper.fig7`: the attention's shape on the Distracting Control Suite;

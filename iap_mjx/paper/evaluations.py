@@ -1,5 +1,5 @@
 """Evaluations of a run's checkpoint kept in its run directory (``eval.json``), so that a report
-(``reproduce table1``, ``fig7``, ``fig11``) reads them instead of evaluating again.
+(``reproduce table1``, ``fig7``, ``fig11``, ``table2``) reads them instead of evaluating again.
 
 ``eval.json`` maps a key (:func:`evaluation_key`: what was evaluated, the checkpoint, the number
 of episodes and the seed) to a list of per-episode returns, or to a dict of per-episode lists

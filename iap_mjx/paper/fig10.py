@@ -131,7 +131,7 @@ def write_results(
     )
     body = (
         f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
-        f"Command: `{command}`. One episode of each run's final centre on a course not seen in training "
+        f"Command: `{command}`. One episode of each run's latest centre on a course not seen in training "
         f"(seed {EVAL_SEED}); {frames} frames evenly spaced over it, each the course from the camera that follows "
         f"the robot, the first-person camera inset at {scale}x with the selected patches in red (the high "
         f"level's choice were it asked at that step; it is asked when the command it holds runs out).\n\n"

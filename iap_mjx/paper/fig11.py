@@ -209,7 +209,7 @@ def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
         f"{'met' if near else 'not met'}."
     ]
     ceiling = np.mean(blind["walls_passed"]) + np.std(blind["walls_passed"])
-    for label in ("IAP", "CNN"):
+    for label in SEEING:
         walls = summaries[label]["walls_passed"]
         above = np.mean(walls) - np.std(walls) > ceiling
         lines.append(

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.checks import require_int
 from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
@@ -58,6 +59,8 @@ def reproduce(
         raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
     from iap_mjx import envs
 
+    require_int("seeds", seeds)
+    require_int("passes", passes)
     check_seed_not_set(figure, overrides)
     variants = [
         (label, configs.apply_overrides(configs.get(preset), overrides), preset) for label, preset in VARIANTS[figure]

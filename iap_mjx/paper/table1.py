@@ -169,6 +169,7 @@ def reproduce_table1(
     config and metrics as ``<task><suffix>-seed<k>`` as soon as the run is trained (finished or
     not), so trained policies ship and unfinished runs survive a lost ``out_dir``."""
     require_int("episodes", episodes)
+    require_int("seeds", seeds)
     task_configs = check(tuple(tasks), tuple(overrides), policy)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -22,7 +22,7 @@ from iap_mjx.viz import curves, video
 logger = logging.getLogger(__name__)
 
 
-def write_video(
+def write_episode_video(
     result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None, program: Any = None
 ) -> tuple[Path, float]:
     """An episode of ``result``'s centre params on its env: a pixel env's frames with the
@@ -102,7 +102,7 @@ def write_run_artifacts(
     ]
     if video.has_pixels(result.env):
         program = video_program.result() if video_program is not None else None
-        path, episode_return = write_video(result, run_dir / "episode.mp4", program=program)
+        path, episode_return = write_episode_video(result, run_dir / "episode.mp4", program=program)
         logger.info("episode video: return %.1f", episode_return)
         paths.append(path)
     return paths
