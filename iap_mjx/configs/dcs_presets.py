@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 
 from iap_mjx.configs.distraction import TASKS
-from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, iap, register
+from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, iap, pixels, register
 from iap_mjx.configs.training import RunConfig
 
 IAP_NATIVE: Options = iap(patch_size=2)
@@ -39,14 +39,7 @@ DCS_ES = dataclasses.replace(PIXEL_ES, learning_rate=0.1, sigma=0.1)
 
 def native(task: str, *, quick: bool = False) -> Options:
     """Env options: 240x320 RGB, static medium distractions, ``ACTION_REPEAT[task]``."""
-    options = (
-        ("obs_mode", "pixels"),
-        ("height", 240),
-        ("width", 320),
-        ("action_repeat", ACTION_REPEAT[task]),
-        ("distraction", "medium"),
-        ("dynamic", False),
-    )
+    options = pixels(task, 240, 320) + (("distraction", "medium"), ("dynamic", False))
     if quick:
         options += (("episode_length", 10), ("background_size", 64), ("background_frames", 4))
     return options

@@ -77,14 +77,10 @@ class Preset:
         )
 
 
-def pixels(task: str, *, episode_steps: int | None = None, size: int = 100) -> Options:
-    """Env options for ``size`` x ``size`` RGB frames, one per ``ACTION_REPEAT[task]`` control
-    steps; ``episode_steps`` control steps per episode (``None``: dm_control's 1000)."""
-    repeat = ACTION_REPEAT[task]
-    options = (("obs_mode", "pixels"), ("height", size), ("width", size), ("action_repeat", repeat))
-    if episode_steps is not None:
-        options += (("episode_length", episode_steps // repeat),)
-    return options
+def pixels(task: str, height: int = 100, width: int = 100) -> Options:
+    """Env options for ``height`` x ``width`` RGB frames, one per ``ACTION_REPEAT[task]`` control
+    steps (dm_control's 1000 control steps per episode)."""
+    return (("obs_mode", "pixels"), ("height", height), ("width", width), ("action_repeat", ACTION_REPEAT[task]))
 
 
 def iap(kernel: str = "hybrid-10-5", *, patch_size: int = 4) -> Options:
