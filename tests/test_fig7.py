@@ -89,3 +89,10 @@ def test_the_patch_count_follows_the_frame(tmp_path, evaluations):
     fake_run(tmp_path / fig7.run_name(8, 5, 4, 0), config, 2, [10.0, 20.0])
     markdown = fig7.reproduce_fig7(tmp_path, overrides=(*ITERATIONS, *small), episodes=3, train=False)
     assert "| 8 | 5 | 4 | 300 |" in markdown  # (120 / 8) x (160 / 8)
+
+
+def test_the_command_line_sets_the_seed(tmp_path, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(fig7, "reproduce_fig7", lambda out, **kwargs: seen.update(kwargs) or "")
+    assert cli.main(["reproduce", "fig7", "--seed", "2", "--report-only", "--out", str(tmp_path)]) == 0
+    assert seen["seed"] == 2 and seen["train"] is False

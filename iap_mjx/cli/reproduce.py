@@ -35,6 +35,7 @@ def _fig7(args: argparse.Namespace) -> str:
 
     return fig7.reproduce_fig7(
         args.out,
+        seed=args.seed,
         overrides=tuple(args.overrides),
         episodes=args.episodes,
         train=not args.report_only,
@@ -191,6 +192,7 @@ def add_commands(commands: Any) -> None:
         "{5, 10, 20}, then d_qk {2, 4, 8} at the best cell",
         _fig7,
     )
+    parser.add_argument("--seed", type=arguments.index, default=0, help="the training seed of every cell (default 0)")
     _add_episodes(parser, "per run, in the training condition")
     _add_results(parser)
     _add_report_only(parser)

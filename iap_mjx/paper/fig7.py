@@ -208,7 +208,9 @@ def write_results(
     path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], episodes: int, seed: int
 ) -> None:
     """The ``fig7`` section of ``path``: the command, the figure and the table."""
-    command_line = reproduce_command("fig7", [*overrides, f"--episodes {episodes}"], out=png.parent, results=path)
+    command_line = reproduce_command(
+        "fig7", [*overrides, f"--seed {seed}", f"--episodes {episodes}"], out=png.parent, results=path
+    )
     image = image_link(png, path, "fig7")
     body = (
         f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
