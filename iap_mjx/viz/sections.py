@@ -12,8 +12,8 @@ import numpy as np
 
 
 def image_link(image: Path, markdown: Path, section: str) -> Path:
-    """Copies ``image`` to ``<markdown's folder>/experiments/<section>/`` and returns its link
-    relative to ``markdown``.
+    """Copies ``image`` (or any file the section cites, e.g. fig8's ``timings.json``) to
+    ``<markdown's folder>/experiments/<section>/`` and returns its link relative to ``markdown``.
 
     Runs write their figures into an output folder that git ignores (``results/``); the copy
     puts the figure a committed markdown file shows in a tracked folder beside it.
