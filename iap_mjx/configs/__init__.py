@@ -8,7 +8,9 @@
 - the Distracting Control Suite's settings (``distraction.py``): its tasks, difficulties,
   kinds, background sets and ``DistractionConfig``, which validates ``EnvConfig``'s
   distraction fields.
-- the presets (``presets.py``): one table of named rows; ``get(name)`` gives its ``TrainConfig``.
+- the presets: rows in ``presets.py`` (with :class:`Preset`), ``dcs_presets.py`` and
+  ``quadruped_presets.py``, one table of them in ``catalog.py``; ``get(name)`` gives a row's
+  ``TrainConfig``.
 - ``apply_overrides`` (``overrides.py``): ``key=value`` strings as typed on the command line;
   ``override_path`` names the setting one of them sets.
 
@@ -17,13 +19,10 @@ The settings of the parts themselves (``iap_mjx.attention.AttentionConfig``,
 ``iap-mjx show PRESET [key=value ...]`` prints a resolved config.
 """
 
-from iap_mjx.configs import (
-    dcs_presets,  # noqa: F401,E402  (adds the Distracting Control Suite rows)
-    quadruped_presets,  # noqa: F401,E402  (registers the quadruped presets)
-)
+from iap_mjx.configs.catalog import describe, get, lookup, names
 from iap_mjx.configs.env import EnvConfig
 from iap_mjx.configs.overrides import apply_overrides, override_path, parse_value
-from iap_mjx.configs.presets import Preset, describe, get, lookup, names, register
+from iap_mjx.configs.presets import Preset
 from iap_mjx.configs.training import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 
 __all__ = [
@@ -41,5 +40,4 @@ __all__ = [
     "names",
     "override_path",
     "parse_value",
-    "register",
 ]

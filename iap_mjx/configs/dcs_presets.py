@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 
 from iap_mjx.configs.distraction import TASKS
-from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, iap, pixels, register
+from iap_mjx.configs.presets import ACTION_REPEAT, PIXEL_ES, PIXEL_RUN, Options, Preset, iap, pixels
 from iap_mjx.configs.training import RunConfig
 
 IAP_NATIVE: Options = iap(patch_size=2)
@@ -62,31 +62,33 @@ def quick(preset: Preset) -> Preset:
     )
 
 
-for _task in TASKS:
-    for _preset in (
+def _rows(task: str) -> tuple[Preset, Preset]:
+    """``dcs-<task>`` (IAP) and ``dcs-<task>-cnn``."""
+    return (
         Preset(
-            f"dcs-{_task}",
-            f"{_task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
-            f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[_task]}; "
+            f"dcs-{task}",
+            f"{task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
+            f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[task]}; "
             "OpenES 64, Adam 0.1, sigma 0.1",
-            _task,
+            task,
             "iap",
-            native(_task),
+            native(task),
             IAP_NATIVE,
             DCS_ES,
             PIXEL_RUN,
         ),
         Preset(
-            f"dcs-{_task}-cnn",
-            f"dcs-{_task} with the convolutional baseline in place of attention (3 conv 3x3, "
+            f"dcs-{task}-cnn",
+            f"dcs-{task} with the convolutional baseline in place of attention (3 conv 3x3, "
             "strides 4, 4, 2, 2x2 max pool, dense 16 -> LSTM(16)); the same frames and ES",
-            _task,
+            task,
             "convnet",
-            native(_task),
+            native(task),
             CONVNET,
             DCS_ES,
             PIXEL_RUN,
         ),
-    ):
-        register(_preset)
-        register(quick(_preset))
+    )
+
+
+PRESETS: tuple[Preset, ...] = tuple(row for task in TASKS for full in _rows(task) for row in (full, quick(full)))

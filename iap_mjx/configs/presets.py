@@ -1,7 +1,9 @@
-"""The named presets: one table, one row a preset (``iap-mjx presets`` lists them).
+"""The named presets' rows: :class:`Preset` and the general rows (``iap-mjx presets`` lists
+every row, with ``dcs_presets``' and ``quadruped_presets``'; ``iap_mjx.configs.catalog`` looks
+them up by name).
 
-A row (:class:`Preset`) names a task, a policy, and the ES and loop settings; ``get(name)``
-turns it into a validated :class:`TrainConfig`. The helpers below (``pixels``, ``iap``) spell
+A row (:class:`Preset`) names a task, a policy, and the ES and loop settings; its ``config()``
+is a validated :class:`TrainConfig`. The helpers below (``pixels``, ``iap``) spell
 the settings the rows share once, so each row says only what makes it different.
 
 The pixel presets follow the paper's Cheetah-Run setting (Figure 6): 100x100 RGB,
@@ -10,8 +12,6 @@ non-overlapping 4x4 patches (``L = 625``), the top 10 patch centres into an LSTM
 ``(m, r) = (10, 5)``; one frame per ``ACTION_REPEAT[task]`` control steps, as PlaNet and DrQ
 do from pixels (the episode is still dm_control's 1000 control steps and its return).
 ``RESULTS.md`` has what they reach.
-
-Other modules add rows with :func:`register`.
 """
 
 from __future__ import annotations
@@ -173,38 +173,3 @@ PRESETS: tuple[Preset, ...] = (
         RunConfig(iterations=40, eval_episodes=2, checkpoint_every=5),
     ),
 )
-
-_REGISTRY: dict[str, Preset] = {}
-
-
-def register(preset: Preset) -> None:
-    """Adds a row; a name already taken raises ``ValueError``."""
-    if preset.name in _REGISTRY:
-        raise ValueError(f"preset {preset.name!r} is already registered")
-    _REGISTRY[preset.name] = preset
-
-
-for _preset in PRESETS:
-    register(_preset)
-
-
-def names() -> list[str]:
-    """All preset names, sorted."""
-    return sorted(_REGISTRY)
-
-
-def describe(name: str) -> str:
-    """The preset's one-line description."""
-    return lookup(name).description
-
-
-def get(name: str) -> TrainConfig:
-    """The preset's config; an unknown name raises ``ValueError`` listing the valid ones."""
-    return lookup(name).config()
-
-
-def lookup(name: str) -> Preset:
-    """The preset's row; an unknown name raises ``ValueError`` listing the valid ones."""
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(names())}")
-    return _REGISTRY[name]

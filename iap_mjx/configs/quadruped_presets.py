@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iap_mjx.configs.presets import Options, Preset, register
+from iap_mjx.configs.presets import Options, Preset
 from iap_mjx.configs.training import ESConfig, RunConfig
 
 FLAT_PMTG = Preset(
@@ -49,8 +49,6 @@ FLAT_PMTG = Preset(
     es=ESConfig(population_size=64, sigma=0.05, learning_rate=0.02, weight_decay=0.005),
     run=RunConfig(iterations=100, eval_episodes=8, checkpoint_every=10),
 )
-
-register(FLAT_PMTG)
 
 TURN_PMTG = Preset(
     "quadruped-turn-pmtg",
@@ -65,8 +63,6 @@ TURN_PMTG = Preset(
 turns both ways but walks 2-3 m in 10 s; at 300 about 9: RESULTS.md, ``quadruped-turn``): a low
 level that turns both ways on command, for the hierarchy's ``policy.low_level_init`` (its
 command becomes the latent's first entry: ``iap_mjx.policies.hierarchical.commanded_low_level``)."""
-
-register(TURN_PMTG)
 
 COURSE_ENV: Options = (("obs_mode", "pixels+state"),)
 """The course seen through the first-person camera (24x32 RGB, its default size), the state
@@ -85,30 +81,30 @@ COURSE_ES = dataclasses.replace(FLAT_PMTG.es, normalize_observations=False)
 COURSE_RUN = RunConfig(iterations=200, eval_episodes=8, checkpoint_every=10)
 
 
-def register_hierarchies(
+def hierarchies(
     course: str, env_options: Options, seen: str, highs: tuple[tuple[str, Options, str], ...]
-) -> None:
-    """Registers ``<course>-<name>`` for each ``(name, high level options, what)`` of ``highs``:
-    the hierarchy on ``course`` (``seen``: how the camera is read), the course's ES and budget."""
+) -> tuple[Preset, ...]:
+    """``<course>-<name>`` for each ``(name, high level options, what)`` of ``highs``: the
+    hierarchy on ``course`` (``seen``: how the camera is read), the course's ES and budget."""
     hierarchy = dict(HIERARCHY)
     lo, hi = hierarchy["duration_range"]
-    for name, high, what in highs:
-        register(
-            Preset(
-                f"{course}-{name}",
-                f"{course}{seen}, hierarchical: {what} -> latent ({hierarchy['latent_size']}) held "
-                f"{lo}-{hi} steps -> linear PMTG low level; return = metres along the course in 20 s",
-                course,
-                "hierarchical",
-                env_options,
-                high + HIERARCHY,
-                COURSE_ES,
-                COURSE_RUN,
-            )
+    return tuple(
+        Preset(
+            f"{course}-{name}",
+            f"{course}{seen}, hierarchical: {what} -> latent ({hierarchy['latent_size']}) held "
+            f"{lo}-{hi} steps -> linear PMTG low level; return = metres along the course in 20 s",
+            course,
+            "hierarchical",
+            env_options,
+            high + HIERARCHY,
+            COURSE_ES,
+            COURSE_RUN,
         )
+        for name, high, what in highs
+    )
 
 
-register_hierarchies(
+WALLS = hierarchies(
     "quadruped-walls",
     COURSE_ENV,
     "",
@@ -123,7 +119,7 @@ GATES_ENV: Options = (("obs_mode", "depth+state"),)
 """The corridor through the first-person camera's depth channel (24x32, scaled to [0, 1] over
 4 m), the state beside it for the low level."""
 
-register_hierarchies(
+GATES = hierarchies(
     "quadruped-gates",
     GATES_ENV,
     " from depth",
@@ -132,3 +128,5 @@ register_hierarchies(
         ("blind", IAP_HIGH + (("blind", True),), "blind high level (the IAP one on a zeroed depth image: the control)"),
     ),
 )
+
+PRESETS: tuple[Preset, ...] = (FLAT_PMTG, TURN_PMTG, *WALLS, *GATES)
