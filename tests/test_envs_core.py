@@ -253,3 +253,12 @@ def test_importing_and_building_every_env_prints_nothing():
     done = subprocess.run([sys.executable, "-c", script], env=environment, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout == "" and done.stderr == "", done.stdout + done.stderr
+
+
+def test_a_task_class_refuses_another_tasks_config():
+    """Built directly (not through the registry), a task still takes only its own config class."""
+    from iap_mjx.configs.env import QuadrupedConfig
+    from iap_mjx.envs.cheetah import CheetahRun
+
+    with pytest.raises(ValueError, match="cheetah-run takes a EnvConfig, got a QuadrupedConfig"):
+        CheetahRun(QuadrupedConfig())

@@ -134,6 +134,8 @@ class DmControlEnv:
     config_class: ClassVar[type] = EnvConfig  # the registry validates settings against it
 
     def __init__(self, config: EnvConfig | None = None, **overrides: Any):
+        if config is not None and type(config) is not self.config_class:
+            raise ValueError(f"{self.name} takes a {self.config_class.__name__}, got a {type(config).__name__}.")
         config = config if config is not None else self.config_class()
         self.config = dataclasses.replace(config, **overrides) if overrides else config
         spec = self._model_spec()

@@ -69,8 +69,6 @@ class QuadrupedFlat(DmControlEnv):
     camera_options: dict[str, Any] = {"geom_groups": (a1.WORLD_GROUP,)}
 
     def __init__(self, config: QuadrupedConfig | None = None, **overrides: Any):
-        if config is not None and type(config) is not self.config_class:
-            raise ValueError(f"{self.name} needs a {self.config_class.__name__}, got {type(config).__name__}.")
         super().__init__(config, **overrides)
         model = self.mj_model
         sensor = lambda name: int(model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, name)])  # noqa: E731
