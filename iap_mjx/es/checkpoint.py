@@ -15,6 +15,8 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from iap_mjx.es import metrics_log
+
 logger = logging.getLogger(__name__)
 
 CHECKPOINT_DIR = "checkpoints"
@@ -24,15 +26,23 @@ class ShapeMismatch(ValueError):
     """A checkpoint's arrays do not have the shapes of the state it is restored into."""
 
 
-def _manager(run_dir: str | Path, max_to_keep: int = 3, *, create: bool = True) -> ocp.CheckpointManager:
-    options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=create, enable_async_checkpointing=False)
-    return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options)
+# the newest checkpoints kept: the latest, and older ones should it have been cut short
+MAX_TO_KEEP = 3
+
+
+def _has_checkpoints(run_dir: str | Path) -> bool:
+    return (Path(run_dir) / CHECKPOINT_DIR).is_dir()
+
+
+def _manager(run_dir: str | Path, *, create: bool = True, item_handlers: Any = None) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(max_to_keep=MAX_TO_KEEP, create=create, enable_async_checkpointing=False)
+    return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options, item_handlers=item_handlers)
 
 
 def _reader(run_dir: str | Path) -> ocp.CheckpointManager:
     """A manager that only reads: a missing checkpoint directory raises ``FileNotFoundError``
     (nothing is created, so a mistyped run directory leaves no trace)."""
-    if not (Path(run_dir) / CHECKPOINT_DIR).is_dir():
+    if not _has_checkpoints(run_dir):
         raise FileNotFoundError(f"no checkpoint in {Path(run_dir) / CHECKPOINT_DIR}")
     return _manager(run_dir, create=False)
 
@@ -56,7 +66,7 @@ def to_host(tree: Any) -> Any:
 
 def latest_step(run_dir: str | Path) -> int | None:
     """The iteration of the newest complete checkpoint in ``run_dir``, or ``None``."""
-    if not (Path(run_dir) / CHECKPOINT_DIR).is_dir():
+    if not _has_checkpoints(run_dir):
         return None
     with _manager(run_dir, create=False) as manager:
         return manager.latest_step()
@@ -105,11 +115,8 @@ def _leaf_name(path: tuple[Any, ...]) -> str:
 def stored_shapes(run_dir: str | Path, step: int) -> dict[str, tuple[int, ...]]:
     """``{leaf name: shape}`` of checkpoint ``step``'s state, read from its metadata (no array
     is loaded)."""
-    options = ocp.CheckpointManagerOptions(create=False, enable_async_checkpointing=False)
     handlers = {"state": ocp.StandardCheckpointHandler()}
-    with ocp.CheckpointManager(
-        Path(run_dir).resolve() / CHECKPOINT_DIR, options=options, item_handlers=handlers
-    ) as manager:
+    with _manager(run_dir, create=False, item_handlers=handlers) as manager:
         metadata = manager.item_metadata(step)["state"]
     return {_leaf_name(path): tuple(leaf.shape) for path, leaf in jax.tree_util.tree_leaves_with_path(metadata)}
 
@@ -134,7 +141,7 @@ def _check_shapes(run_dir: str | Path, step: int, like: Any) -> None:
 
 
 #: What :func:`export_latest` copies besides the checkpoint: what a person or a resumed run reads.
-RUN_FILES = ("config.json", "metrics.csv", "metrics.jsonl", "eval.json")
+RUN_FILES = (metrics_log.CONFIG_FILE, metrics_log.METRICS_CSV, metrics_log.METRICS_JSONL, metrics_log.EVAL_FILE)
 
 
 def export_latest(run_dir: str | Path, dest: str | Path) -> int | None:

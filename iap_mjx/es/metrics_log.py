@@ -34,7 +34,11 @@ from typing import Any
 
 logger = logging.getLogger(__name__)
 
+# The files of a run directory besides its checkpoints (``iap_mjx.es.checkpoint.RUN_FILES``).
 CONFIG_FILE = "config.json"
+METRICS_JSONL = "metrics.jsonl"
+METRICS_CSV = "metrics.csv"
+EVAL_FILE = "eval.json"  # the evaluations kept beside a checkpoint: ``iap_mjx.paper.evaluations``
 
 COLUMNS = (
     "iteration",
@@ -90,7 +94,7 @@ def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str
     A last line cut short (the process died mid-write) is dropped with a warning: its
     iteration is past the last checkpoint, so resuming recomputes it.
     """
-    path = Path(run_dir) / "metrics.jsonl"
+    path = Path(run_dir) / METRICS_JSONL
     if not path.exists():
         return []
     lines = [line for line in path.read_text().splitlines() if line.strip()]
@@ -128,23 +132,23 @@ class MetricsWriter:
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         """Both files anew, each written aside and renamed over the old one: a kill mid-write
         leaves the old file, never a half-written one."""
-        jsonl = self.run_dir / "metrics.jsonl.tmp"
+        jsonl = self.run_dir / f"{METRICS_JSONL}.tmp"
         with open(jsonl, "w") as f:
             for row in rows:
                 f.write(json.dumps(row) + "\n")
-        table = self.run_dir / "metrics.csv.tmp"
+        table = self.run_dir / f"{METRICS_CSV}.tmp"
         with open(table, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(rows)
-        os.replace(jsonl, self.run_dir / "metrics.jsonl")
-        os.replace(table, self.run_dir / "metrics.csv")
+        os.replace(jsonl, self.run_dir / METRICS_JSONL)
+        os.replace(table, self.run_dir / METRICS_CSV)
 
     def write(self, row: dict[str, Any]) -> None:
         """Appends one iteration's row (keys from ``columns``; missing ones stay empty)."""
-        with open(self.run_dir / "metrics.jsonl", "a") as f:
+        with open(self.run_dir / METRICS_JSONL, "a") as f:
             f.write(json.dumps(row) + "\n")
-        with open(self.run_dir / "metrics.csv", "a", newline="") as f:
+        with open(self.run_dir / METRICS_CSV, "a", newline="") as f:
             csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore").writerow(row)
         if self._tb is not None:
             for name, value in row.items():

@@ -18,10 +18,9 @@ from typing import Any
 import numpy as np
 
 from iap_mjx.configs.training import EVAL_SEED
+from iap_mjx.es.metrics_log import EVAL_FILE
 
 logger = logging.getLogger(__name__)
-
-EVAL_FILE = "eval.json"
 
 
 def evaluation_key(name: str, step: int, episodes: int) -> str:
