@@ -29,7 +29,6 @@ logger = logging.getLogger(__name__)
 
 # dm_control's (domain, task) names of the suite's six tasks.
 TASKS = tuple(tuple(name.split("-")) for name in distraction.TASKS)
-GL_BACKEND = os.environ.get("IAP_MJX_REFERENCE_GL", "osmesa")
 
 
 def _suite_model(domain: str):
@@ -141,7 +140,8 @@ def reference_frames(
             **({} if xml is None else {"xml": xml}),
             **{k: np.asarray(v) for k, v in (distractions or {}).items()},
         )
-        env = dict(os.environ, MUJOCO_GL=GL_BACKEND, PYOPENGL_PLATFORM=GL_BACKEND)
+        backend = os.environ.get("IAP_MJX_REFERENCE_GL", "osmesa")  # read per call, not at import
+        env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
         proc = subprocess.run(
             [sys.executable, "-m", "iap_mjx.viz.render_compare", "--reference", str(request), str(result)],
             env=env,
@@ -150,8 +150,8 @@ def reference_frames(
         )
         if proc.returncode != 0:
             raise RuntimeError(
-                f"MuJoCo's renderer failed with MUJOCO_GL={GL_BACKEND} (is libosmesa6 "
-                f"installed?):\n{proc.stderr[-2000:]}"
+                f"MuJoCo's renderer failed with MUJOCO_GL={backend}"
+                f"{' (is libosmesa6 installed?)' if backend == 'osmesa' else ''}:\n{proc.stderr[-2000:]}"
             )
         with np.load(result) as out:
             return {k: out[k] for k in out.files}
