@@ -42,7 +42,7 @@ from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, run_summary
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -101,21 +101,18 @@ def run_row(
     """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses, a
     seeing policy's also with its eyes closed (``"eyes_closed"``); with ``export``, its newest
     checkpoint and files are copied to ``export/<preset>-seed<k>``."""
-    from iap_mjx.es import checkpoint
-
     name = f"{POLICIES[label]}-seed{seed}"
-    summary = run_summary(config, seed, out_dir / name, train=train)
-    if summary is None:
-        return None
-    row = {"policy": label, "preset": POLICIES[label], **summary[0]}
-    if row["finished"]:
-        step = checkpoint.latest_step(out_dir / name)
-        row["course"] = evaluate_course(out_dir / name, step, episodes=episodes)
+
+    def evaluate(run_dir: Path, step: int) -> dict[str, Any]:
+        courses = {"course": evaluate_course(run_dir, step, episodes=episodes)}
         if label in SEEING:
-            row["eyes_closed"] = evaluate_course(out_dir / name, step, episodes=episodes, eyes_closed=True)
-    if export is not None:
-        checkpoint.export_latest(out_dir / name, export / name)
-    return row
+            courses["eyes_closed"] = evaluate_course(run_dir, step, episodes=episodes, eyes_closed=True)
+        return courses
+
+    reported = reported_run(
+        config, seed, out_dir / name, train=train, evaluate=evaluate, export=None if export is None else export / name
+    )
+    return None if reported is None else {"policy": label, "preset": POLICIES[label], **reported[0]}
 
 
 def reproduce_fig11(

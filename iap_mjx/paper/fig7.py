@@ -27,7 +27,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, run_summary
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -77,19 +77,17 @@ def cell_row(
     cell: tuple[int, int, int], config: configs.TrainConfig, seed: int, out_dir: Path, *, train: bool, episodes: int
 ) -> dict[str, Any] | None:
     """One cell: its curve and (finished) its final centre's evaluation returns."""
-    from iap_mjx.es import checkpoint
     from iap_mjx.paper.evaluations import evaluate_conditions
 
+    def evaluate(run_dir: Path, step: int) -> dict[str, Any]:
+        returns = evaluate_conditions(run_dir, step, episodes=episodes, conditions=TRAIN_CONDITION)["train"]
+        return {"returns": returns, "return": float(np.mean(returns))}
+
     run_dir = out_dir / run_name(*cell, seed)
-    summary = run_summary(config, seed, run_dir, train=train)
-    if summary is None:
+    reported = reported_run(config, seed, run_dir, train=train, evaluate=evaluate)
+    if reported is None:
         return None
-    row = {"patch_size": cell[0], "top_l": cell[1], "d_qk": cell[2], **summary[0], "run": run_dir.name}
-    if row["finished"]:
-        step = checkpoint.latest_step(run_dir)
-        row["returns"] = evaluate_conditions(run_dir, step, episodes=episodes, conditions=TRAIN_CONDITION)["train"]
-        row["return"] = float(np.mean(row["returns"]))
-    return row
+    return {"patch_size": cell[0], "top_l": cell[1], "d_qk": cell[2], **reported[0], "run": run_dir.name}
 
 
 def best_cell(rows: list[dict[str, Any]]) -> tuple[int, int] | None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +92,31 @@ def run_summary(
         "env_steps": int(history[-1]["env_steps"]),
         "finished": len(curve) == config.run.iterations,
     }
+    return row, history
+
+
+def reported_run(
+    config: configs.TrainConfig,
+    seed: int,
+    run_dir: Path,
+    *,
+    train: bool = True,
+    evaluate: Callable[[Path, int], dict[str, Any]] | None = None,
+    export: Path | None = None,
+) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+    """:func:`run_summary`, with a finished run's ``evaluate(run_dir, latest step)`` entries
+    added to its row; then, with ``export``, the run's newest checkpoint and files (its
+    evaluations' ``eval.json`` included) copied to ``export``, finished or not."""
+    from iap_mjx.es import checkpoint
+
+    summary = run_summary(config, seed, run_dir, train=train)
+    if summary is None:
+        return None
+    row, history = summary
+    if row["finished"] and evaluate is not None:
+        row.update(evaluate(run_dir, checkpoint.latest_step(run_dir)))
+    if export is not None:
+        checkpoint.export_latest(run_dir, export)
     return row, history
 
 

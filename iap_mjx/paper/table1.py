@@ -35,7 +35,7 @@ from iap_mjx.checks import require_int
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
-from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, run_summary
+from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -121,19 +121,20 @@ def run_row(
     """One run: its curve, env steps (``control_steps``, :func:`control_steps`), seconds, and
     (finished runs) every condition's returns; with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
-    from iap_mjx.es import checkpoint
-
-    run_dir = out_dir / f"{preset(task, policy)}-seed{seed}"
-    summary = run_summary(config, seed, run_dir, train=train)
-    if summary is None:
+    reported = reported_run(
+        config,
+        seed,
+        out_dir / f"{preset(task, policy)}-seed{seed}",
+        train=train,
+        evaluate=lambda run_dir, step: {
+            "conditions": evaluate_conditions(run_dir, step, episodes=episodes, conditions=CONDITIONS)
+        },
+        export=None if export is None else export / f"{task}{POLICIES[policy]}-seed{seed}",
+    )
+    if reported is None:
         return None
-    row = {"task": task, "policy": policy, "parameters": parameters(config), **summary[0]}
+    row = {"task": task, "policy": policy, "parameters": parameters(config), **reported[0]}
     row["control_steps"] = control_steps(config, row["env_steps"])
-    if row["finished"]:
-        step = checkpoint.latest_step(run_dir)
-        row["conditions"] = evaluate_conditions(run_dir, step, episodes=episodes, conditions=CONDITIONS)
-    if export is not None:
-        checkpoint.export_latest(run_dir, export / f"{task}{POLICIES[policy]}-seed{seed}")
     return row
 
 

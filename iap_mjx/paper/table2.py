@@ -33,7 +33,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import is_int, require_int
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, run_summary
+from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -142,7 +142,6 @@ def reproduce_table2(
     ``pretrained/quadruped``, tracked by git) that receives each run's newest checkpoint, config
     and metrics under its run directory's name, finished or not."""
     from iap_mjx import policies
-    from iap_mjx.es import checkpoint
     from iap_mjx.paper.fig11 import evaluate_course
 
     checked = check(tuple(settings), tuple(overrides), seed, episodes)
@@ -151,16 +150,19 @@ def reproduce_table2(
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for setting, (config, name, extra) in checked.items():
-        summary = run_summary(config, seed, out_dir / name, train=train)
-        if summary is None:
+        reported = reported_run(
+            config,
+            seed,
+            out_dir / name,
+            train=train,
+            evaluate=lambda run_dir, step: {"course": evaluate_course(run_dir, step, episodes=episodes)},
+            export=None if export is None else Path(export) / name,
+        )
+        if reported is None:
             logger.info("table2 %s: no run in %s yet", setting, out_dir / name)
             continue
-        row, history = summary
-        if export is not None:
-            checkpoint.export_latest(out_dir / name, Path(export) / name)
+        row, history = reported
         best = [float(entry["return_max"]) for entry in history]
-        if row["finished"]:
-            row["course"] = evaluate_course(out_dir / name, checkpoint.latest_step(out_dir / name), episodes=episodes)
         rows.append(
             {
                 "patch_size": setting[0],
