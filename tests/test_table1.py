@@ -199,6 +199,7 @@ def test_cnn_baseline_is_reported_beside_the_iap_runs_with_both_parameter_counts
     assert [r["policy"] for r in json.loads((tmp_path / "table1-cnn.json").read_text())] == ["cnn"]
     text = results.read_text()
     assert "<!-- BEGIN table1-cnn -->" in text and "--policy cnn" in text and row in text
+    assert "--tasks cartpole-swingup " in text  # the section's command trains only the tasks reported
     assert sorted(p.name for p in (tmp_path / "pretrained").iterdir()) == ["cartpole-swingup-cnn-seed0"]
     with pytest.raises(ValueError, match="policy 'rnn': choose from iap, cnn"):
         table1.reproduce_table1(tmp_path, policy="rnn")

@@ -188,18 +188,35 @@ def reproduce_table1(
         markdown = comparison(rows, iap, seeds=seeds)
     if results is not None:
         write_results(
-            Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes, policy=policy
+            Path(results),
+            markdown,
+            png,
+            seeds=seeds,
+            overrides=tuple(overrides),
+            episodes=episodes,
+            policy=policy,
+            tasks=tuple(tasks),
         )
     return markdown
 
 
 def write_results(
-    path: Path, markdown: str, png: Path, *, seeds: int, overrides: tuple[str, ...], episodes: int, policy: str = "iap"
+    path: Path,
+    markdown: str,
+    png: Path,
+    *,
+    seeds: int,
+    overrides: tuple[str, ...],
+    episodes: int,
+    policy: str = "iap",
+    tasks: tuple[str, ...] = TASKS,
 ) -> None:
     """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
     curves."""
     name = "table1" + POLICIES[policy]
     options = [*overrides, f"--seeds {seeds}", f"--episodes {episodes}"]
+    if tuple(tasks) != TASKS:  # the command reproduces these tasks only
+        options.append("--tasks " + ",".join(tasks))
     command = reproduce_command(
         "table1", options + ([f"--policy {policy}"] if policy != "iap" else []), out=png.parent, results=path
     )
