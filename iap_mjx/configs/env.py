@@ -8,10 +8,9 @@ field and its valid values before any model is built.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
-from iap_mjx.checks import is_int, is_number, require_int, require_number
+from iap_mjx.checks import is_int, require_int, require_number
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
 PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
@@ -48,8 +47,7 @@ def check_depth_max(depth_max: Any, obs_mode: str, owner: str = "") -> None:
             f"{owner}depth_max = {depth_max!r} scales the depth of obs_mode 'depth+state' only, "
             f"got obs_mode={obs_mode!r}; leave depth_max unset (None) or set obs_mode='depth+state'."
         )
-    if not is_number(depth_max) or not 0 < depth_max < math.inf:
-        raise ValueError(f"{owner}depth_max must be None or a finite number of metres > 0, got {depth_max!r}.")
+    require_number(f"{owner}depth_max", depth_max, 0, low_open=True, high_open=True, unit="m")
 
 
 def _check_slots(setting: str, value: Any) -> None:
