@@ -12,7 +12,7 @@ from jax.flatten_util import ravel_pytree
 
 from iap_mjx.envs.base import State
 from iap_mjx.es.episode import run_episode
-from iap_mjx.es.normalizer import init_stats
+from iap_mjx.es.normalizer import init_stats, merge_episodes
 from iap_mjx.es.rollout import make_mesh, make_rollout
 from iap_mjx.policies import LinearPolicy, MLPPolicy
 
@@ -143,6 +143,44 @@ def test_nan_rewards_are_masked_and_counted():
     np.testing.assert_allclose(float(result.ret), sum(rewards[:-1]), rtol=1e-5)
     still = run_episode(env, LinearPolicy(6, 2), LinearPolicy(6, 2).init(None), jax.random.PRNGKey(1), None, False)
     assert float(still.bad) == 0.0
+
+
+def python_observations(env, policy, params, key):
+    """Reference: the observations a Python loop's policy acts on until ``done``, and whether
+    a reward went non-finite on the way (the episode diverged)."""
+    state = env.reset(jax.random.split(key)[0])  # as run_episode resets
+    seen = []
+    for _ in range(env.episode_length):
+        seen.append(np.asarray(state.obs))
+        state = env.step(state, policy.apply(params, state.obs, ())[0])
+        if not np.isfinite(float(state.reward)):
+            return seen, True
+        if float(state.done) > 0:
+            break
+    return seen, False
+
+
+def test_statistics_count_exactly_the_observations_they_sum():
+    # some episodes diverge (NaN reward past nan_wall), some end at the wall, some run on
+    env = PointMass(episode_length=15, wall=1.6, nan_wall=1.3)
+    policy = LinearPolicy(6, 2)
+    flat, unravel = ravel_pytree(policy.init(None))
+    n = 12
+    population = flat + 1.5 * jax.random.normal(jax.random.PRNGKey(4), (n, flat.shape[0]))
+    keys = jax.random.split(jax.random.PRNGKey(5), n)
+    prior = init_stats(6)
+    episodes = jax.jit(make_rollout(env, policy, unravel, make_mesh(1), chunk_size=n, track_obs=True))(
+        population, keys, prior
+    )
+    stats = merge_episodes(prior, episodes.steps, episodes.obs_sum, episodes.obs_sq_sum, episodes.bad)
+    references = [python_observations(env, policy, unravel(p), k) for p, k in zip(population, keys)]
+    diverged = np.array([d for _, d in references])
+    np.testing.assert_array_equal(np.asarray(episodes.bad), diverged.astype(np.float32))
+    assert 0 < diverged.sum() < n, diverged  # both kinds present
+    kept = np.concatenate([np.stack(seen) for seen, d in references if not d])
+    assert float(stats.count) == len(kept)
+    np.testing.assert_allclose(stats.mean, kept.mean(0), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(stats.var, kept.var(0), rtol=1e-3, atol=1e-5)
 
 
 def test_chunked_sharded_evaluator_matches_single_episodes():

@@ -42,7 +42,8 @@ class EpisodeResult:
         flag).
       obs_sum, obs_sq_sum: ``(obs_size,)`` sums over the live steps whose reward and
         observation are finite (``(1,)`` zeros when not tracked): ``steps`` also counts a
-        diverged step, which these sums leave out.
+        diverged step, which these sums leave out (the statistics leave a diverged episode
+        out whole: ``normalizer.merge_episodes``).
       metrics: the env's per-episode statistics at the episode's end, ``{name: ()}`` for each
         name in the env's ``episode_metrics`` (e.g. the quadruped course's walls passed; empty
         for envs without them, which then add nothing to the program).

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.es.components import EVAL_STREAM, TRAIN_STREAM, Components, TrainState
-from iap_mjx.es.normalizer import ObsStats, update_stats
+from iap_mjx.es.normalizer import ObsStats, merge_episodes
 from iap_mjx.es.strategy import OpenES
 
 
@@ -72,9 +72,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         strategy_state = parts.strategy.tell(tell_key, population, fitness, strategy_state)
         obs_stats = state.obs_stats
         if es.normalize_observations:
-            obs_stats = update_stats(
-                obs_stats, jnp.sum(members.steps), jnp.sum(members.obs_sum, 0), jnp.sum(members.obs_sq_sum, 0)
-            )
+            obs_stats = merge_episodes(obs_stats, members.steps, members.obs_sum, members.obs_sq_sum, members.bad)
         finite = jnp.isfinite(fitness)
         metrics = {
             "return_mean": jnp.nanmean(fitness),

@@ -44,6 +44,25 @@ def update_stats(stats: ObsStats, count: jax.Array, total: jax.Array, total_sq: 
     return ObsStats(count=new_count, mean=mean, var=var)
 
 
+def merge_episodes(
+    stats: ObsStats, steps: jax.Array, obs_sum: jax.Array, obs_sq_sum: jax.Array, bad: jax.Array
+) -> ObsStats:
+    """Merges a batch of episodes, ``steps`` and ``bad`` ``(n,)``, sums ``(n, obs_size)``
+    (``EpisodeResult``'s fields), leaving out every episode that diverged (``bad``).
+
+    A diverged episode's ``steps`` counts the step that met the non-finite value, which its sums
+    leave out; and the states before a divergence are already far from the task's. Dropped
+    whole, what is merged counts exactly the observations it sums.
+    """
+    kept = bad == 0
+    return update_stats(
+        stats,
+        jnp.sum(jnp.where(kept, steps, 0.0)),
+        jnp.sum(jnp.where(kept[:, None], obs_sum, 0.0), axis=0),
+        jnp.sum(jnp.where(kept[:, None], obs_sq_sum, 0.0), axis=0),
+    )
+
+
 def normalize(stats: ObsStats, obs: jax.Array) -> jax.Array:
     """``clip((obs - mean) / std, -5, 5)`` for ``(obs_size,)`` observations."""
     return jnp.clip((obs - stats.mean) / jnp.sqrt(stats.var + 1e-8), -CLIP, CLIP)
