@@ -21,7 +21,7 @@ import pytest
 
 from iap_mjx import cli, envs
 from iap_mjx.envs.pixels import with_pixels
-from iap_mjx.envs.quadruped_gates import ROBOT_HALF_WIDTH, ROBOT_REACH, QuadrupedGates
+from iap_mjx.envs.quadruped_gates import QuadrupedGates
 from iap_mjx.robots import a1
 
 STEPS = 100
@@ -51,9 +51,40 @@ def test_corridor_model_collides_feet_with_floor_and_robot_with_the_three_copies
         np.testing.assert_array_equal(m.geom(copy_name).size, m.geom(seen).size)
     np.testing.assert_array_equal(m.geom("clutter_contact").size, m.geom("clutter1").size)
     assert env.max_geom_pairs is None and env.x_end == 9.0
-    # the robot's reach and half-width as the docstrings state them from the figures
-    reach = np.hypot(a1.HIP_OFFSET[0], a1.HIP_OFFSET[1] + a1.THIGH_OFFSET) + 2 * a1.LINK_LENGTH + a1.FOOT_RADIUS
-    assert reach < ROBOT_REACH and ROBOT_HALF_WIDTH == pytest.approx(0.154, abs=1e-3)
+    # the robot's reach and half-width as the docstrings state them
+    assert a1.REACH == pytest.approx(0.646, abs=1e-3) and a1.HALF_WIDTH == pytest.approx(0.154, abs=1e-3)
+
+
+def test_no_robot_geom_reaches_past_the_reach_in_any_pose():
+    """The one-colliding-copy argument of both courses rests on ``a1.REACH``: native MuJoCo's
+    kinematics of the model, over joint angles drawn across their ranges (and the knees as
+    straight as they go), put no point of a robot geom farther from the trunk's centre."""
+    m = envs.make("quadruped-gates").mj_model
+    d = mujoco.MjData(m)
+    robot = [g for g in range(m.ngeom) if m.geom_group[g] == a1.ROBOT_GROUP]
+    rng = np.random.default_rng(0)
+    ranges = np.asarray(a1.JOINT_RANGES)
+    poses = rng.uniform(ranges[:, 0], ranges[:, 1], (2000, 12))
+    poses = np.concatenate([poses, np.tile([[0.0, 0.0, -0.916]], (1, 4))])  # knees as straight as they go
+    farthest = 0.0
+    for pose in poses:
+        d.qpos[:] = 0.0
+        d.qpos[3] = 1.0  # identity orientation, trunk at the origin
+        d.qpos[7:] = pose
+        mujoco.mj_kinematics(m, d)
+        for g in robot:
+            centre, axis, size = d.geom_xpos[g], d.geom_xmat[g].reshape(3, 3)[:, 2], m.geom_size[g]
+            if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE:
+                ends = [centre + axis * size[1], centre - axis * size[1]]
+                far = max(np.linalg.norm(e) for e in ends) + size[0]
+            elif m.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE:
+                far = np.linalg.norm(centre) + size[0]
+            else:  # the trunk's box
+                far = np.linalg.norm(np.abs(centre) + size)
+            farthest = max(farthest, far)
+    # a bound, not the maximum: it lays thigh and calf in one line, which the knee's range
+    # (at most -0.916 rad) does not allow
+    assert 0.5 < farthest <= a1.REACH, farthest
 
 
 def test_gates_and_clutter_are_drawn_per_episode_within_the_corridor(gates):
@@ -150,7 +181,7 @@ def _check_parity_with_native_mujoco(env, reset, step):
     theirs, _ = course.check_against_native(
         env, env.mj_model, start, targets, ours[:live], follow=_follow(env), what="gates qpos"
     )
-    inside = np.abs(theirs[:, 1]) <= env.HALF_WIDTH - ROBOT_HALF_WIDTH
+    inside = np.abs(theirs[:, 1]) <= env.HALF_WIDTH - a1.HALF_WIDTH
     assert inside[:-1].all() and (live == STEPS or not inside[-1])
     assert np.max(np.abs(theirs[:, 0] - theirs[0, 0])) > 0.3  # the robot moved
 
@@ -249,7 +280,7 @@ def test_course_statistics_on_a_scripted_trajectory(gates):
     assert float(previous.metrics["fell_over"]) == 0.0
     np.testing.assert_allclose(previous.metrics["distance"], env.x_end + 0.02, rtol=1e-6)
     # leaving over a side: within the robot's half-width of the wall; a gate passed there does not count
-    side = env.HALF_WIDTH - ROBOT_HALF_WIDTH
+    side = env.HALF_WIDTH - a1.HALF_WIDTH
     inside, out = metrics(state, at(0.5, y=side - 0.01)), metrics(state, at(1.5 + clear + 0.5, y=side + 0.01))
     assert float(inside["left_corridor"]) == 0.0
     assert (float(out["left_corridor"]), float(out["gates_passed"])) == (1.0, 0.0)

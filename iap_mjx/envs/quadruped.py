@@ -256,8 +256,8 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
         ``(n_walls, 3)``) nearest the trunk's ``x`` along x.
 
         It gives the contacts that every wall colliding would give. No robot geom reaches
-        further than 0.65 m from the trunk's centre (hip at ``(0.183, 0.047)``, thigh 0.085 m
-        further out, thigh and calf 0.2 m each, foot radius 0.02 m: 0.646 m), so with walls
+        further than ``a1.REACH`` from the trunk's centre (hip at ``(0.183, 0.047)``, thigh
+        0.085 m further out, thigh and calf 0.2 m each, foot radius 0.02 m: 0.646 m), so with walls
         0.1 m thick, wall ``i`` can touch the robot only while ``|x - x_i| < 0.7``; walls
         stand at least ``WALL_SPACING - 2 WALL_JITTER`` = 1.9 m apart, so then wall ``i`` is
         the nearest and every other wall is more than 1.2 m away. The env moves the colliding

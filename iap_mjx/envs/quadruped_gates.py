@@ -62,12 +62,6 @@ from iap_mjx.configs.env import QuadrupedGatesConfig
 from iap_mjx.envs.quadruped import CourseStatistics, QuadrupedFlat
 from iap_mjx.robots import a1
 
-#: The robot's half-width (m): hip offset, thigh offset and thigh radius sideways.
-ROBOT_HALF_WIDTH = a1.HIP_OFFSET[1] + a1.THIGH_OFFSET + a1.THIGH_RADIUS
-#: The farthest any robot geom reaches from the trunk's centre (m): hip, thigh offset, thigh
-#: and calf, foot radius (0.646 m; ``QuadrupedWalls.contact_wall_position``).
-ROBOT_REACH = 0.65
-
 
 class QuadrupedGates(CourseStatistics, QuadrupedFlat):
     """The gates corridor (module docstring): ``n_gates`` gates, each followed by a clutter box."""
@@ -170,7 +164,7 @@ class QuadrupedGates(CourseStatistics, QuadrupedFlat):
 
         They give the contacts every obstacle colliding would give (the walls course's
         argument, ``QuadrupedWalls.contact_wall_position``, per kind). No robot geom reaches
-        further than ``ROBOT_REACH`` = 0.65 m from the trunk's centre, so a gate (0.1 m thick)
+        further than ``a1.REACH`` (0.646 m) from the trunk's centre, so a gate (0.1 m thick)
         can touch the robot only while ``|x - x_gate| < 0.7`` and a clutter box (0.3 m deep)
         only while ``|x - x_box| < 0.8``. Gates stand at least ``2.5 - 2 * 0.3`` = 1.9 m apart
         and boxes at least ``2.5 - 2 * 0.2`` = 2.1 m apart, so while one of a kind can touch it
@@ -207,9 +201,9 @@ class QuadrupedGates(CourseStatistics, QuadrupedFlat):
 
     def in_corridor(self, data: mjx.Data) -> jax.Array:
         """``()`` bool: the trunk's centre is far enough inside for the robot to clear the side
-        walls (``ROBOT_HALF_WIDTH`` from them), not behind the start, not past the end."""
+        walls (``a1.HALF_WIDTH`` from them), not behind the start, not past the end."""
         x, y = data.qpos[0], data.qpos[1]
-        return (x >= self.X_START) & (x <= self.x_end) & (jnp.abs(y) <= self.HALF_WIDTH - ROBOT_HALF_WIDTH)
+        return (x >= self.X_START) & (x <= self.x_end) & (jnp.abs(y) <= self.HALF_WIDTH - a1.HALF_WIDTH)
 
     def finished(self, data: mjx.Data) -> jax.Array:
         """``()`` bool: the trunk's centre is past the corridor's end (every gate behind it)."""

@@ -60,6 +60,13 @@ CALF_MASS, CALF_RADIUS = 0.226, 0.013
 FOOT_RADIUS = 0.02
 FOOT_FRICTION = 0.8
 
+# The robot's half-width (m; 0.154): hip offset, thigh offset and thigh radius sideways.
+HALF_WIDTH = HIP_OFFSET[1] + THIGH_OFFSET + THIGH_RADIUS
+# A bound on how far any robot geom reaches from the trunk's centre (m; 0.646): the hip's and
+# the thigh's offsets, thigh and calf laid in one line, the foot's radius. The courses' one-
+# colliding-copy argument rests on it (``QuadrupedWalls.contact_wall_position``).
+REACH = float(np.hypot(HIP_OFFSET[0], HIP_OFFSET[1] + THIGH_OFFSET)) + 2 * LINK_LENGTH + FOOT_RADIUS
+
 # Position servos: kp (N m / rad) with the torque limit; joint damping (N m s / rad) acts as
 # the servo's kd, implicitly under the Euler integrator; armature as the motors' rotor.
 KP = 100.0
