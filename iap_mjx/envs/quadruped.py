@@ -198,6 +198,14 @@ class CourseStatistics:
         zeros = {name: jnp.zeros((), jnp.float32) for name in self.episode_metrics}
         return state.replace(metrics={**state.metrics, **zeros})
 
+    @staticmethod
+    def obstacles_passed(data: mjx.Data, obstacle_x: jax.Array, half_thickness: float) -> jax.Array:
+        """``()`` float32: how many obstacles (centres ``(n,)`` along x, ``half_thickness`` m
+        each side) the trunk box is wholly beyond (its centre more than the obstacle's and the
+        trunk's half-lengths past the obstacle's centre)."""
+        beyond = obstacle_x + half_thickness + a1.TRUNK_HALF_SIZE[0]
+        return jnp.sum(data.qpos[0] > beyond).astype(jnp.float32)
+
 
 class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
     """The course: a raised platform with drop-offs, ``n_walls`` walls across the path.
@@ -299,9 +307,8 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
         """The episode's course statistics after the control step ``before -> after`` (two
         ``State``), each ``()`` float32; a step of an ended episode changes none of them.
 
-        - ``walls_passed``: the most walls the trunk box has been wholly beyond (its centre
-          more than the wall's and the trunk's half-lengths past the wall's centre along x)
-          while its centre was over the platform.
+        - ``walls_passed``: the most walls the trunk box has been wholly beyond
+          (:meth:`obstacles_passed`) while its centre was over the platform.
         - ``fell_off``: 1 once the trunk's centre has left the platform's footprint over a
           side or the back (which ends the episode), else 0. Walking off the far end
           (``x > x_max``, past every wall) is the course's finish, not a fall.
@@ -311,8 +318,7 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
         live = before.done == 0
         data, metrics = after.data, before.metrics
         on = self.on_platform(data)
-        beyond = self.walls(data)[:, 0] + self.WALL_HALF_SIZE[0] + a1.TRUNK_HALF_SIZE[0]
-        passed = jnp.sum(data.qpos[0] > beyond).astype(jnp.float32)
+        passed = self.obstacles_passed(data, self.walls(data)[:, 0], self.WALL_HALF_SIZE[0])
         counts = lambda flag: jnp.where(live & flag, 1.0, 0.0)  # noqa: E731
         finished = self.finished(data)
         return {

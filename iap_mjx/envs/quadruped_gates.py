@@ -218,9 +218,8 @@ class QuadrupedGates(CourseStatistics, QuadrupedFlat):
         """The episode's course statistics after the control step ``before -> after`` (two
         ``State``), each ``()`` float32; a step of an ended episode changes none of them.
 
-        - ``gates_passed``: the most gates the trunk box has been wholly beyond (its centre
-          more than the gate's and the trunk's half-lengths past the gate's centre along x)
-          while in the corridor or at its finish.
+        - ``gates_passed``: the most gates the trunk box has been wholly beyond
+          (``obstacles_passed``) while in the corridor or at its finish.
         - ``collisions``: control steps at whose end some robot geom touches a gate or a
           clutter box.
         - ``left_corridor``: 1 once the trunk's centre has come within the robot's half-width
@@ -234,8 +233,7 @@ class QuadrupedGates(CourseStatistics, QuadrupedFlat):
         counts = lambda flag: jnp.where(live & flag, 1.0, 0.0)  # noqa: E731
         finished = self.finished(data)
         inside = self.in_corridor(data) | finished
-        beyond = self.gates(data)[:, 0] + self.GATE_THICKNESS / 2 + a1.TRUNK_HALF_SIZE[0]
-        passed = jnp.sum(data.qpos[0] > beyond).astype(jnp.float32)
+        passed = self.obstacles_passed(data, self.gates(data)[:, 0], self.GATE_THICKNESS / 2)
         return {
             "gates_passed": jnp.where(
                 live & inside, jnp.maximum(metrics["gates_passed"], passed), metrics["gates_passed"]
