@@ -9,6 +9,8 @@ from iap_mjx.paper.runs import check_evaluated, check_not_swept
 NO_EVALUATION = ("run.eval_episodes=0",)
 
 CHECKS = {
+    "fig1": lambda overrides: fig1_fig6.check("fig1", overrides),
+    "fig6": lambda overrides: fig1_fig6.check("fig6", overrides),
     "fig7": lambda overrides: fig7.check(overrides),
     "fig8": lambda overrides: fig8.check(overrides),
     "fig11": lambda overrides: fig11.check(overrides),

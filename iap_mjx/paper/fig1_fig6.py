@@ -39,6 +39,23 @@ VARIANTS = {
 }
 
 
+def check(figure: str, overrides: tuple[str, ...]) -> list[tuple[str, configs.TrainConfig, str]]:
+    """``figure``'s variants as ``(label, config, preset)``, every config and env validated
+    before anything compiles."""
+    if figure not in VARIANTS:
+        raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
+    from iap_mjx import envs
+
+    check_seed_not_set(figure, overrides)
+    variants = [
+        (label, configs.apply_overrides(configs.get(preset), overrides), preset) for label, preset in VARIANTS[figure]
+    ]
+    for _, config, _ in variants:
+        envs.check(config.env.name, **dict(config.env.overrides))
+    check_evaluated(figure, (config for _, config, _ in variants))
+    return variants
+
+
 def reproduce(
     figure: str,
     out_dir: str | Path,
@@ -55,19 +72,9 @@ def reproduce(
     ``train=False`` trains nothing and reports the runs already there, however far they got
     (the table's seeds and iterations columns say how far).
     """
-    if figure not in VARIANTS:
-        raise ValueError(f"unknown figure {figure!r}; valid: {', '.join(VARIANTS)}")
-    from iap_mjx import envs
-
     require_int("seeds", seeds)
     require_int("passes", passes)
-    check_seed_not_set(figure, overrides)
-    variants = [
-        (label, configs.apply_overrides(configs.get(preset), overrides), preset) for label, preset in VARIANTS[figure]
-    ]  # every config validated before any compile
-    for _, config, _ in variants:
-        envs.check(config.env.name, **dict(config.env.overrides))
-    check_evaluated(figure, (config for _, config, _ in variants))
+    variants = check(figure, tuple(overrides))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
