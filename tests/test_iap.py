@@ -197,6 +197,9 @@ def test_layer_errors_are_clear_and_early():
         AttentionConfig(m=0)
     with pytest.raises(ValueError, match="AttentionConfig.stride must be an int >= 1 or None"):
         AttentionConfig(stride=True)
+    for scale in (0.0, float("inf"), "1"):
+        with pytest.raises(ValueError, match=r"AttentionConfig.eq5_scale must be a finite number > 0, got"):
+            AttentionConfig(eq5_scale=scale)
     with pytest.raises(ValueError, match="valid scalings"):
         AttentionConfig(scaling="eq6")
     with pytest.raises(ValueError, match="row_normalize applies to kernel='brute' only"):

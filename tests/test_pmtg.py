@@ -218,6 +218,10 @@ def test_config_refuses_bounds_that_leave_the_joint_ranges():
         pmtg.TGConfig(intensity_range=(0.0, 1.5))
     with pytest.raises(ValueError, match="gait"):
         pmtg.TGConfig(gait="gallop")
+    with pytest.raises(ValueError, match=r"TGConfig.residual_range must be a finite number >= 0 \(rad\), got -0.1"):
+        pmtg.TGConfig(residual_range=-0.1)
+    with pytest.raises(ValueError, match=r"TGConfig.dt must be a finite number > 0 \(s\), got 'fast'"):
+        pmtg.TGConfig(dt="fast")  # a TypeError past the CLI's handler before
 
 
 def test_initial_params_give_the_initial_tg_setting():

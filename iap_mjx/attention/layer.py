@@ -21,7 +21,7 @@ from iap_mjx.attention import features as ft
 from iap_mjx.attention.patches import extract_patches, patch_centres, patch_corner, patch_grid
 from iap_mjx.attention.scores import brute_scores, hybrid_scores_rows, linear_scores, relu_scores_rows
 from iap_mjx.attention.selection import top_l
-from iap_mjx.checks import require_int
+from iap_mjx.checks import require_int, require_number
 
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
@@ -80,8 +80,7 @@ class AttentionConfig:
             require_int(f"AttentionConfig.{name}", getattr(self, name))
         require_int("AttentionConfig.stride", self.stride, none_ok=True)
         require_int("AttentionConfig.batch_chunk", self.batch_chunk, none_ok=True)
-        if not self.eq5_scale > 0:
-            raise ValueError(f"AttentionConfig.eq5_scale must be positive, got {self.eq5_scale!r}")
+        require_number("AttentionConfig.eq5_scale", self.eq5_scale, 0, low_open=True, high_open=True)
         if self.row_normalize and self.kernel != "brute":
             raise ValueError(
                 "row_normalize applies to kernel='brute' only "

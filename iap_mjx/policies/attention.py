@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
 from iap_mjx.checks import require_int
-from iap_mjx.policies.base import check_options, check_positive, constructor_options
+from iap_mjx.policies.base import check_options, constructor_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.observations import pixel_shape, split_observation
 
@@ -55,7 +55,7 @@ class IAPPolicy:
     projection_seed: int = 0
 
     def __post_init__(self):
-        check_positive("IAPPolicy", "action_size", self.action_size)
+        require_int("IAPPolicy.action_size", self.action_size)
         require_int("IAPPolicy.state_size", self.state_size, 0)
         IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
         _ = self.head  # builds the controller, which checks its settings

@@ -86,11 +86,6 @@ def check_options(kind: str, options: Mapping[str, Any], valid: Iterable[str]) -
         raise ValueError(f"policy.options {unknown} do not fit policy {kind!r}; valid: {sorted(valid)}")
 
 
-def check_positive(owner: str, field: str, value: Any) -> None:
-    """Raises ``ValueError`` naming ``owner.field`` unless ``value`` is an int >= 1."""
-    require_int(f"{owner}.{field}", value)
-
-
 def check_sizes(owner: str, field: str, value: Any, *, non_empty: bool = False) -> None:
     """Raises ``ValueError`` naming ``owner.field`` unless ``value`` is a tuple of positive ints
     (and not empty, if ``non_empty``)."""
@@ -100,4 +95,4 @@ def check_sizes(owner: str, field: str, value: Any, *, non_empty: bool = False) 
             "positive ints (one entry: (32,) in Python, 32, on the command line)"
         )
     for size in value:
-        check_positive(owner, f"{field}[...]", size)
+        require_int(f"{owner}.{field}[...]", size)

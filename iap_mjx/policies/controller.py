@@ -13,7 +13,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive, check_sizes
+from iap_mjx.checks import require_int
+from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_sizes
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 
 CONTROLLERS = ("linear", "mlp", "lstm")
@@ -43,8 +44,8 @@ class Controller:
         check_choice(self.owner, "controller", self.kind, CONTROLLERS)
         check_choice(self.owner, "activation", self.activation, ACTIVATIONS)
         check_sizes(self.owner, "hidden_sizes", self.hidden_sizes, non_empty=self.kind == "lstm")
-        check_positive(self.owner, "input_size", self.input_size)
-        check_positive(self.owner, "output_size", self.output_size)
+        require_int(f"{self.owner}.input_size", self.input_size)
+        require_int(f"{self.owner}.output_size", self.output_size)
 
     def init(self, key: jax.Array) -> Any:
         """Linear/MLP: a list of dense layers. LSTM: ``{"cell": {"w": (n_in + h, 4h), "b":

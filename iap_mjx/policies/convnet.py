@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 from iap_mjx.checks import require_int
 from iap_mjx.chunks import ceil_div
-from iap_mjx.policies.base import check_options, check_positive, check_sizes, constructor_options
+from iap_mjx.policies.base import check_options, check_sizes, constructor_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 from iap_mjx.policies.observations import pixel_shape, split_observation
@@ -60,7 +60,7 @@ class ConvNet:
     state_size: int = 0
 
     def __post_init__(self):
-        check_positive("ConvNet", "output_size", self.output_size)
+        require_int("ConvNet.output_size", self.output_size)
         check_sizes("ConvNet", "channels", self.channels, non_empty=True)
         check_sizes("ConvNet", "strides", self.strides, non_empty=True)
         if len(self.strides) != len(self.channels):
@@ -68,7 +68,7 @@ class ConvNet:
                 f"ConvNet.strides = {self.strides!r} needs one stride per convolution (channels = {self.channels!r})"
             )
         for name in ("filter_size", "pool", "hidden_size"):
-            check_positive("ConvNet", name, getattr(self, name))
+            require_int(f"ConvNet.{name}", getattr(self, name))
         require_int("ConvNet.state_size", self.state_size, 0)
         rows, cols = self.pooled_grid
         if rows < 1 or cols < 1:
@@ -184,7 +184,7 @@ class ConvNetPolicy:
     state_size: int = 0
 
     def __post_init__(self):
-        check_positive("ConvNetPolicy", "action_size", self.action_size)
+        require_int("ConvNetPolicy.action_size", self.action_size)
         _ = self.body, self.head  # build both, which checks their settings
 
     @property
@@ -265,8 +265,8 @@ class CNNPolicy:
     state_size: int = 0
 
     def __post_init__(self):
-        check_positive("CNNPolicy", "action_size", self.action_size)
-        check_positive("CNNPolicy", "hidden_size", self.hidden_size)
+        require_int("CNNPolicy.action_size", self.action_size)
+        require_int("CNNPolicy.hidden_size", self.hidden_size)
         check_sizes("CNNPolicy", "channels", self.channels, non_empty=True)
 
     def init(self, key: jax.Array) -> dict[str, Any]:

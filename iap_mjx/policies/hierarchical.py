@@ -51,9 +51,9 @@ import numpy as np
 from flax import struct
 
 from iap_mjx.attention import AttentionConfig
-from iap_mjx.checks import is_int
+from iap_mjx.checks import is_int, require_int
 from iap_mjx.policies.attention import IAPPolicy
-from iap_mjx.policies.base import check_choice, check_options, check_positive, constructor_options, param_count
+from iap_mjx.policies.base import check_choice, check_options, constructor_options, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, TGConfig
@@ -132,7 +132,7 @@ class HierarchicalPolicy:
                 "control steps, integers with 1 <= lo <= hi"
             )
         object.__setattr__(self, "duration_range", lo_hi)
-        check_positive("HierarchicalPolicy", "state_size", self.state_size)
+        require_int("HierarchicalPolicy.state_size", self.state_size)
         if self.low.obs_size != self.state_size:
             raise ValueError(
                 f"HierarchicalPolicy: the low level sees obs_size = {self.low.obs_size}, "
@@ -320,7 +320,7 @@ def make_hierarchical_policy(
     An option that belongs to neither raises ``ValueError`` naming it.
     """
     check_choice("HierarchicalPolicy", "high_level", high_level, HIGH_LEVELS)
-    check_positive("HierarchicalPolicy", "latent_size", latent_size)
+    require_int("HierarchicalPolicy.latent_size", latent_size)
     if not isinstance(observation_shape, dict) or set(observation_shape) != {"pixels", "state"}:
         raise ValueError(
             f"the hierarchical policy needs {{'pixels', 'state'}} observations, got shape "

@@ -7,7 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.base import check_positive
+from iap_mjx.checks import require_int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,8 +23,8 @@ class LinearPolicy:
     zero_init: bool = True
 
     def __post_init__(self):
-        check_positive("LinearPolicy", "obs_size", self.obs_size)
-        check_positive("LinearPolicy", "action_size", self.action_size)
+        require_int("LinearPolicy.obs_size", self.obs_size)
+        require_int("LinearPolicy.action_size", self.action_size)
 
     def init(self, key: jax.Array) -> dict[str, jax.Array]:
         """Returns ``{"w": (obs_size, action_size), "b": (action_size,)}``."""

@@ -7,7 +7,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_positive, check_sizes
+from iap_mjx.checks import require_int
+from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_sizes
 
 
 def init_dense_layers(key: jax.Array, sizes: tuple[int, ...]) -> list[dict[str, jax.Array]]:
@@ -46,8 +47,8 @@ class MLPPolicy:
     activation: str = "tanh"
 
     def __post_init__(self):
-        check_positive("MLPPolicy", "obs_size", self.obs_size)
-        check_positive("MLPPolicy", "action_size", self.action_size)
+        require_int("MLPPolicy.obs_size", self.obs_size)
+        require_int("MLPPolicy.action_size", self.action_size)
         check_sizes("MLPPolicy", "hidden_sizes", self.hidden_sizes)
         check_choice("MLPPolicy", "activation", self.activation, ACTIVATIONS)
 

@@ -38,7 +38,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from iap_mjx.policies.base import check_choice, check_options, check_positive, constructor_options
+from iap_mjx.checks import require_int, require_number
+from iap_mjx.policies.base import check_choice, check_options, constructor_options
 from iap_mjx.robots import a1
 
 #: Phase offsets (fractions of a period) per leg in the PyBullet code's order FL, RL, FR, RR.
@@ -128,10 +129,8 @@ class TGConfig:
                 "TGConfig: frequency and intensity must be >= 0 and the ratio > 0, got "
                 f"{self.frequency_range}, {self.intensity_range}, {self.ratio_range}"
             )
-        if not self.residual_range >= 0 or not self.dt > 0:
-            raise ValueError(
-                f"TGConfig: residual_range >= 0 and dt > 0 needed, got {self.residual_range!r}, {self.dt!r}"
-            )
+        require_number("TGConfig.residual_range", self.residual_range, 0, high_open=True, unit="rad")
+        require_number("TGConfig.dt", self.dt, 0, low_open=True, high_open=True, unit="s")
         lo, hi = self.target_bounds()
         outside = (lo < a1.JOINT_RANGES[:3, 0] - 1e-6) | (hi > a1.JOINT_RANGES[:3, 1] + 1e-6)
         if np.any(outside):
@@ -256,7 +255,7 @@ class PMTGPolicy:
     initial_tg: tuple[float, float, float, float] | None = (2.5, 0.6, 0.1, 1.0)
 
     def __post_init__(self):
-        check_positive("PMTGPolicy", "obs_size", self.obs_size)
+        require_int("PMTGPolicy.obs_size", self.obs_size)
         if self.action_size != len(a1.JOINT_NAMES):
             raise ValueError(
                 f"PMTGPolicy.action_size = {self.action_size!r}: PMTG drives the quadruped's "
