@@ -185,3 +185,13 @@ def test_convnet_policy_is_convolutions_pool_embedding_and_the_iap_controller():
         policies.make("convnet", shape, 2, strides=(2, 2, 1), controller="gru")
     with pytest.raises(ValueError, match="shrinks to nothing"):
         policies.make("convnet", (8, 8, 3), 2, strides=(4, 4, 2))
+
+
+def test_a_state_observation_is_refused_naming_every_pixel_mode():
+    from iap_mjx.configs.env import PIXEL_MODES
+    from iap_mjx.policies.observations import pixel_shape
+
+    with pytest.raises(ValueError, match=r"needs \(H, W, C\) observations, got \(17,\)") as error:
+        pixel_shape((17,))
+    assert all(f"'{mode}'" in str(error.value) for mode in PIXEL_MODES), error.value
+    assert pixel_shape({"pixels": (24, 32, 1), "state": (17,)}) == ((24, 32, 1), 17)

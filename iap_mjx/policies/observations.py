@@ -27,6 +27,7 @@ def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
     if len(pixels) != 3:
         raise ValueError(
             f"a pixel policy needs (H, W, C) observations, got {observation_shape!r}; "
-            "make the env with obs_mode='pixels', 'pixels_depth' or 'pixels+state'"
+            "make the env with a pixel obs_mode: 'pixels', 'pixels_depth', 'pixels+state' or "
+            "'depth+state' (iap_mjx.configs.env.PIXEL_MODES)"
         )
     return pixels, state_size

@@ -53,8 +53,7 @@ class Tracer:
         """``config``: the camera's ``CameraConfig``; ``fovy``: vertical field of view in
         degrees."""
         self.scene = scene
-        self.height, self.width = config.height, config.width
-        height, width = config.height, config.width
+        self.height, self.width = height, width = config.height, config.width
         half_h = np.tan(np.deg2rad(fovy) / 2.0)
         half_w = half_h * width / height
         cols = (np.arange(width) + 0.5) / width * 2.0 - 1.0
