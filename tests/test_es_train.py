@@ -299,3 +299,29 @@ def test_a_chunk_size_that_would_deadlock_xla_is_refused_before_compiling(monkey
         build(config, env=env)
     build(config, env=env, devices=jax.devices()[:1])
     build(dataclasses.replace(config, run=dataclasses.replace(config.run, chunk_size=limit)), env=env)
+
+
+@dataclasses.dataclass(frozen=True)
+class OwnPolicy:
+    """A user's own policy, named nowhere in ``policies.FACTORIES``: ``tanh(W obs)``."""
+
+    obs_size: int = 6
+    action_size: int = 2
+
+    def init(self, key):
+        return {"w": jnp.zeros((self.obs_size, self.action_size))}
+
+    def initial_state(self, key):
+        return ()
+
+    def apply(self, params, obs, state):
+        return jnp.tanh(obs @ params["w"]), state
+
+
+def test_a_users_own_policy_trains_without_a_name():
+    env = PointMass(episode_length=20)
+    config = small_config(iterations=60, eval_episodes=64, checkpoint_every=0)
+    config = dataclasses.replace(config, es=dataclasses.replace(config.es, population_size=32))
+    result = train(config, env=env, policy=OwnPolicy(), progress=False)
+    assert set(result.params) == {"w"} and result.params["w"].shape == (6, 2)
+    assert result.history[-1]["eval_return"] > zero_policy_bar(env), result.history[-1]["eval_return"]

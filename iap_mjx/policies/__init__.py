@@ -3,15 +3,17 @@ a trajectory generator modulated by a linear policy, for the quadruped; the hier
 quadruped policy, a camera high level over the PMTG low level; the convolutional baselines,
 ``convnet`` and ``cnn``, in :mod:`~iap_mjx.policies.convnet`, which says what "cnn" names where).
 
-``make(kind, observation_shape, action_size, **options)`` builds a policy by name;
-``names()`` lists the kinds; ``register(kind, factory)`` adds one (a user's own kind too).
-A factory takes ``(observation_shape, action_size, **options)``.
+``make(kind, observation_shape, action_size, **options)`` builds a policy by name from
+:data:`FACTORIES` (read-only; a kind of this package is a row there), ``names()`` lists the
+kinds. A factory takes ``(observation_shape, action_size, **options)``. A user's own policy
+needs no name: ``es.train(config, policy=...)`` trains it.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
 from typing import Any
 
 from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
@@ -21,28 +23,6 @@ from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
 from iap_mjx.policies.pmtg import PMTGPolicy, make_pmtg_policy
-
-_FACTORIES: dict[str, Callable[..., Policy]] = {}
-
-
-def register(kind: str, factory: Callable[..., Policy]) -> None:
-    """Adds a policy kind: ``factory(observation_shape, action_size, **options)``."""
-    _FACTORIES[kind] = factory
-
-
-def names() -> list[str]:
-    """The registered policy kinds, sorted."""
-    return sorted(_FACTORIES)
-
-
-def make(kind: str, observation_shape: Any, action_size: int, **options: Any) -> Policy:
-    """Builds the policy ``kind`` for an env's observation shape and action size."""
-    if kind not in _FACTORIES:
-        raise ValueError(f"unknown policy kind {kind!r}; choose one of {names()}")
-    try:
-        return _FACTORIES[kind](observation_shape, action_size, **options)
-    except TypeError as error:
-        raise ValueError(f"policy.options {options!r} do not fit policy {kind!r}: {error}") from None
 
 
 def _flat_size(observation_shape: Any) -> int:
@@ -61,15 +41,37 @@ def _flat_factory(kind: str, cls: type) -> Callable[..., Policy]:
     return factory
 
 
-register("linear", _flat_factory("linear", LinearPolicy))
-register("mlp", _flat_factory("mlp", MLPPolicy))
-register("iap", make_iap_policy)
-register("cnn", make_cnn_policy)
-register("convnet", make_convnet_policy)
-register("pmtg", make_pmtg_policy)
-register("hierarchical", make_hierarchical_policy)
+FACTORIES: Mapping[str, Callable[..., Policy]] = MappingProxyType(
+    {
+        "linear": _flat_factory("linear", LinearPolicy),
+        "mlp": _flat_factory("mlp", MLPPolicy),
+        "iap": make_iap_policy,
+        "cnn": make_cnn_policy,
+        "convnet": make_convnet_policy,
+        "pmtg": make_pmtg_policy,
+        "hierarchical": make_hierarchical_policy,
+    }
+)
+"""Each policy kind's factory, by name."""
+
+
+def names() -> list[str]:
+    """The policy kinds, sorted."""
+    return sorted(FACTORIES)
+
+
+def make(kind: str, observation_shape: Any, action_size: int, **options: Any) -> Policy:
+    """Builds the policy ``kind`` for an env's observation shape and action size."""
+    if kind not in FACTORIES:
+        raise ValueError(f"unknown policy kind {kind!r}; choose one of {names()}")
+    try:
+        return FACTORIES[kind](observation_shape, action_size, **options)
+    except TypeError as error:
+        raise ValueError(f"policy.options {options!r} do not fit policy {kind!r}: {error}") from None
+
 
 __all__ = [
+    "FACTORIES",
     "CNNPolicy",
     "ConvNet",
     "ConvNetPolicy",
@@ -83,5 +85,4 @@ __all__ = [
     "make",
     "names",
     "param_count",
-    "register",
 ]
