@@ -131,7 +131,9 @@ class QuadrupedFlat(DmControlEnv):
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
         joint_key, task_key = jax.random.split(key)
         noise = self.config.joint_noise
-        joints = jnp.asarray(a1.HOME_JOINTS) + jax.random.uniform(joint_key, (12,), minval=-noise, maxval=noise)
+        joints = jnp.asarray(a1.HOME_JOINTS) + jax.random.uniform(
+            joint_key, (a1.N_JOINTS,), minval=-noise, maxval=noise
+        )
         qpos = jnp.concatenate([jnp.array([0.0, 0.0, a1.HOME_HEIGHT, 1.0, 0.0, 0.0, 0.0]), joints])
         data = mjx.make_data(self.mj_model).replace(qpos=qpos, ctrl=joints)
         data = self._place_world(data, task_key)
@@ -166,7 +168,11 @@ class QuadrupedFlat(DmControlEnv):
         s = data.sensordata
         roll, pitch = roll_pitch(s[self._quat : self._quat + 4])
         return jnp.concatenate(
-            [jnp.stack([roll, pitch]), s[self._gyro : self._gyro + 3], s[self._joint_pos : self._joint_pos + 12]]
+            [
+                jnp.stack([roll, pitch]),
+                s[self._gyro : self._gyro + 3],
+                s[self._joint_pos : self._joint_pos + a1.N_JOINTS],
+            ]
         )
 
     def step_reward(self, before: mjx.Data, after: mjx.Data) -> jax.Array:

@@ -205,7 +205,7 @@ def joint_targets(
     swing, extend = swing_extend(config, phases, intensity, height)
     abduction0, thigh0, knee0 = a1.HOME_LEG
     legs = jnp.stack([jnp.full_like(swing, abduction0), thigh0 - swing - extend / 2, knee0 + extend], axis=1)  # (4, 3)
-    return legs.reshape(12) + residuals
+    return legs.reshape(a1.N_JOINTS) + residuals
 
 
 class TGStep(NamedTuple):
@@ -220,10 +220,12 @@ class TGStep(NamedTuple):
 def tg_step(config: TGConfig, phase: jax.Array, u: jax.Array) -> TGStep:
     """One PMTG step from the policy's output ``u`` ``(16,)`` in ``[-1, 1]`` (12 residuals,
     then ``(f, I, h, k)``): advance the phase, then the legs' targets at the new phase."""
-    params = config.parameters(u[12:])
+    params = config.parameters(u[a1.N_JOINTS :])
     phase = advance(phase, params["frequency"], params["ratio"], config.dt)
     phases = leg_phases(phase, params["ratio"], config.offsets)
-    targets = joint_targets(config, phases, params["intensity"], params["height"], config.residual_range * u[:12])
+    targets = joint_targets(
+        config, phases, params["intensity"], params["height"], config.residual_range * u[: a1.N_JOINTS]
+    )
     return TGStep(phase, phases, targets)
 
 
@@ -249,7 +251,7 @@ class PMTGPolicy:
     """
 
     obs_size: int
-    action_size: int = 12
+    action_size: int = a1.N_JOINTS
     latent: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
     tg: TGConfig = TGConfig()
     initial_tg: tuple[float, float, float, float] | None = (2.5, 0.6, 0.1, 1.0)

@@ -243,10 +243,7 @@ class Camera:
     def trace(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """Geometry only: depth ``(H, W)`` float32 (far plane where nothing is hit) and the
         hit geom's MuJoCo id ``(H, W)`` int32 (``-1`` where nothing is hit)."""
-        empty = jnp.zeros((0,), jnp.float32)
-        _, depth, ids = self._chunked_over_batch(False)(
-            self.poses(data), empty, empty, jnp.zeros((0, 1), jnp.int32), jnp.zeros((), jnp.int32)
-        )
+        _, depth, ids = self._chunked_over_batch(False)(self.poses(data), *self._checked_inputs(None, None, None))
         return depth, ids
 
     # -- the inputs of render, as the program takes them -------------------------------------
@@ -306,7 +303,7 @@ class Camera:
                     "light_target_pos": data.xpos[jnp.asarray(sc.light_targetbodyid)],
                     "light_target_com": data.subtree_com[jnp.asarray(sc.light_targetbodyid)],
                 }
-                if np.any(sc.light_mode >= 3)
+                if sc.has_aimed_lights
                 else {}
             ),
         }
@@ -331,13 +328,13 @@ class Camera:
         def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture, sky_frame):
             # an unbatched sky stack is shared by every chunk as it is (not broadcast per image)
             shared_sky = not in_batched[3]
-            per_image = (poses, background, geom_rgb, sky_frame) + (() if shared_sky else (sky_texture,))
-            flags = tuple(in_batched[:3]) + (in_batched[4],) + (() if shared_sky else (True,))
+            per_image = _PerImage(poses, background, geom_rgb, sky_frame, None if shared_sky else sky_texture)
+            flags = _PerImage(*in_batched[:3], in_batched[4], None if shared_sky else True)
             args = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
 
-            def one_chunk(a):
-                sky = sky_texture if shared_sky else a[4]
-                return self._trace_and_shade(a[0], a[1], a[2], sky, a[3], colour, batched=True)
+            def one_chunk(a: _PerImage):
+                sky = sky_texture if shared_sky else a.sky_texture
+                return self._trace_and_shade(a.poses, a.background, a.geom_rgb, sky, a.sky_frame, colour, batched=True)
 
             out = chunks.map_chunks(one_chunk, args, self.config.batch_chunk, axis_size)
             return out, jax.tree.map(lambda _: True, out)
@@ -445,6 +442,17 @@ def _materialised(fn, pred):
         return jax.tree.map(lambda s: jnp.broadcast_to(zero.astype(s.dtype), s.shape), shapes)
 
     return jax.lax.cond(pred, fn, zeros)
+
+
+class _PerImage(NamedTuple):
+    """The renderer's inputs as its batching rule splits them into chunks of images, each
+    with a leading batch axis (``sky_texture`` ``None``: one stack every image shares)."""
+
+    poses: dict[str, jax.Array]
+    background: jax.Array
+    geom_rgb: jax.Array
+    sky_frame: jax.Array
+    sky_texture: jax.Array | None
 
 
 def _sky_stack_and_row(sky_texture) -> tuple[jax.Array, jax.Array]:

@@ -22,6 +22,12 @@ CYLINDER = int(mujoco.mjtGeom.mjGEOM_CYLINDER)
 BOX = int(mujoco.mjtGeom.mjGEOM_BOX)
 SUPPORTED_TYPES = (PLANE, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX)
 
+# MuJoCo's light modes (mjtCamLight), as ``Scene.light_mode`` holds them.
+LIGHT_FIXED = int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)  # placed in its body's frame
+LIGHT_TRACKCOM = int(mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)  # follows its subtree's centre of mass
+LIGHT_TARGETBODY = int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY)  # fixed, aimed at a body
+LIGHT_TARGETBODYCOM = int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODYCOM)  # fixed, aimed at its subtree's COM
+
 _DEFAULT_GEOM_RGBA = np.array([0.5, 0.5, 0.5, 1.0], np.float32)
 
 
@@ -98,6 +104,12 @@ class Scene:
     sky_mid: np.ndarray
     sky_slope: np.ndarray
     zfar: float
+
+    @property
+    def has_aimed_lights(self) -> bool:
+        """Whether a light aims at a target body (modes 3 and 4): the camera then reads the
+        targets' poses too."""
+        return bool(np.any(self.light_mode >= LIGHT_TARGETBODY))
 
     def digest(self) -> str:
         """A content hash, so equal scenes give equal (hashable) cameras."""
@@ -209,9 +221,9 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
     light_type = np.asarray(m.light_type[lights], np.int32)
     light_mode = np.asarray(m.light_mode[lights], np.int32)
     light_target = np.asarray(m.light_targetbodyid[lights], np.int32)
-    aimed = light_mode >= int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY)
-    light_mode = np.where(aimed & (light_target < 0), 0, light_mode).astype(np.int32)
-    in_body_frame = (light_mode == 0) | (light_mode >= 3)
+    aimed = light_mode >= LIGHT_TARGETBODY
+    light_mode = np.where(aimed & (light_target < 0), LIGHT_FIXED, light_mode).astype(np.int32)
+    in_body_frame = (light_mode == LIGHT_FIXED) | (light_mode >= LIGHT_TARGETBODY)
     sky_mid, sky_slope = _sky(m)
     extent = float(m.stat.extent)
     return Scene(
@@ -227,11 +239,11 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         checker_offset=np.asarray(checker_offset, np.float32).reshape(-1, 2),
         light_mode=light_mode,
         light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
-        light_targetbodyid=np.where(light_mode >= 3, light_target, 0).astype(np.int32),
+        light_targetbodyid=np.where(light_mode >= LIGHT_TARGETBODY, light_target, 0).astype(np.int32),
         light_offset=np.where(
             in_body_frame[:, None],
             m.light_pos[lights],
-            np.where((light_mode == 2)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
+            np.where((light_mode == LIGHT_TRACKCOM)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
         )
         .astype(np.float32)
         .reshape(-1, 3),

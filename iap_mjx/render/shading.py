@@ -161,18 +161,21 @@ class Shader:
         mats = poses["light_body_mat"]
         offset = jnp.asarray(sc.light_offset)
         mode = sc.light_mode
-        fixed = jnp.asarray((mode == 0) | (mode >= 3))[:, None]  # placed in the body frame
+        aimed = mode >= scene_lib.LIGHT_TARGETBODY
+        fixed = jnp.asarray((mode == scene_lib.LIGHT_FIXED) | aimed)[:, None]  # placed in the body frame
+        follows_com = mode == scene_lib.LIGHT_TRACKCOM
         world_pos = jnp.where(
             fixed,
             poses["light_body_pos"] + jnp.einsum("lij,lj->li", mats, offset),
-            jnp.where(jnp.asarray(mode == 2)[:, None], poses["light_body_com"], poses["light_body_pos"]) + offset,
+            jnp.where(jnp.asarray(follows_com)[:, None], poses["light_body_com"], poses["light_body_pos"]) + offset,
         )
         world_dir = jnp.where(
             fixed, jnp.einsum("lij,lj->li", mats, jnp.asarray(sc.light_dirs)), jnp.asarray(sc.light_dirs)
         )
-        if np.any(mode >= 3):  # aimed at the target body (3) or its subtree's centre of mass (4)
-            target = jnp.where(jnp.asarray(mode == 4)[:, None], poses["light_target_com"], poses["light_target_pos"])
-            world_dir = jnp.where(jnp.asarray(mode >= 3)[:, None], target - world_pos, world_dir)
+        if sc.has_aimed_lights:  # at the target body or its subtree's centre of mass
+            at_com = jnp.asarray(mode == scene_lib.LIGHT_TARGETBODYCOM)[:, None]
+            target = jnp.where(at_com, poses["light_target_com"], poses["light_target_pos"])
+            world_dir = jnp.where(jnp.asarray(aimed)[:, None], target - world_pos, world_dir)
         world_dir = world_dir / jnp.linalg.norm(world_dir, axis=-1, keepdims=True)
         cam_mat = poses["cam_mat"]
         return (world_pos - poses["cam_pos"]) @ cam_mat, world_dir @ cam_mat

@@ -156,6 +156,9 @@ class Tracer:
             overflow |= jnp.sum(overlap) > budget
             pair, valid = first_pairs(overlap, budget)
             tile, local = pair // len(members), pair % len(members)
+            # one gather per pair, 15 columns: 0-2, 3-5 and 6-8 the coefficients of the pixel's
+            # x, y and 1 in the ray's direction in the geom's frame (x r_0 + y r_1 - r_2), 9-11
+            # the camera's origin in that frame, 12-14 the geom's size
             params = jnp.concatenate(
                 [
                     r_cam[members_arr, 0, :],

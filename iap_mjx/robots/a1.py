@@ -38,6 +38,7 @@ import numpy as np
 LEGS = ("FR", "FL", "RR", "RL")
 JOINTS_PER_LEG = ("abduction", "thigh", "knee")
 JOINT_NAMES = tuple(f"{leg}_{joint}" for leg in LEGS for joint in JOINTS_PER_LEG)
+N_JOINTS = len(JOINT_NAMES)  # 12: the actions, and the joint angles of the state
 
 # The standing ("home") pose: trunk height and each leg's (abduction, thigh, knee).
 HOME_HEIGHT = 0.27
@@ -58,7 +59,7 @@ LINK_LENGTH = 0.2
 THIGH_MASS, THIGH_RADIUS = 1.013, 0.022
 CALF_MASS, CALF_RADIUS = 0.226, 0.013
 FOOT_RADIUS = 0.02
-FOOT_FRICTION = 0.8
+FOOT_FRICTION = 0.8  # sliding, Menagerie's foot (its torsional and rolling 0.02 and 0.01 too)
 
 # The robot's half-width (m; 0.154): hip offset, thigh offset and thigh radius sideways.
 HALF_WIDTH = HIP_OFFSET[1] + THIGH_OFFSET + THIGH_RADIUS
@@ -68,7 +69,9 @@ HALF_WIDTH = HIP_OFFSET[1] + THIGH_OFFSET + THIGH_RADIUS
 REACH = float(np.hypot(HIP_OFFSET[0], HIP_OFFSET[1] + THIGH_OFFSET)) + 2 * LINK_LENGTH + FOOT_RADIUS
 
 # Position servos: kp (N m / rad) with the torque limit; joint damping (N m s / rad) acts as
-# the servo's kd, implicitly under the Euler integrator; armature as the motors' rotor.
+# the servo's kd, implicitly under the Euler integrator; armature as the motors' rotor. Kp, the
+# limit and the armature are Menagerie's; its damping is 1 at the abduction joints and 2 at
+# thigh and knee, ours 1 at all twelve (and no frictionloss, Menagerie's 0.2).
 KP = 100.0
 TORQUE_LIMIT = 33.5
 JOINT_DAMPING = 1.0
