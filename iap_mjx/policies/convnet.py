@@ -189,16 +189,18 @@ class ConvNetPolicy:
 
     @property
     def body(self) -> ConvNet:
-        """The convolutions and pool (its ``output_size`` unused: the embedding is ours)."""
+        """The convolutions and pool. Only they are used (and ``flat_size``): the embedding
+        and the controller are this policy's own, so ``output_size`` and ``hidden_size`` are
+        placeholders (the embedding's size, which passes ``ConvNet``'s checks)."""
         return ConvNet(
-            tuple(self.image_shape),
-            self.embedding_size,
-            self.channels,
-            self.strides,
-            self.filter_size,
-            self.pool,
-            self.embedding_size,
-            self.state_size,
+            image_shape=tuple(self.image_shape),
+            output_size=self.embedding_size,
+            channels=self.channels,
+            strides=self.strides,
+            filter_size=self.filter_size,
+            pool=self.pool,
+            hidden_size=self.embedding_size,
+            state_size=self.state_size,
         )
 
     @property
