@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
 from iap_mjx.checks import require_int
-from iap_mjx.policies.base import check_options, constructor_options
+from iap_mjx.policies.base import check_options, constructor_options, lists_as_tuples
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.observations import pixel_shape, split_observation
 
@@ -126,7 +126,5 @@ def make_iap_policy(observation_shape: Any, action_size: int, **options: Any) ->
         attention_fields | constructor_options(IAPPolicy, "image_shape", "action_size", "attention", "state_size"),
     )
     attention = AttentionConfig(**{k: v for k, v in options.items() if k in attention_fields})
-    rest = {k: v for k, v in options.items() if k not in attention_fields}
-    if isinstance(rest.get("hidden_sizes"), list):
-        rest["hidden_sizes"] = tuple(rest["hidden_sizes"])
+    rest = lists_as_tuples({k: v for k, v in options.items() if k not in attention_fields})
     return IAPPolicy(image_shape, action_size, attention, state_size=state_size, **rest)

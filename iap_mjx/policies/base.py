@@ -77,6 +77,12 @@ def constructor_options(cls: type, *set_by_factory: str) -> set[str]:
     return set(inspect.signature(cls).parameters) - set(set_by_factory)
 
 
+def lists_as_tuples(options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` with every list value a tuple: a config from JSON or a command line gives
+    lists, and the policies are frozen, hashable dataclasses whose sizes are tuples."""
+    return {name: tuple(value) if isinstance(value, list) else value for name, value in options.items()}
+
+
 def check_options(kind: str, options: Mapping[str, Any], valid: Iterable[str]) -> None:
     """Raises ``ValueError`` naming the options of policy ``kind`` that are not among ``valid``,
     and the valid ones: a misspelt ``policy.*`` setting fails before anything is built."""

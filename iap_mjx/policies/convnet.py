@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 from iap_mjx.checks import require_int
 from iap_mjx.chunks import ceil_div
-from iap_mjx.policies.base import check_options, check_sizes, constructor_options
+from iap_mjx.policies.base import check_options, check_sizes, constructor_options, lists_as_tuples
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 from iap_mjx.policies.observations import pixel_shape, split_observation
@@ -243,10 +243,7 @@ def make_convnet_policy(observation_shape: Any, action_size: int, **options: Any
     """Factory for ``policies.make("convnet", ...)``."""
     check_options("convnet", options, constructor_options(ConvNetPolicy, "image_shape", "action_size", "state_size"))
     image_shape, state_size = pixel_shape(observation_shape)
-    for name in ("channels", "strides", "hidden_sizes"):
-        if isinstance(options.get(name), list):
-            options[name] = tuple(options[name])
-    return ConvNetPolicy(image_shape, action_size, state_size=state_size, **options)
+    return ConvNetPolicy(image_shape, action_size, state_size=state_size, **lists_as_tuples(options))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -297,6 +294,4 @@ def make_cnn_policy(observation_shape: Any, action_size: int, **options: Any) ->
     """Factory for ``policies.make("cnn", ...)``."""
     check_options("cnn", options, constructor_options(CNNPolicy, "image_shape", "action_size", "state_size"))
     image_shape, state_size = pixel_shape(observation_shape)
-    if isinstance(options.get("channels"), list):
-        options["channels"] = tuple(options["channels"])
-    return CNNPolicy(image_shape, action_size, state_size=state_size, **options)
+    return CNNPolicy(image_shape, action_size, state_size=state_size, **lists_as_tuples(options))

@@ -53,7 +53,7 @@ from flax import struct
 from iap_mjx.attention import AttentionConfig
 from iap_mjx.checks import is_int, require_int
 from iap_mjx.policies.attention import IAPPolicy
-from iap_mjx.policies.base import check_choice, check_options, constructor_options, param_count
+from iap_mjx.policies.base import check_choice, check_options, constructor_options, lists_as_tuples, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, TGConfig
@@ -324,10 +324,10 @@ def make_hierarchical_policy(
     if not isinstance(observation_shape, dict) or set(observation_shape) != {"pixels", "state"}:
         raise ValueError(
             f"the hierarchical policy needs {{'pixels', 'state'}} observations, got shape "
-            f"{observation_shape!r}: make the env with obs_mode='pixels+state'"
+            f"{observation_shape!r}: make the env with obs_mode='pixels+state' or 'depth+state'"
         )
     image_shape, state_size = pixel_shape(observation_shape)
-    options = {k: tuple(v) if isinstance(v, list) else v for k, v in options.items()}
+    options = lists_as_tuples(options)
     attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
     tg_fields = {f.name for f in dataclasses.fields(TGConfig)}
     high_fields = attention_fields | _IAP_FIELDS if high_level == "iap" else _CNN_FIELDS
