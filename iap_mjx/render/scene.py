@@ -162,14 +162,92 @@ def _sky(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(3, np.float32), np.zeros(3, np.float32)
 
 
+def _checker(
+    m: mujoco.MjModel, g: int, rgba: np.ndarray
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Geom ``g``'s checker, if it is a plane with a 2-D texture: ``(is_checker, colours (2, 3),
+    texture (2, 3), squares per unit length (2,), origin offset (2,))``, float32, the two
+    squares' colours with and without the geom's ``rgba``; zeros and unit scale otherwise."""
+    matid = int(m.geom_matid[g])
+    tex = _material_rgb_texture(m, matid) if matid >= 0 else -1
+    is_checker = (
+        int(m.geom_type[g]) == PLANE and tex >= 0 and int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_2D)
+    )
+    if not is_checker:
+        zeros = np.zeros((2, 3), np.float32)
+        return False, zeros, zeros.copy(), np.ones(2, np.float32), np.zeros(2, np.float32)
+    # As measured with mujoco.Renderer (tests/test_render_mujoco.py), per axis: with
+    # texuniform (or an infinite size), a 2x2 checker's squares are 1 / texrepeat long
+    # and the texture's origin is texrepeat * size squares from the centre; without,
+    # texrepeat textures span the plane from its corner (squares size / texrepeat
+    # long, the origin texrepeat squares away). The texture's rows run against local
+    # y, so the square at the origin shows its bottom-left quadrant.
+    img = _texture_rgb(m, tex)
+    h, w = img.shape[:2]
+    texture = np.stack([img[3 * h // 4, w // 4], img[3 * h // 4, 3 * w // 4]])
+    colours = texture * rgba[None, :3]
+    repeat = np.asarray(m.mat_texrepeat[matid], np.float32)
+    size = np.asarray(m.geom_size[g, :2], np.float32)
+    spread = (size > 0) & (not bool(m.mat_texuniform[matid]))
+    scale = np.where(spread, repeat / np.where(spread, size, 1.0), repeat)
+    offset = np.where(spread, repeat, repeat * size) * np.array([1.0, -1.0], np.float32)
+    offset = np.mod(offset, 2.0)  # the pattern repeats every two squares
+    return (
+        True,
+        colours.astype(np.float32),
+        texture.astype(np.float32),
+        scale.astype(np.float32),
+        offset.astype(np.float32),
+    )
+
+
+def _lights(m: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """The active lights as :class:`Scene` holds them (its ``light_*`` fields, ``ambient`` and
+    ``headlight_diffuse``)."""
+    light_active = np.asarray(m.light_active, bool) if m.nlight else np.zeros(0, bool)
+    lights = np.flatnonzero(light_active)
+    headlight = m.vis.headlight
+    ambient = np.asarray(headlight.ambient, np.float32) * float(bool(headlight.active))
+    ambient = ambient + np.asarray(m.light_ambient[lights], np.float32).sum(0) if lights.size else ambient
+    light_type = np.asarray(m.light_type[lights], np.int32)
+    light_mode = np.asarray(m.light_mode[lights], np.int32)
+    light_target = np.asarray(m.light_targetbodyid[lights], np.int32)
+    aimed = light_mode >= LIGHT_TARGETBODY
+    light_mode = np.where(aimed & (light_target < 0), LIGHT_FIXED, light_mode).astype(np.int32)
+    in_body_frame = (light_mode == LIGHT_FIXED) | (light_mode >= LIGHT_TARGETBODY)
+    spot = light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT)
+    return {
+        "light_mode": light_mode,
+        "light_bodyid": np.asarray(m.light_bodyid[lights], np.int32),
+        "light_targetbodyid": np.where(light_mode >= LIGHT_TARGETBODY, light_target, 0).astype(np.int32),
+        "light_offset": np.where(
+            in_body_frame[:, None],
+            m.light_pos[lights],
+            np.where((light_mode == LIGHT_TRACKCOM)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
+        )
+        .astype(np.float32)
+        .reshape(-1, 3),
+        "light_dirs": np.where(in_body_frame[:, None], m.light_dir[lights], m.light_dir0[lights])
+        .astype(np.float32)
+        .reshape(-1, 3),
+        "light_directional": light_type == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL),
+        "light_cos_cutoff": np.where(
+            spot, np.cos(np.deg2rad(np.asarray(m.light_cutoff[lights], np.float64))), -1.0
+        ).astype(np.float32),
+        "light_exponent": np.where(spot, np.asarray(m.light_exponent[lights]), 0.0).astype(np.float32),
+        "light_diffuse": np.asarray(m.light_diffuse[lights], np.float32).reshape(-1, 3),
+        "ambient": ambient.astype(np.float32),
+        "headlight_diffuse": np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),
+    }
+
+
 def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> Scene:
     """Reads the static scene of ``m``: the geoms MuJoCo's renderer would draw with the given
     visible groups (mjvOption.geomgroup default: 0, 1, 2), their colours and the lights.
 
     Geoms of unsupported types (meshes, heightfields, SDFs) are skipped.
     """
-    ids, types, sizes, rgbs, alphas = [], [], [], [], []
-    checker, checker_rgb, checker_texture, checker_scale, checker_offset = [], [], [], [], []
+    ids, types, sizes, rgbs, alphas, checkers = [], [], [], [], [], []
     for g in range(m.ngeom):
         gtype = int(m.geom_type[g])
         if int(m.geom_group[g]) not in geom_groups or gtype not in SUPPORTED_TYPES:
@@ -182,48 +260,9 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         sizes.append(np.asarray(m.geom_size[g], np.float32))
         rgbs.append(rgba[:3])
         alphas.append(min(float(rgba[3]), 1.0))
-        matid = int(m.geom_matid[g])
-        tex = _material_rgb_texture(m, matid) if matid >= 0 else -1
-        is_checker = gtype == PLANE and tex >= 0 and int(m.tex_type[tex]) == int(mujoco.mjtTexture.mjTEXTURE_2D)
-        checker.append(is_checker)
-        if is_checker:
-            # As measured with mujoco.Renderer (tests/test_render_mujoco.py), per axis: with
-            # texuniform (or an infinite size), a 2x2 checker's squares are 1 / texrepeat long
-            # and the texture's origin is texrepeat * size squares from the centre; without,
-            # texrepeat textures span the plane from its corner (squares size / texrepeat
-            # long, the origin texrepeat squares away). The texture's rows run against local
-            # y, so the square at the origin shows its bottom-left quadrant.
-            img = _texture_rgb(m, tex)
-            h, w = img.shape[:2]
-            texture = np.stack([img[3 * h // 4, w // 4], img[3 * h // 4, 3 * w // 4]])
-            colours = texture * rgba[None, :3]
-            repeat = np.asarray(m.mat_texrepeat[matid], np.float32)
-            size = np.asarray(m.geom_size[g, :2], np.float32)
-            spread = (size > 0) & (not bool(m.mat_texuniform[matid]))
-            scale = np.where(spread, repeat / np.where(spread, size, 1.0), repeat)
-            offset = np.where(spread, repeat, repeat * size) * np.array([1.0, -1.0], np.float32)
-            offset = np.mod(offset, 2.0)  # the pattern repeats every two squares
-            checker_rgb.append(colours.astype(np.float32))
-            checker_texture.append(texture.astype(np.float32))
-            checker_scale.append(scale.astype(np.float32))
-            checker_offset.append(offset.astype(np.float32))
-        else:
-            checker_rgb.append(np.zeros((2, 3), np.float32))
-            checker_texture.append(np.zeros((2, 3), np.float32))
-            checker_scale.append(np.ones(2, np.float32))
-            checker_offset.append(np.zeros(2, np.float32))
-
-    light_active = np.asarray(m.light_active, bool) if m.nlight else np.zeros(0, bool)
-    lights = np.flatnonzero(light_active)
-    headlight = m.vis.headlight
-    ambient = np.asarray(headlight.ambient, np.float32) * float(bool(headlight.active))
-    ambient = ambient + np.asarray(m.light_ambient[lights], np.float32).sum(0) if lights.size else ambient
-    light_type = np.asarray(m.light_type[lights], np.int32)
-    light_mode = np.asarray(m.light_mode[lights], np.int32)
-    light_target = np.asarray(m.light_targetbodyid[lights], np.int32)
-    aimed = light_mode >= LIGHT_TARGETBODY
-    light_mode = np.where(aimed & (light_target < 0), LIGHT_FIXED, light_mode).astype(np.int32)
-    in_body_frame = (light_mode == LIGHT_FIXED) | (light_mode >= LIGHT_TARGETBODY)
+        checkers.append(_checker(m, g, rgba))
+    # one column per Scene field (empty columns for a scene without geoms)
+    checker, checker_rgb, checker_texture, checker_scale, checker_offset = list(zip(*checkers)) or [()] * 5
     sky_mid, sky_slope = _sky(m)
     extent = float(m.stat.extent)
     return Scene(
@@ -237,31 +276,7 @@ def build_scene(m: mujoco.MjModel, geom_groups: tuple[int, ...] = (0, 1, 2)) -> 
         checker_texture=np.asarray(checker_texture, np.float32).reshape(-1, 2, 3),
         checker_scale=np.asarray(checker_scale, np.float32).reshape(-1, 2),
         checker_offset=np.asarray(checker_offset, np.float32).reshape(-1, 2),
-        light_mode=light_mode,
-        light_bodyid=np.asarray(m.light_bodyid[lights], np.int32),
-        light_targetbodyid=np.where(light_mode >= LIGHT_TARGETBODY, light_target, 0).astype(np.int32),
-        light_offset=np.where(
-            in_body_frame[:, None],
-            m.light_pos[lights],
-            np.where((light_mode == LIGHT_TRACKCOM)[:, None], m.light_poscom0[lights], m.light_pos0[lights]),
-        )
-        .astype(np.float32)
-        .reshape(-1, 3),
-        light_dirs=np.where(in_body_frame[:, None], m.light_dir[lights], m.light_dir0[lights])
-        .astype(np.float32)
-        .reshape(-1, 3),
-        light_directional=light_type == int(mujoco.mjtLightType.mjLIGHT_DIRECTIONAL),
-        light_cos_cutoff=np.where(
-            light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT),
-            np.cos(np.deg2rad(np.asarray(m.light_cutoff[lights], np.float64))),
-            -1.0,
-        ).astype(np.float32),
-        light_exponent=np.where(
-            light_type == int(mujoco.mjtLightType.mjLIGHT_SPOT), np.asarray(m.light_exponent[lights]), 0.0
-        ).astype(np.float32),
-        light_diffuse=np.asarray(m.light_diffuse[lights], np.float32).reshape(-1, 3),
-        ambient=ambient.astype(np.float32),
-        headlight_diffuse=np.asarray(headlight.diffuse, np.float32) * float(bool(headlight.active)),
+        **_lights(m),
         sky_mid=sky_mid,
         sky_slope=sky_slope,
         zfar=float(m.vis.map.zfar) * extent,
