@@ -56,12 +56,11 @@ class Tracer:
         self.height, self.width = height, width = config.height, config.width
         half_h = np.tan(np.deg2rad(fovy) / 2.0)
         half_w = half_h * width / height
-        cols = (np.arange(width) + 0.5) / width * 2.0 - 1.0
-        rows = 1.0 - (np.arange(height) + 0.5) / height * 2.0
-        self.x = (cols * half_w).astype(np.float32)[None, :]
         self.pixel_pitch = (float(2.0 * half_w / width), float(2.0 * half_h / height))
-        self.y = (rows * half_h).astype(np.float32)[:, None]
         self._lay_out_tiles(config.tile, half_w, half_h)
+        # the image's own pixels of the grid: (1, W) and (H, 1) views whose new axis has stride
+        # 0, which JAX embeds as a vector and a broadcast (a copied array: a full constant)
+        self.x, self.y = self.grid_x[0, :width][None, :], self.grid_y[:height, 0][:, None]
         n_tiles = self.tile_x.shape[0]
         self.pair_budget = int(np.ceil(config.cull_pairs_per_tile * n_tiles))
         groups = {}
