@@ -5,6 +5,7 @@ other shapes. No program is compiled."""
 
 from __future__ import annotations
 
+import logging
 from types import SimpleNamespace
 
 import numpy as np
@@ -60,6 +61,20 @@ def test_the_time_limit_counts_from_the_start_and_zero_means_none(monkeypatch):
     assert not past_time_limit(RunConfig(max_minutes=0), now - 1e6)
     assert not past_time_limit(RunConfig(max_minutes=1), now - 60)
     assert past_time_limit(RunConfig(max_minutes=1), now - 60.5)
+
+
+def test_reading_a_checkpoint_logs_no_warning(tmp_path, caplog):
+    """Orbax warns for every item of a checkpoint that a manager without its handler reads;
+    a resume, an eval or a video of a run reads both items."""
+    state = {"mean": np.arange(4.0), "step": np.array(2)}
+    checkpoint.save(tmp_path, 2, state, {"a": 1})
+    with caplog.at_level(logging.WARNING):
+        assert checkpoint.latest_step(tmp_path) == 2
+        assert checkpoint.load_config(tmp_path) == {"a": 1}
+        step, restored = checkpoint.restore(tmp_path, state)
+        assert checkpoint.stored_shapes(tmp_path, 2) == {"mean": (4,), "step": ()}
+    assert step == 2 and np.array_equal(restored["mean"], state["mean"])
+    assert not [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
 
 
 def test_a_checkpoint_restored_into_other_shapes_names_the_leaf_and_both_shapes(tmp_path):

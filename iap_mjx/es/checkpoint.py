@@ -34,9 +34,12 @@ def _has_checkpoints(run_dir: str | Path) -> bool:
     return (Path(run_dir) / CHECKPOINT_DIR).is_dir()
 
 
-def _manager(run_dir: str | Path, *, create: bool = True, item_handlers: Any = None) -> ocp.CheckpointManager:
+def _manager(run_dir: str | Path, *, create: bool = True) -> ocp.CheckpointManager:
+    """A manager that knows both items' handlers: without them, orbax logs a warning for
+    every item of a checkpoint that it reads (metadata, or a restore of the other item)."""
     options = ocp.CheckpointManagerOptions(max_to_keep=MAX_TO_KEEP, create=create, enable_async_checkpointing=False)
-    return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options, item_handlers=item_handlers)
+    handlers = {"state": ocp.StandardCheckpointHandler(), "config": ocp.JsonCheckpointHandler()}
+    return ocp.CheckpointManager(Path(run_dir).resolve() / CHECKPOINT_DIR, options=options, item_handlers=handlers)
 
 
 def _reader(run_dir: str | Path) -> ocp.CheckpointManager:
@@ -115,8 +118,7 @@ def _leaf_name(path: tuple[Any, ...]) -> str:
 def stored_shapes(run_dir: str | Path, step: int) -> dict[str, tuple[int, ...]]:
     """``{leaf name: shape}`` of checkpoint ``step``'s state, read from its metadata (no array
     is loaded)."""
-    handlers = {"state": ocp.StandardCheckpointHandler()}
-    with _manager(run_dir, create=False, item_handlers=handlers) as manager:
+    with _manager(run_dir, create=False) as manager:
         metadata = manager.item_metadata(step)["state"]
     return {_leaf_name(path): tuple(leaf.shape) for path, leaf in jax.tree_util.tree_leaves_with_path(metadata)}
 
