@@ -39,7 +39,7 @@ def restore_state(parts: Components, run_dir, state: TrainState) -> TrainState:
         state,
         host_state,
     )
-    logger.info("resumed from checkpoint %d in %s", step, run_dir)
+    logger.info("restored checkpoint %d of %s", step, run_dir)
     return restored
 
 
@@ -76,7 +76,9 @@ def start_state(parts: Components, run_dir: str | Path | None) -> tuple[TrainSta
         return state, 0
     _check_resumable(parts.config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
     state = restore_state(parts, run_dir, state)
-    return state, int(checkpoint.to_host(state.iteration))
+    done = int(checkpoint.to_host(state.iteration))
+    logger.info("resuming training after iteration %d", done)
+    return state, done
 
 
 class CompiledCalls:
