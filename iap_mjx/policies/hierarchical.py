@@ -25,8 +25,9 @@ Per control step, on ``"pixels+state"`` observations ``{"pixels": (H, W, 3), "st
 ``duration_range`` defaults to ``(10, 50)`` control steps, 0.2 s to 1 s (ours: the paper's text
 gives no range). 0.2 s is half a period of the 2.5 Hz trot the low level starts from, one step of a
 leg pair: a command held for less cannot change the gait's course before the next replaces
-it. 1 s walks about 0.8 m at that trot, less than half the 1.9 m that at least separate two
-walls, so one command cannot carry the robot from the sight of a wall past it unseen.
+it. 1 s walks about 0.8 m at that trot (RESULTS.md, `quadruped-walking`), less than half the
+1.9 m that at least separate two walls, so one command cannot carry the robot from the sight
+of a wall past it unseen.
 
 ``blind=True`` zeroes the image before the high level sees it (its output is then a constant
 of its parameters, the latent and duration it settles on): the control that tells whether the
