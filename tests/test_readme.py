@@ -41,3 +41,17 @@ def test_the_own_env_example_learns_to_reach_its_targets():
     assert abs(first - still_mean) < 4 * still_std, (first, still_mean, still_std)
     assert last > still_mean + 4 * still_std, (last, still_mean, still_std)
     assert len(result.history) == result.config.run.iterations
+
+
+def test_the_own_policy_example_learns_on_the_same_env():
+    """The README's own policy, named nowhere in the package, trained on the own-env example's
+    point mass (its block run first, as a reader pastes them in order), must end as far above
+    standing still as the linear policy's test asks."""
+    namespace: dict = {}
+    exec(readme_block("### Your own env"), namespace)
+    exec(readme_block("### Your own policy"), namespace)
+    result = namespace["result"]
+    assert set(result.params) == {"w"}  # the README's policy, not the config's linear one
+    still_mean = -50 * 2 * 0.521405
+    still_std = 50 * math.sqrt(4 / 3 - (2 * 0.521405) ** 2) / math.sqrt(result.config.run.eval_episodes)
+    assert result.history[-1]["eval_return"] > still_mean + 4 * still_std, result.history[-1]["eval_return"]
