@@ -100,3 +100,11 @@ def test_a_checkpoint_restored_into_other_shapes_names_the_leaf_and_both_shapes(
         match=r"^checkpoint 3 in .* does not fit the run as built: strategy_state.mean \(5,\) stored, \(6,\) built \(",
     ):
         checkpoint.restore(tmp_path, grown)
+
+
+def test_ties_stop_the_step_where_the_update_subtracts_a_baseline_or_pairs_cancel():
+    assert bookkeeping.ties_stop_the_step(ESConfig())  # centred ranks
+    assert bookkeeping.ties_stop_the_step(ESConfig(shaping="z_score"))
+    assert bookkeeping.ties_stop_the_step(ESConfig(shaping="identity"))  # antithetic pairs cancel
+    assert not bookkeeping.ties_stop_the_step(ESConfig(shaping="identity", antithetic=False))
+    assert not bookkeeping.ties_stop_the_step(ESConfig(strategy="CMA_ES"))  # evosax's own update

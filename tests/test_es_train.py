@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -325,3 +326,27 @@ def test_a_users_own_policy_trains_without_a_name():
     result = train(config, env=env, policy=OwnPolicy(), progress=False)
     assert set(result.params) == {"w"} and result.params["w"].shape == (6, 2)
     assert result.history[-1]["eval_return"] > zero_policy_bar(env), result.history[-1]["eval_return"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ScorelessPointMass(PointMass):
+    """``PointMass`` whose reward is always 0: every member ties, as on a sparse task that no
+    member reaches (finger-spin's first 100 iterations)."""
+
+    def step(self, state, action):
+        after = super().step(state, action)
+        return after.replace(reward=jnp.zeros(()))
+
+
+@pytest.mark.parametrize("env", [ScorelessPointMass(), PointMass()], ids=["tied", "scoring"])
+def test_a_population_tied_throughout_is_reported_once(env, caplog):
+    with caplog.at_level(logging.WARNING, logger="iap_mjx.es.bookkeeping"):
+        result = train(small_config(checkpoint_every=0), env=env, progress=False)
+    warnings = [r.getMessage() for r in caplog.records if "every member returned" in r.getMessage()]
+    if isinstance(env, ScorelessPointMass):
+        assert len(warnings) == 1, warnings  # once, though all 6 iterations tie
+        assert warnings[0].startswith("iteration 1: every member returned 0, so the ES step is zero"), warnings
+        # and it is: the zero-initialised linear policy's centre never moves
+        assert not np.any(flat(result.params)), flat(result.params)
+    else:
+        assert warnings == [] and np.any(flat(result.params))

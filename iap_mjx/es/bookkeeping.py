@@ -19,7 +19,7 @@ import jax
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
-from iap_mjx.configs.training import RunConfig, TrainConfig
+from iap_mjx.configs.training import OPEN_ES, ESConfig, RunConfig, TrainConfig
 from iap_mjx.es import checkpoint
 from iap_mjx.es.components import Components, TrainState, init_state
 from iap_mjx.es.episode import episode_metric_names
@@ -145,6 +145,13 @@ def training_call_with_timing(
     return new_state, metric_rows(parts, done, metrics, run_s, calls.seconds)
 
 
+def ties_stop_the_step(es: ESConfig) -> bool:
+    """Whether a population whose members all return the same moves the centre by nothing but
+    weight decay: OpenES whose shaping subtracts a baseline (ranks, z-scores), or whose
+    antithetic pairs cancel (the identity)."""
+    return es.strategy == OPEN_ES and (es.shaping != "identity" or es.antithetic)
+
+
 @dataclasses.dataclass
 class Reporter:
     """Where each iteration's metrics row goes: the run's ``history``, its metrics files
@@ -155,6 +162,7 @@ class Reporter:
     bar: Any
     progress_fn: Callable[[dict[str, Any]], None] | None
     started: float
+    warn_ties: bool = False  # whether a population tied throughout is still to be reported
 
     @classmethod
     def open(
@@ -186,7 +194,7 @@ class Reporter:
             from tqdm.auto import tqdm
 
             bar = tqdm(total=config.run.iterations, initial=start, desc="ES", unit="it")
-        return cls(history, writer, bar, progress_fn, started)
+        return cls(history, writer, bar, progress_fn, started, warn_ties=ties_stop_the_step(config.es))
 
     def write(self, rows: list[dict[str, Any]]) -> None:
         """Stamps each row with the run's wall time and hands it to every destination."""
@@ -197,6 +205,15 @@ class Reporter:
                 self.writer.write(row)
             if self.progress_fn is not None:
                 self.progress_fn(row)
+            if self.warn_ties and row["nan_episodes"] == 0 and row["return_max"] == row["return_min"]:
+                logger.warning(
+                    "iteration %d: every member returned %g, so the ES step is zero and only weight "
+                    "decay moves the centre (a sparse reward that no member reaches gives no signal); "
+                    "logged once per run",
+                    row["iteration"],
+                    row["return_max"],
+                )
+                self.warn_ties = False
 
     def advance(self, rows: list[dict[str, Any]]) -> None:
         """Moves the bar past ``rows``' iterations, showing the last one's returns."""
