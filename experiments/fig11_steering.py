@@ -28,7 +28,7 @@ import numpy as np
 
 from iap_mjx import envs, es
 from iap_mjx.policies.hierarchical import low_level_weights
-from iap_mjx.policies.pmtg import PMTGPolicy
+from iap_mjx.policies.pmtg import PMTGPolicy, PMTGState
 
 STEPS = 250  # 5 s of 0.02 s control steps
 EPISODES = 2
@@ -78,7 +78,7 @@ def probe(run_dir: Path) -> np.ndarray:
             return (after, policy_state, turned + (change + 180.0) % 360.0 - 180.0), None
 
         start = env.reset(key)
-        first = (start, {"phase": jnp.zeros(()), "latent": latent}, jnp.zeros(()))
+        first = (start, PMTGState(latent=latent, phase=jnp.zeros(())), jnp.zeros(()))
         (_, _, turned), _ = jax.lax.scan(step, first, None, length=STEPS)
         return turned
 

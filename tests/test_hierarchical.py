@@ -22,7 +22,7 @@ from iap_mjx.policies.hierarchical import (
     duration_steps,
     fold_normalisation,
 )
-from iap_mjx.policies.pmtg import PMTGPolicy
+from iap_mjx.policies.pmtg import PMTGPolicy, PMTGState
 
 OBS = {"pixels": (24, 32, 3), "state": (17,)}
 
@@ -118,10 +118,10 @@ def test_the_latent_changes_exactly_where_the_counter_runs_out_under_vmap():
             action, low_state = policy.low.apply(
                 params["low"],
                 state_obs[s, episode],
-                {"phase": previous_phase[s, episode], "latent": jnp.asarray(expected[s, episode]).repeat(2)},
+                PMTGState(latent=jnp.asarray(expected[s, episode]).repeat(2), phase=previous_phase[s, episode]),
             )
             np.testing.assert_allclose(actions[s, episode], action, atol=1e-5)
-            np.testing.assert_allclose(phases[s, episode], low_state["phase"], atol=1e-6)
+            np.testing.assert_allclose(phases[s, episode], low_state.phase, atol=1e-6)
 
 
 def test_duration_maps_linearly_onto_whole_control_steps():
@@ -226,7 +226,7 @@ def test_low_level_from_a_file_with_its_normalisation_folded_in(tmp_path):
         var=jnp.asarray(rng.uniform(0.5, 2.0, 17), jnp.float32),
     )
     raw = stats.mean + jnp.sqrt(stats.var) * jnp.asarray(rng.uniform(-3, 3, 17), jnp.float32)
-    state = {"phase": jnp.array(1.0), "latent": jnp.zeros(4)}
+    state = PMTGState(latent=jnp.zeros(4), phase=jnp.array(1.0))
     trained = low.outputs({"w": jnp.asarray(w), "b": jnp.asarray(b)}, normalize(stats, raw), state)
     folded_w, folded_b = fold_normalisation(w, b, stats.mean, stats.var, latent_size=4)
     np.testing.assert_allclose(low.outputs({"w": folded_w, "b": folded_b}, raw, state), trained, atol=1e-5)
@@ -282,10 +282,10 @@ def test_a_turn_trained_low_level_takes_its_command_from_the_latent():
     for command in (-0.7, 0.0, 1.0):
         state, phase = jnp.asarray(rng.normal(size=17), jnp.float32), jnp.float32(rng.uniform(0, 6))
         expected, _ = turn.apply(
-            trained, jnp.concatenate([jnp.array([command]), state]), {"phase": phase, "latent": jnp.zeros(4)}
+            trained, jnp.concatenate([jnp.array([command]), state]), PMTGState(latent=jnp.zeros(4), phase=phase)
         )
         latent = jnp.array([command, 0.0, 0.0, 0.0], jnp.float32)
-        action, _ = low.apply({"w": jnp.asarray(w), "b": jnp.asarray(b)}, state, {"phase": phase, "latent": latent})
+        action, _ = low.apply({"w": jnp.asarray(w), "b": jnp.asarray(b)}, state, PMTGState(latent=latent, phase=phase))
         np.testing.assert_allclose(action, expected, atol=1e-6)
 
 
@@ -311,8 +311,8 @@ def test_the_shipped_turn_run_is_the_shipped_low_level():
     rng = np.random.default_rng(4)
     for phase in (0.5, 2.0, 4.0):
         raw = stats.mean + jnp.sqrt(stats.var) * jnp.asarray(rng.uniform(-3, 3, 18), jnp.float32)
-        state = {"phase": jnp.float32(phase), "latent": jnp.zeros(4)}
+        state = PMTGState(latent=jnp.zeros(4), phase=jnp.float32(phase))
         trained = turn.policy.outputs(turn.params, normalize(stats, raw), state)
         latent = jnp.zeros(4).at[0].set(raw[0])
-        folded = low.outputs({"w": jnp.asarray(w), "b": jnp.asarray(b)}, raw[1:], {**state, "latent": latent})
+        folded = low.outputs({"w": jnp.asarray(w), "b": jnp.asarray(b)}, raw[1:], state.replace(latent=latent))
         np.testing.assert_allclose(folded, trained, rtol=1e-4, atol=1e-4)

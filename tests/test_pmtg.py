@@ -244,10 +244,10 @@ def test_policy_state_is_the_phase_and_zero_params_give_the_mid_range_gait():
     params = policy.init(jax.random.key(0))
     assert not np.any(np.asarray(params["b"]))
     state = policy.initial_state(jax.random.key(1))
-    assert float(state["phase"]) == 0.0 and state["latent"].shape == (4,)
+    assert float(state.phase) == 0.0 and state.latent.shape == (4,)
     action, state = policy.apply(params, jnp.zeros(17), state)
     # zero outputs: f = 1.5 Hz, k = 1, so one 0.02 s step advances 2 pi * 0.03
-    np.testing.assert_allclose(float(state["phase"]), 2 * math.pi * 1.5 * 0.02, rtol=1e-5)
+    np.testing.assert_allclose(float(state.phase), 2 * math.pi * 1.5 * 0.02, rtol=1e-5)
     step = pmtg.tg_step(policy.tg, jnp.float32(0.0), jnp.zeros(16))
     np.testing.assert_allclose(action, a1.targets_to_action(step.targets), atol=1e-6)
     assert np.all(np.abs(np.asarray(action)) <= 1.0)

@@ -57,7 +57,7 @@ from iap_mjx.policies.attention import IAPPolicy
 from iap_mjx.policies.base import check_choice, check_options, constructor_options, lists_as_tuples, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
-from iap_mjx.policies.pmtg import PMTGPolicy, TGConfig
+from iap_mjx.policies.pmtg import PMTGPolicy, PMTGState, TGConfig
 
 HIGH_LEVELS = ("iap", "cnn")
 IMU_SIZE = 5  # roll, pitch and the 3 angular velocities: the quadruped state's first entries
@@ -213,9 +213,9 @@ class HierarchicalPolicy:
             policy_state.counter, policy_state.latent, out[1:], duration_steps(out[0], self.duration_range)
         )
         action, low_state = self.low.apply(
-            params["low"], jnp.ravel(obs["state"]), {"phase": policy_state.phase, "latent": latent}
+            params["low"], jnp.ravel(obs["state"]), PMTGState(latent=latent, phase=policy_state.phase)
         )
-        return action, HierarchyState(high=high_state, latent=latent, counter=counter, phase=low_state["phase"])
+        return action, HierarchyState(high=high_state, latent=latent, counter=counter, phase=low_state.phase)
 
 
 @dataclasses.dataclass(frozen=True)

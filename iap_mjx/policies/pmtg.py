@@ -24,8 +24,8 @@ so the targets never need clipping.
 
 :class:`PMTGPolicy` is the low level of the paper's hierarchy: a linear map of (latent
 command, env observation, ``cos phi``, ``sin phi``) to 16 numbers in ``[-1, 1]`` (``tanh``):
-the 12 residuals and the TG's ``(f, I, h, k)``. Its per-episode state is the TG phase and the
-latent command (constant here; a high level would write it).
+the 12 residuals and the TG's ``(f, I, h, k)``. Its per-episode state (:class:`PMTGState`) is
+the TG phase and the latent command (constant here; a high level would write it).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from iap_mjx.checks import require_int, require_number
 from iap_mjx.policies.base import check_choice, check_options, constructor_options
@@ -229,6 +230,20 @@ def tg_step(config: TGConfig, phase: jax.Array, u: jax.Array) -> TGStep:
     return TGStep(phase, phases, targets)
 
 
+@struct.dataclass
+class PMTGState:
+    """One episode's low-level state (a leading batch axis under ``vmap``).
+
+    Attributes:
+      latent: ``(latent_size,)`` float32, the command the linear map sees (constant alone; a
+        high level writes it every step).
+      phase: ``()`` float32, the TG phase in ``[0, 2 pi)``.
+    """
+
+    latent: jax.Array
+    phase: jax.Array
+
+
 @dataclasses.dataclass(frozen=True)
 class PMTGPolicy:
     """Linear PMTG low level: ``u = tanh(W [latent, obs, cos phi, sin phi] + b)`` -> TG.
@@ -295,22 +310,22 @@ class PMTGPolicy:
             bias[self.action_size :] = np.arctanh(self.tg.outputs_for(*self.initial_tg))
         return {"w": jnp.zeros((self.input_size, self.output_size), jnp.float32), "b": jnp.asarray(bias)}
 
-    def initial_state(self, key: jax.Array) -> dict[str, jax.Array]:
-        """``{"phase": () 0, "latent": (len(latent),)}``."""
+    def initial_state(self, key: jax.Array) -> PMTGState:
+        """The policy's ``latent`` and the TG phase at 0."""
         del key
-        return {"phase": jnp.zeros((), jnp.float32), "latent": jnp.asarray(self.latent, jnp.float32)}
+        return PMTGState(latent=jnp.asarray(self.latent, jnp.float32), phase=jnp.zeros((), jnp.float32))
 
-    def outputs(self, params, obs: jax.Array, policy_state) -> jax.Array:
+    def outputs(self, params, obs: jax.Array, policy_state: PMTGState) -> jax.Array:
         """The linear map's ``(16,)`` outputs in ``[-1, 1]``."""
-        phase = policy_state["phase"]
-        x = jnp.concatenate([policy_state["latent"], jnp.ravel(obs), jnp.stack([jnp.cos(phase), jnp.sin(phase)])])
+        phase = policy_state.phase
+        x = jnp.concatenate([policy_state.latent, jnp.ravel(obs), jnp.stack([jnp.cos(phase), jnp.sin(phase)])])
         return jnp.tanh(x @ params["w"] + params["b"])
 
-    def apply(self, params, obs: jax.Array, policy_state):
+    def apply(self, params, obs: jax.Array, policy_state: PMTGState) -> tuple[jax.Array, PMTGState]:
         """One control step: ``(action (12,) in [-1, 1], new policy state)``."""
-        step = tg_step(self.tg, policy_state["phase"], self.outputs(params, obs, policy_state))
+        step = tg_step(self.tg, policy_state.phase, self.outputs(params, obs, policy_state))
         action = a1.targets_to_action(step.targets)
-        return action, {**policy_state, "phase": step.phase}
+        return action, policy_state.replace(phase=step.phase)
 
 
 def make_pmtg_policy(observation_shape: Any, action_size: int, **options: Any) -> PMTGPolicy:
