@@ -122,6 +122,22 @@ def test_config_and_models_are_exposed():
     assert envs.make("cheetah-run", action_repeat=3).episode_length == 334
 
 
+@pytest.mark.parametrize("name", envs.names())
+def test_episode_length_is_read_without_building_the_env(name):
+    """``envs.episode_length`` (the figures' frame counts) agrees with the built env's, for
+    every task (the quadruped's flat task lasts 500 control steps, the others 1000), with an
+    action repeat where the task takes one and with a set length; the dm_control tasks' default
+    is dm_control's own step limit."""
+    repeats = [{}] if name.startswith("quadruped") else [{}, {"action_repeat": 3}]
+    for overrides in (*repeats, {"episode_length": 7}):
+        assert envs.episode_length(name, **overrides) == envs.make(name, **overrides).episode_length
+    if not name.startswith("quadruped"):
+        from dm_control import suite
+
+        domain, task = name.split("-")
+        assert envs.episode_length(name) == suite.load(domain, task)._step_limit
+
+
 @pytest.mark.parametrize(
     "action, error",
     [

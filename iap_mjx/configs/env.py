@@ -63,8 +63,9 @@ class EnvConfig:
 
     Attributes:
       action_repeat: control steps per env step (the action is held; rewards are summed).
-      episode_length: env steps per episode; ``None`` means dm_control's 1000 control steps,
-        i.e. ``ceil(1000 / action_repeat)`` env steps.
+      episode_length: env steps per episode; ``None`` means the task's default control steps
+        (dm_control's 1000; ``quadruped-flat``'s 500) over ``action_repeat``, rounded up
+        (``envs.episode_length`` reads it without building the env).
       solver_iterations: MJX constraint-solver iterations (MuJoCo ``opt.iterations``).
       ls_iterations: MJX line-search iterations (MuJoCo ``opt.ls_iterations``).
       max_contacts: contact slots MJX keeps per step (its ``max_contact_points``: the

@@ -2,7 +2,7 @@
 ``quadruped-walls``, ``quadruped-gates``, ``quadruped-turn``), with the brax State convention.
 
 ``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
-arguments without building); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
+arguments without building, ``episode_length`` reads an episode's env steps); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
 quadruped's, ``QuadrupedWallsConfig`` the course's, ``QuadrupedGatesConfig`` the gates
 corridor's, ``QuadrupedTurnConfig`` the turn command's); ``batch`` chunks and shards a batch of
 env programs for the physics benchmarks (training batches its episodes in ``iap_mjx.es.rollout``).
@@ -18,7 +18,7 @@ from iap_mjx.configs.env import (
 )
 from iap_mjx.envs import batch
 from iap_mjx.envs.base import Env, State
-from iap_mjx.envs.registry import check, make, names
+from iap_mjx.envs.registry import check, episode_length, make, names
 
 __all__ = [
     "Env",
@@ -30,6 +30,7 @@ __all__ = [
     "State",
     "batch",
     "check",
+    "episode_length",
     "make",
     "names",
 ]

@@ -198,9 +198,16 @@ class DmControlEnv:
 
     @property
     def episode_length(self) -> int:
-        if self.config.episode_length is not None:
-            return self.config.episode_length
-        return math.ceil(self.default_episode_steps / self.config.action_repeat)
+        """Env steps (``step`` calls) an episode lasts."""
+        return self.episode_length_for(self.config)
+
+    @classmethod
+    def episode_length_for(cls, config: EnvConfig) -> int:
+        """``config.episode_length``, else the task's default control steps over the action
+        repeat: the episode length without building the model."""
+        if config.episode_length is not None:
+            return config.episode_length
+        return math.ceil(cls.default_episode_steps / config.action_repeat)
 
     @property
     def control_timestep(self) -> float:

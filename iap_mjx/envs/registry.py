@@ -73,6 +73,15 @@ def check(name: str, config: EnvConfig | None = None, **overrides: Any) -> EnvCo
     return config
 
 
+def episode_length(name: str, config: EnvConfig | None = None, **overrides: Any) -> int:
+    """Env steps an episode of ``make(name, config, **overrides)`` lasts, without building it.
+
+    Raises:
+      ValueError: as :func:`check`.
+    """
+    return _task_classes()[name].episode_length_for(check(name, config, **overrides))
+
+
 def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
     """Builds the env ``name`` with ``config`` and/or ``EnvConfig`` field ``overrides``.
 

@@ -32,7 +32,6 @@ import numpy as np
 
 from iap_mjx import configs, runtime
 from iap_mjx.checks import require_int
-from iap_mjx.chunks import ceil_div
 from iap_mjx.paper.runs import (
     built_policies,
     check_evaluated,
@@ -81,8 +80,7 @@ def frames_per_iteration(config: configs.TrainConfig) -> int:
     """Frames an ES iteration simulates: the population's episodes and the centre's evaluation."""
     from iap_mjx import envs
 
-    env = envs.check(config.env.name, **dict(config.env.overrides))
-    length = env.episode_length if env.episode_length is not None else ceil_div(1000, env.action_repeat)
+    length = envs.episode_length(config.env.name, **dict(config.env.overrides))
     return (config.es.population_size * config.es.n_episodes + config.run.eval_episodes) * length
 
 
