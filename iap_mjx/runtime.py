@@ -16,6 +16,8 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
+from iap_mjx.files import write_atomically
+
 logger = logging.getLogger(__name__)
 
 CACHE_ENV_VAR = "IAP_MJX_CACHE_DIR"
@@ -88,21 +90,6 @@ def write_entries_atomically() -> bool:
     compilation_cache.reset_cache()  # a cache built before this call is rebuilt with the writer
     compilation_cache.LRUCache = AtomicLRUCache
     return True
-
-
-def write_atomically(path: Path, value: bytes) -> None:
-    """Writes ``value`` to ``path`` through a temporary file in the same directory and
-    ``os.replace``: a concurrent reader sees the old file, no file, or all of ``value``."""
-    import tempfile
-
-    fd, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(value)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 LARGE_CONSTANT_BYTES = 1 << 20

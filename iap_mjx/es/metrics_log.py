@@ -25,12 +25,14 @@ episodes and ``eval_<name>`` over the centre's evaluation episodes.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 import math
-import os
 from pathlib import Path
 from typing import Any
+
+from iap_mjx.files import write_json, write_text
 
 logger = logging.getLogger(__name__)
 
@@ -74,9 +76,7 @@ def write_config(run_dir: str | Path, config: dict[str, Any]) -> Path:
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / CONFIG_FILE
-    temporary = path.with_suffix(".json.tmp")
-    temporary.write_text(json.dumps(config, indent=2) + "\n")
-    os.replace(temporary, path)
+    write_json(path, config, indent=2)
     return path
 
 
@@ -132,17 +132,12 @@ class MetricsWriter:
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         """Both files anew, each written aside and renamed over the old one: a kill mid-write
         leaves the old file, never a half-written one."""
-        jsonl = self.run_dir / f"{METRICS_JSONL}.tmp"
-        with open(jsonl, "w") as f:
-            for row in rows:
-                f.write(json.dumps(row) + "\n")
-        table = self.run_dir / f"{METRICS_CSV}.tmp"
-        with open(table, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=self.columns, extrasaction="ignore")
-            writer.writeheader()
-            writer.writerows(rows)
-        os.replace(jsonl, self.run_dir / METRICS_JSONL)
-        os.replace(table, self.run_dir / METRICS_CSV)
+        table = io.StringIO(newline="")
+        writer = csv.DictWriter(table, fieldnames=self.columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+        write_text(self.run_dir / METRICS_JSONL, "".join(json.dumps(row) + "\n" for row in rows))
+        write_text(self.run_dir / METRICS_CSV, table.getvalue())
 
     def write(self, row: dict[str, Any]) -> None:
         """Appends one iteration's row (keys from ``columns``; missing ones stay empty)."""

@@ -19,6 +19,7 @@ import numpy as np
 
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es.metrics_log import EVAL_FILE
+from iap_mjx.files import write_json
 
 logger = logging.getLogger(__name__)
 
@@ -46,9 +47,7 @@ def stored_evaluation(run_dir: Path, key: str, episodes: int, evaluate: Callable
     if key not in stored or episode_count(stored[key]) != episodes:
         logger.info("%s: evaluating %s", Path(run_dir).name, key)
         stored[key] = evaluate()
-        temporary = path.with_suffix(".tmp")
-        temporary.write_text(json.dumps(stored, indent=1))
-        temporary.replace(path)
+        write_json(path, stored)
     return stored[key]
 
 

@@ -30,7 +30,6 @@ stated as lines.
 
 from __future__ import annotations
 
-import json
 import logging
 import re
 from pathlib import Path
@@ -41,6 +40,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.envs.quadruped import QuadrupedWalls
+from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
 from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
@@ -156,9 +156,7 @@ def reproduce_fig11(
     summaries = {
         label: summarise([row for row in rows if row["policy"] == label], parameters[label]) for label in POLICIES
     }
-    (out_dir / "fig11.json").write_text(
-        json.dumps({"parameters": parameters, "summaries": summaries, "rows": rows}, indent=1)
-    )
+    write_json(out_dir / "fig11.json", {"parameters": parameters, "summaries": summaries, "rows": rows})
     png = plot(rows, summaries, out_dir / "fig11.png")
     markdown = table(summaries, seeds=seeds)
     if results is not None:

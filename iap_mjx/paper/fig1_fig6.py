@@ -13,7 +13,6 @@ Writes ``<out>/<figure>.png``, ``<out>/<figure>.json`` and returns a markdown ta
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
+from iap_mjx.files import write_json
 from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, inference_seconds, trained_curve
 
 logger = logging.getLogger(__name__)
@@ -103,7 +103,7 @@ def reproduce(
     if not rows:
         raise ValueError(f"no runs of {figure} in {out_dir} to report")
     complete = len(rows) == len(variants) and all(row["complete"] for row in rows)
-    (out_dir / f"{figure}.json").write_text(json.dumps(rows, indent=2))
+    write_json(out_dir / f"{figure}.json", rows, indent=2)
     plot(
         rows,
         out_dir / f"{figure}.png",

@@ -18,7 +18,6 @@ run's ``eval.json`` (:func:`iap_mjx.paper.evaluations.evaluate_conditions`). Wri
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
+from iap_mjx.files import write_json
 from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
@@ -130,7 +130,7 @@ def reproduce_fig7(
         raise ValueError(f"no fig7 runs in {out_dir} to report")
     for row in rows:
         row["patches"] = patches[row["patch_size"], row["top_l"], row["d_qk"]]
-    (out_dir / "fig7.json").write_text(json.dumps({"best": best, "rows": rows}, indent=1))
+    write_json(out_dir / "fig7.json", {"best": best, "rows": rows})
     png = plot(rows, best, out_dir / "fig7.png")
     markdown = table(rows, best, overrides=tuple(overrides), seed=seed)
     if results is not None:

@@ -32,6 +32,7 @@ import numpy as np
 
 from iap_mjx import configs, runtime
 from iap_mjx.checks import require_int
+from iap_mjx.files import write_json
 from iap_mjx.paper.runs import (
     built_policies,
     check_evaluated,
@@ -152,7 +153,7 @@ def reproduce_fig8(
             raise ValueError(f"no {path}: run `iap-mjx reproduce fig8` once with the machine alone to measure it")
         out_dir.mkdir(parents=True, exist_ok=True)
         logger.info("measuring seconds per iteration of every variant (leave the machine alone)")
-        path.write_text(json.dumps(measure(checked, iterations=timing_iterations), indent=1))
+        write_json(path, measure(checked, iterations=timing_iterations))
     timings = json.loads(path.read_text())
     rows = []
     for kernel, patch in VARIANTS:
@@ -174,7 +175,7 @@ def reproduce_fig8(
         )
     if not rows:
         raise ValueError(f"no fig8 runs in {out_dir} to report")
-    (out_dir / "fig8.json").write_text(json.dumps({"timings": timings, "rows": rows}, indent=1))
+    write_json(out_dir / "fig8.json", {"timings": timings, "rows": rows})
     png = plot(rows, out_dir / "fig8.png")
     markdown = table(rows, timings, brute_patches=patches["brute", 2])
     if results is not None:

@@ -24,7 +24,6 @@ beside the IAP runs of the same tasks found in ``out`` (``table1-cnn.json``/``.p
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +33,7 @@ from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
+from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
 from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
@@ -179,7 +179,7 @@ def reproduce_table1(
     if not rows:
         raise ValueError(f"no table1 {policy} runs in {out_dir} to report")
     name = "table1" + POLICIES[policy]
-    (out_dir / f"{name}.json").write_text(json.dumps(rows, indent=1))
+    write_json(out_dir / f"{name}.json", rows)
     png = plot(rows, out_dir / f"{name}.png")
     if policy == "iap":
         markdown = table(rows, seeds=seeds)

@@ -24,7 +24,6 @@ table.
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -33,6 +32,7 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import is_int, require_int
+from iap_mjx.files import write_json
 from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
@@ -181,7 +181,7 @@ def reproduce_table2(
         )
     if not rows:
         raise ValueError(f"no table2 runs in {out_dir} to report")
-    (out_dir / "table2.json").write_text(json.dumps(rows, indent=1))
+    write_json(out_dir / "table2.json", rows)
     png = plot(rows, out_dir / "table2.png")
     markdown = table(rows, settings=len(checked))
     if results is not None:

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from iap_mjx.files import write_text
+
 
 def image_link(image: Path, markdown: Path, section: str) -> Path:
     """Copies ``image`` (or any file the section cites, e.g. fig8's ``timings.json``) to
@@ -43,7 +45,7 @@ def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmark
     text = path.read_text() if path.exists() else f"{title}\n"
     pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
     text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
-    path.write_text(text)
+    write_text(path, text)
 
 
 def reproduce_command(figure: str, options: Iterable[str], *, out: Path, results: Path) -> str:
