@@ -150,23 +150,7 @@ def evaluate_run(
     env: Any = None,
     policy: Any = None,
 ) -> np.ndarray:
-    """Returns ``(episodes,)`` returns of a run's latest checkpointed centre params on fresh
-    seeds, not the training seeds: the episodes' keys are split from
-    ``fold_in(fold_in(PRNGKey(seed), EVAL_STREAM), iteration)``, ``iteration`` the checkpoint's,
-    as the training's own evaluation draws them. Runs evaluated with one ``seed`` at one
-    iteration (Figure 11's finished runs) see the same episodes; another checkpoint of the same
-    run sees others. The default ``seed`` is the paper's tables' (:data:`EVAL_SEED`), so a
-    finished run's evaluation here repeats the one its ``eval.json`` keeps. A video's ``--seed
-    k`` episode (``PRNGKey(k)`` itself) is none of them.
-
-    ``overrides``: ``env.<field>=<value>`` settings that change the evaluation's env from the
-    run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
-    (backgrounds never seen in training), or ``policy.blind=true`` (a hierarchical policy's
-    high level given a zeroed image: ``configs.overrides.CONDITION_POLICY_SETTINGS``); the
-    policy's parameters are the run's.
-    ``env.distraction=none`` also drops the run's other distraction settings
-    (``configs.overrides.apply_condition``).
-    """
+    """The ``(episodes,)`` returns of :func:`evaluate_run_episodes` (same arguments)."""
     return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides, env=env, policy=policy)[
         "return"
     ]
@@ -181,16 +165,38 @@ def evaluate_run_episodes(
     env: Any = None,
     policy: Any = None,
 ) -> dict[str, np.ndarray]:
-    """:func:`evaluate_run` with the env's per-episode statistics: ``{"return": (episodes,),
-    name: (episodes,) ...}`` for each of the env's ``episode_metrics`` (the quadruped course's
-    walls passed, falls, wall contacts, distance; nothing more for other envs)."""
+    """A run's latest checkpointed centre params evaluated on fresh seeds, not the training
+    seeds: ``{"return": (episodes,), name: (episodes,) ...}``, one entry for each of the env's
+    ``episode_metrics`` (the quadruped course's walls passed, falls, wall contacts, distance;
+    nothing more for other envs).
+
+    The episodes' keys are split from ``fold_in(fold_in(PRNGKey(seed), EVAL_STREAM),
+    iteration)``, ``iteration`` the checkpoint's, as the training's own evaluation draws them.
+    Runs evaluated with one ``seed`` at one iteration (Figure 11's finished runs) see the same
+    episodes; another checkpoint of the same run sees others. The default ``seed`` is the
+    paper's tables' (:data:`EVAL_SEED`), so a finished run's evaluation here repeats the one
+    its ``eval.json`` keeps. A video's ``--seed k`` episode (``PRNGKey(k)`` itself) is none of
+    them.
+
+    ``overrides``: ``env.<field>=<value>`` settings that change the evaluation's env from the
+    run's, e.g. ``env.distraction=none``, ``env.dynamic=true`` or ``env.background_videos=val``
+    (backgrounds never seen in training), or ``policy.blind=true`` (a hierarchical policy's
+    high level given a zeroed image: ``configs.overrides.CONDITION_POLICY_SETTINGS``); the
+    policy's parameters are the run's. ``env.distraction=none`` also drops the run's other
+    distraction settings (``configs.overrides.apply_condition``). ``env``/``policy`` as in
+    :func:`iap_mjx.es.train.train`.
+
+    Raises:
+      ValueError: a bad condition or episode count (before anything is built), or parameters
+        that do not fit the policy on the condition's observations.
+    """
     require_int("episodes", episodes)
-    check_condition(overrides)
+    check_condition(overrides)  # before the run is read: a condition that is not the env's
     config = apply_condition(trained_config(run_dir), overrides)
     if env is None:
         from iap_mjx import envs
 
-        envs.check(config.env.name, **dict(config.env.overrides))  # a bad condition fails here, before building
+        envs.check(config.env.name, **dict(config.env.overrides))  # a bad env value here, before building
     parts = build(config, env=env, policy=policy)
     try:
         state = restore_state(parts, run_dir, init_state(parts))
