@@ -319,11 +319,13 @@ class OwnPolicy:
         return jnp.tanh(obs @ params["w"]), state
 
 
-def test_a_users_own_policy_trains_without_a_name():
+def test_a_users_own_policy_trains_without_a_name(caplog):
     env = PointMass(episode_length=20)
     config = small_config(iterations=60, eval_episodes=64, checkpoint_every=0)
     config = dataclasses.replace(config, es=dataclasses.replace(config.es, population_size=32))
-    result = train(config, env=env, policy=OwnPolicy(), progress=False)
+    with caplog.at_level(logging.INFO, logger="iap_mjx.es.train"):
+        result = train(config, env=env, policy=OwnPolicy(), progress=False)
+    assert "policy OwnPolicy: 12 parameters" in caplog.text  # the class trained, not the config's kind
     assert set(result.params) == {"w"} and result.params["w"].shape == (6, 2)
     assert result.history[-1]["eval_return"] > zero_policy_bar(env), result.history[-1]["eval_return"]
 

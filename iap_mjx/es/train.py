@@ -71,8 +71,9 @@ def train(
     parts = build(config, env=env, policy=policy, devices=devices)
     state, start = start_state(parts, run_dir)
     reporter = Reporter.open(parts, run_dir, start, started, progress=progress, progress_fn=progress_fn)
-    name = config.policy.kind if policy is None else type(policy).__name__  # a user's own is named nowhere
-    logger.info("policy %r: %s", name, describe_parameters(parts))
+    # the class trained, whether the config built it or the caller passed one (the CLI passes
+    # the config's, a notebook may pass its own)
+    logger.info("policy %s: %s", type(parts.policy).__name__, describe_parameters(parts))
     calls = CompiledCalls(parts)
     config_dict = config.to_dict()
     done = saved = start
