@@ -37,6 +37,17 @@ CONVNET: Options = (
 DCS_ES = dataclasses.replace(PIXEL_ES, learning_rate=0.1, sigma=0.1)
 
 
+# the presets' descriptions read the settings, so that they cannot drift apart
+_ES_TEXT = (
+    f"OpenES {DCS_ES.population_size}, {DCS_ES.optimizer.capitalize()} {DCS_ES.learning_rate:g}, sigma {DCS_ES.sigma:g}"
+)
+_CNN = dict(CONVNET)
+_CNN_TEXT = (
+    f"{len(_CNN['channels'])} conv 3x3, strides {', '.join(map(str, _CNN['strides']))}, 2x2 max pool, "
+    f"dense {_CNN['embedding_size']} -> {_CNN['controller'].upper()}({', '.join(map(str, _CNN['hidden_sizes']))})"
+)
+
+
 def native(task: str, *, quick: bool = False) -> Options:
     """Env options: 240x320 RGB, static medium distractions, ``ACTION_REPEAT[task]``."""
     options = pixels(task, 240, 320) + (("distraction", "medium"), ("dynamic", False))
@@ -68,8 +79,7 @@ def _rows(task: str) -> tuple[Preset, Preset]:
         Preset(
             f"dcs-{task}",
             f"{task} on the Distracting Control Suite (static, medium) at 240x320: IAP hybrid "
-            f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[task]}; "
-            "OpenES 64, Adam 0.1, sigma 0.1",
+            f"(10, 5), 2x2 patches, top 10 -> LSTM(16), action repeat {ACTION_REPEAT[task]}; {_ES_TEXT}",
             task,
             "iap",
             native(task),
@@ -79,8 +89,7 @@ def _rows(task: str) -> tuple[Preset, Preset]:
         ),
         Preset(
             f"dcs-{task}-cnn",
-            f"dcs-{task} with the convolutional baseline in place of attention (3 conv 3x3, "
-            "strides 4, 4, 2, 2x2 max pool, dense 16 -> LSTM(16)); the same frames and ES",
+            f"dcs-{task} with the convolutional baseline in place of attention ({_CNN_TEXT}); the same frames and ES",
             task,
             "convnet",
             native(task),

@@ -164,7 +164,7 @@ PRESETS: tuple[Preset, ...] = (
     ),
     Preset(
         "cheetah-run-pixels-quick",
-        "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (~3 min cold)",
+        "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (the README's first run)",
         "cheetah-run",
         "iap",
         pixels("cheetah-run"),

@@ -60,7 +60,8 @@ TURN_PMTG = Preset(
     run=dataclasses.replace(FLAT_PMTG.run, iterations=300),
 )
 """The flat preset's policy and ES on ``quadruped-turn``, 300 iterations (at 100 the low level
-turns both ways but walks 2-3 m in 10 s; at 300 about 9: RESULTS.md, ``quadruped-turn``): a low
+turns both ways but walks a fraction of the flat trot's distance; RESULTS.md, section
+``quadruped-turn``, has both): a low
 level that turns both ways on command, for the hierarchy's ``policy.low_level_init`` (its
 command becomes the latent's first entry: ``iap_mjx.policies.hierarchical.commanded_low_level``)."""
 
