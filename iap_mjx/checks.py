@@ -8,6 +8,7 @@ integer check refuses ``bool``.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 
 def is_int(value: object) -> bool:
@@ -53,3 +54,18 @@ def require_number(
         else:
             valid = f"a number in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
         raise ValueError(f"{setting} must be {valid}{f' ({unit})' if unit else ''}, got {value!r}.")
+
+
+def require_bool(setting: str, value: object) -> None:
+    """Raises ``ValueError`` naming ``setting`` unless ``value`` is ``True`` or ``False`` (a
+    command line's ``true``/``false`` are parsed to them; ``1`` or ``"yes"`` are not)."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{setting} must be true or false, got {value!r}.")
+
+
+def require_choice(setting: str, value: object, choices: Iterable[object]) -> None:
+    """Raises ``ValueError`` naming ``setting`` and every valid value unless ``value`` is one
+    of ``choices`` (listed in their order; a set's sorted)."""
+    valid = sorted(choices) if isinstance(choices, (set, frozenset)) else list(choices)
+    if not any(type(value) is type(choice) and value == choice for choice in valid):
+        raise ValueError(f"{setting} must be one of {', '.join(map(str, valid))}, got {value!r}.")

@@ -58,9 +58,9 @@ def test_invalid_values_fail_naming_the_field(make, field):
 @pytest.mark.parametrize(
     "make, message",
     [
-        (lambda: EnvConfig(episode_length=True), r"EnvConfig\.episode_length must be an int >= 1 or None, got True"),
-        (lambda: EnvConfig(camera_id=False), r"EnvConfig\.camera_id must be an int >= 0, got False"),
-        (lambda: QuadrupedConfig(action_repeat=2), r"QuadrupedConfig\.action_repeat must be 1 .*, got 2"),
+        (lambda: EnvConfig(episode_length=True), r"env\.episode_length must be an int >= 1 or None, got True"),
+        (lambda: EnvConfig(camera_id=False), r"env\.camera_id must be an int >= 0, got False"),
+        (lambda: QuadrupedConfig(action_repeat=2), r"env\.action_repeat must be 1 .*, got 2"),
     ],
 )
 def test_env_settings_refuse_bools_and_a_quadruped_action_repeat(make, message):

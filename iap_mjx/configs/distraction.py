@@ -27,7 +27,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from iap_mjx.checks import require_int
+from iap_mjx.checks import require_bool, require_int
 
 TASKS = ("cheetah-run", "walker-walk", "cartpole-swingup", "ball_in_cup-catch", "reacher-easy", "finger-spin")
 """The suite's tasks (the reference's six domains; each renders camera 0, fixed or trackcom)."""
@@ -401,8 +401,7 @@ class DistractionConfig:
                 f"distraction = {self.difficulty!r} is not a difficulty; valid: "
                 f"{', '.join(DIFFICULTIES)} (or None for no distraction)."
             )
-        if not isinstance(self.dynamic, bool):
-            raise ValueError(f"distraction dynamic = {self.dynamic!r} must be True or False.")
+        require_bool("dynamic", self.dynamic)
         kinds = parse_kinds(self.kinds)
         object.__setattr__(self, "kinds", kinds)
         if isinstance(self.background_dir, os.PathLike):

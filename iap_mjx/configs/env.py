@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from iap_mjx.checks import is_int, require_int, require_number
+from iap_mjx.checks import is_int, require_choice, require_int, require_number
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
 PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
@@ -128,14 +128,13 @@ class EnvConfig:
     def __post_init__(self):
         positive_ints = ("action_repeat", "solver_iterations", "ls_iterations", "height", "width", "frame_stack")
         for name in positive_ints:
-            require_int(f"EnvConfig.{name}", getattr(self, name))
-        _check_slots("EnvConfig.max_contacts", self.max_contacts)
-        require_int("EnvConfig.episode_length", self.episode_length, none_ok=True)
-        require_number("EnvConfig.max_abs_state", self.max_abs_state, 0, low_open=True)
-        if self.obs_mode not in OBS_MODES:
-            raise ValueError(f"EnvConfig.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}.")
-        require_int("EnvConfig.camera_id", self.camera_id, 0)
-        check_depth_max(self.depth_max, self.obs_mode, "EnvConfig.")
+            require_int(f"env.{name}", getattr(self, name))
+        _check_slots("env.max_contacts", self.max_contacts)
+        require_int("env.episode_length", self.episode_length, none_ok=True)
+        require_number("env.max_abs_state", self.max_abs_state, 0, low_open=True)
+        require_choice("env.obs_mode", self.obs_mode, OBS_MODES)
+        require_int("env.camera_id", self.camera_id, 0)
+        check_depth_max(self.depth_max, self.obs_mode, "env.")
         self._check_distraction()
 
     def _check_distraction(self) -> None:
@@ -154,7 +153,7 @@ class EnvConfig:
             return
         if self.obs_mode == "state":
             raise ValueError(
-                f"EnvConfig.distraction = {self.distraction!r} needs a pixel obs_mode "
+                f"env.distraction = {self.distraction!r} needs a pixel obs_mode "
                 f"(one of {PIXEL_MODES}), got obs_mode='state'."
             )
         config = self.distraction_config()
@@ -163,7 +162,7 @@ class EnvConfig:
                 object.__setattr__(self, name, getattr(config, DISTRACTION_FIELDS[name]))
         if "camera" in config.kinds and self.camera_id != 0:
             raise ValueError(
-                f"EnvConfig.camera_id = {self.camera_id}: the camera distraction perturbs the "
+                f"env.camera_id = {self.camera_id}: the camera distraction perturbs the "
                 "suite's camera 0 (valid camera_id: 0), or leave 'camera' out of "
                 "distraction_kinds."
             )
@@ -228,14 +227,13 @@ class QuadrupedConfig(EnvConfig):
             # the PMTG trajectory generator advances its phase by one control step (0.02 s) per
             # action, and the course's statistics count control steps
             raise ValueError(
-                f"QuadrupedConfig.action_repeat must be 1 (one action per 0.02 s control step), got {self.action_repeat!r}."
+                f"env.action_repeat must be 1 (one action per 0.02 s control step), got {self.action_repeat!r}."
             )
-        require_number("QuadrupedConfig.v_cap", self.v_cap, 0, low_open=True, unit="m/s")
-        require_number("QuadrupedConfig.joint_noise", self.joint_noise, 0, 0.5, unit="rad")
-        require_number("QuadrupedConfig.fall_penalty", self.fall_penalty, 0, unit="m")
-        _check_slots("QuadrupedConfig.max_geom_pairs", self.max_geom_pairs)
-        if self.solver not in SOLVERS:
-            raise ValueError(f"QuadrupedConfig.solver must be one of {SOLVERS}, got {self.solver!r}.")
+        require_number("env.v_cap", self.v_cap, 0, low_open=True, unit="m/s")
+        require_number("env.joint_noise", self.joint_noise, 0, 0.5, unit="rad")
+        require_number("env.fall_penalty", self.fall_penalty, 0, unit="m")
+        _check_slots("env.max_geom_pairs", self.max_geom_pairs)
+        require_choice("env.solver", self.solver, SOLVERS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -251,7 +249,7 @@ class QuadrupedWallsConfig(QuadrupedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        require_int("QuadrupedWallsConfig.n_walls", self.n_walls)
+        require_int("env.n_walls", self.n_walls)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,7 +267,7 @@ class QuadrupedTurnConfig(QuadrupedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        require_number("QuadrupedTurnConfig.max_turn_rate", self.max_turn_rate, 0, 3, low_open=True, unit="rad/s")
+        require_number("env.max_turn_rate", self.max_turn_rate, 0, 3, low_open=True, unit="rad/s")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -285,4 +283,4 @@ class QuadrupedGatesConfig(QuadrupedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        require_int("QuadrupedGatesConfig.n_gates", self.n_gates)
+        require_int("env.n_gates", self.n_gates)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from iap_mjx.checks import require_int, require_number
+from iap_mjx.checks import require_bool, require_choice, require_int, require_number
 
 OPTIMIZERS = ("adam", "sgd", "momentum")
 SHAPINGS = ("centred_rank", "z_score", "identity")
@@ -34,12 +34,8 @@ def one_per_name(names: tuple[str, ...], table: dict[str, Any]) -> dict[str, Any
 
 
 def _fail(owner: str, field: str, value: Any, why: str) -> None:
-    raise ValueError(f"{owner}.{field} = {value!r}: {why}")
-
-
-def _choice(owner: str, field: str, value: Any, valid: Any) -> None:
-    if value not in valid:
-        _fail(owner, field, value, f"choose one of {sorted(valid)}")
+    """Raises ``ValueError`` in :mod:`iap_mjx.checks`' format: ``owner.field why, got value.``"""
+    raise ValueError(f"{owner}.{field} {why}, got {value!r}.")
 
 
 def _pairs(owner: str, field: str, value: Any) -> None:
@@ -49,7 +45,7 @@ def _pairs(owner: str, field: str, value: Any) -> None:
     try:
         hash(value)
     except TypeError:
-        _fail(owner, field, value, "values must be hashable (use tuples, not lists)")
+        _fail(owner, field, value, "must hold hashable values (use tuples, not lists)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +76,7 @@ class PolicySpec:
     def __post_init__(self):
         from iap_mjx import policies
 
-        _choice("policy", "kind", self.kind, policies.names())
+        require_choice("policy.kind", self.kind, policies.names())
         _pairs("policy", "options", self.options)
 
 
@@ -129,26 +125,23 @@ class ESConfig:
         if self.strategy != OPEN_ES:
             from evosax.algorithms import distribution_based_algorithms
 
-            _choice("es", "strategy", self.strategy, [OPEN_ES, *distribution_based_algorithms])
+            require_choice("es.strategy", self.strategy, [OPEN_ES, *distribution_based_algorithms])
         require_int("es.population_size", self.population_size)
         if self.population_size < 2:
             _fail("es", "population_size", self.population_size, "must be >= 2")
         if self.strategy == OPEN_ES and self.antithetic and self.population_size % 2:
             _fail("es", "population_size", self.population_size, "must be even with antithetic sampling")
         require_number("es.sigma", self.sigma, 0, low_open=True)
-        _choice("es", "sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
+        require_choice("es.sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
         require_number("es.sigma_final", self.sigma_final, 0, low_open=True)
-        _choice("es", "optimizer", self.optimizer, OPTIMIZERS)
+        require_choice("es.optimizer", self.optimizer, OPTIMIZERS)
         require_number("es.learning_rate", self.learning_rate, 0, low_open=True)
         require_number("es.weight_decay", self.weight_decay, 0)
-        _choice("es", "shaping", self.shaping, SHAPINGS)
-        if not isinstance(self.antithetic, bool):
-            _fail("es", "antithetic", self.antithetic, "must be true or false")
+        require_choice("es.shaping", self.shaping, SHAPINGS)
+        require_bool("es.antithetic", self.antithetic)
         require_int("es.n_episodes", self.n_episodes)
-        if not isinstance(self.shared_episodes, bool):
-            _fail("es", "shared_episodes", self.shared_episodes, "must be true or false")
-        if not isinstance(self.normalize_observations, bool):
-            _fail("es", "normalize_observations", self.normalize_observations, "must be true or false")
+        require_bool("es.shared_episodes", self.shared_episodes)
+        require_bool("es.normalize_observations", self.normalize_observations)
         _pairs("es", "evosax_options", self.evosax_options)
 
 
@@ -198,8 +191,7 @@ class RunConfig:
                 f"must be a multiple of run.iterations_per_call = {self.iterations_per_call}",
             )
         require_number("run.max_minutes", self.max_minutes, 0)
-        if not isinstance(self.tensorboard, bool):
-            _fail("run", "tensorboard", self.tensorboard, "must be true or false")
+        require_bool("run.tensorboard", self.tensorboard)
 
 
 @dataclasses.dataclass(frozen=True)

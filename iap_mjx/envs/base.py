@@ -60,16 +60,28 @@ class Env(Protocol):
     """
 
     @property
-    def action_size(self) -> int: ...
+    def action_size(self) -> int:
+        """The length of an action, a ``(action_size,)`` float32 vector in ``[-1, 1]``."""
+        ...
 
     @property
-    def observation_shape(self) -> Any: ...
+    def observation_shape(self) -> Any:
+        """``State.obs``'s shape: a tuple for an array (``(17,)`` a state vector, ``(H, W, C)``
+        a frame), or a dict of tuples for several (``{"pixels": (H, W, C), "state": (n,)}``)."""
+        ...
 
     @property
     def episode_length(self) -> int:
         """Env steps (actions) per episode, after action repeat."""
         ...
 
-    def reset(self, key: jax.Array) -> State: ...
+    def reset(self, key: jax.Array) -> State:
+        """An episode's first state from a PRNG key (``()`` typed key or ``(2,)`` uint32): one
+        episode, unbatched; ``vmap`` it over keys for a batch."""
+        ...
 
-    def step(self, state: State, action: jax.Array) -> State: ...
+    def step(self, state: State, action: jax.Array) -> State:
+        """The state after one ``(action_size,)`` action, ``done`` 1.0 once the episode has
+        ended (the rollout counts nothing after it; the MJX tasks also hold a done state still,
+        so that a batch runs to a fixed horizon)."""
+        ...

@@ -29,7 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.checks import require_int
+from iap_mjx.checks import require_choice, require_int
 from iap_mjx.configs.distraction import DistractionConfig
 from iap_mjx.configs.env import DEPTH_MAX, PIXEL_MODES, check_depth_max
 from iap_mjx.envs import distraction as distraction_lib
@@ -76,8 +76,7 @@ class PixelEnv:
         depth_max: float | None = None,
         **camera_config: Any,
     ):
-        if obs_mode not in PIXEL_MODES:
-            raise ValueError(f"obs_mode must be one of {PIXEL_MODES}, got {obs_mode!r}")
+        require_choice("obs_mode", obs_mode, PIXEL_MODES)
         require_int("frame_stack", frame_stack)
         check_depth_max(depth_max, obs_mode)
         self.env = env
@@ -144,6 +143,8 @@ class PixelEnv:
         return self.camera.render_ids(data, **inputs)[2]
 
     def reset(self, key: jax.Array) -> State:
+        """The wrapped env's first state with its frame as the observation (``observation_shape``;
+        ``key`` also draws the episode's distraction)."""
         return self._first(self.env.reset(key), key)
 
     def reset_to(self, *args: Any, key: jax.Array | None = None, **kwargs: Any) -> State:
@@ -156,6 +157,8 @@ class PixelEnv:
         return self._first(self.env.reset_to(*args, **kwargs), key)
 
     def step(self, state: State, action: jax.Array) -> State:
+        """The wrapped env's step, observed through the camera: the new frame is rendered from
+        the new physics state (and the distraction advanced, where dynamic)."""
         stack = self._pixels(state.obs)
         next_state = self.env.step(state, action)
         perturbation = None

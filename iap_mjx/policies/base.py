@@ -65,12 +65,6 @@ ACTIVATIONS = {
 }
 
 
-def check_choice(owner: str, field: str, value: Any, valid: Any) -> None:
-    """Raises ``ValueError`` naming ``owner.field`` when ``value`` is not among ``valid``."""
-    if value not in valid:
-        raise ValueError(f"{owner}.{field} = {value!r} is not valid; choose one of {sorted(valid)}")
-
-
 def constructor_options(cls: type, *set_by_factory: str) -> set[str]:
     """The constructor arguments of ``cls`` that a ``policy.*`` option can set: all but
     ``set_by_factory``, those its factory passes itself (shapes, sizes, sub-configs)."""

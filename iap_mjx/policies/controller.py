@@ -13,8 +13,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.checks import require_int
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_sizes
+from iap_mjx.checks import require_choice, require_int
+from iap_mjx.policies.base import ACTIVATIONS, check_sizes
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
 
 CONTROLLERS = ("linear", "mlp", "lstm")
@@ -41,8 +41,8 @@ class Controller:
     owner: str = "Controller"
 
     def __post_init__(self):
-        check_choice(self.owner, "controller", self.kind, CONTROLLERS)
-        check_choice(self.owner, "activation", self.activation, ACTIVATIONS)
+        require_choice(f"{self.owner}.controller", self.kind, CONTROLLERS)
+        require_choice(f"{self.owner}.activation", self.activation, ACTIVATIONS)
         check_sizes(self.owner, "hidden_sizes", self.hidden_sizes, non_empty=self.kind == "lstm")
         require_int(f"{self.owner}.input_size", self.input_size)
         require_int(f"{self.owner}.output_size", self.output_size)

@@ -52,9 +52,9 @@ import numpy as np
 from flax import struct
 
 from iap_mjx.attention import AttentionConfig
-from iap_mjx.checks import is_int, require_int
+from iap_mjx.checks import is_int, require_choice, require_int
 from iap_mjx.policies.attention import IAPPolicy
-from iap_mjx.policies.base import check_choice, check_options, constructor_options, lists_as_tuples, param_count
+from iap_mjx.policies.base import check_options, constructor_options, lists_as_tuples, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, PMTGState, TGConfig
@@ -320,7 +320,7 @@ def make_hierarchical_policy(
     ``duration_range``, ``blind``, ``high_level_imu``, ``low_level_init`` to the hierarchy.
     An option that belongs to neither raises ``ValueError`` naming it.
     """
-    check_choice("HierarchicalPolicy", "high_level", high_level, HIGH_LEVELS)
+    require_choice("HierarchicalPolicy.high_level", high_level, HIGH_LEVELS)
     require_int("HierarchicalPolicy.latent_size", latent_size)
     if not isinstance(observation_shape, dict) or set(observation_shape) != {"pixels", "state"}:
         raise ValueError(

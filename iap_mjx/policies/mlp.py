@@ -7,8 +7,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.checks import require_int
-from iap_mjx.policies.base import ACTIVATIONS, check_choice, check_sizes
+from iap_mjx.checks import require_choice, require_int
+from iap_mjx.policies.base import ACTIVATIONS, check_sizes
 
 
 def init_dense_layers(key: jax.Array, sizes: tuple[int, ...]) -> list[dict[str, jax.Array]]:
@@ -50,7 +50,7 @@ class MLPPolicy:
         require_int("MLPPolicy.obs_size", self.obs_size)
         require_int("MLPPolicy.action_size", self.action_size)
         check_sizes("MLPPolicy", "hidden_sizes", self.hidden_sizes)
-        check_choice("MLPPolicy", "activation", self.activation, ACTIVATIONS)
+        require_choice("MLPPolicy.activation", self.activation, ACTIVATIONS)
 
     def init(self, key: jax.Array) -> list[dict[str, jax.Array]]:
         """A list of ``{"w", "b"}`` layers, sizes ``obs -> hidden... -> action``."""

@@ -39,8 +39,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from iap_mjx.checks import require_int, require_number
-from iap_mjx.policies.base import check_choice, check_options, constructor_options
+from iap_mjx.checks import require_choice, require_int, require_number
+from iap_mjx.policies.base import check_options, constructor_options
 from iap_mjx.robots import a1
 
 #: Phase offsets (fractions of a period) per leg in the PyBullet code's order FL, RL, FR, RR.
@@ -119,7 +119,7 @@ class TGConfig:
     dt: float = a1.CONTROL_DT
 
     def __post_init__(self):
-        check_choice("TGConfig", "gait", self.gait, GAITS)
+        require_choice("TGConfig.gait", self.gait, GAITS)
         for name in ("frequency_range", "intensity_range", "height_range", "ratio_range"):
             value = tuple(float(v) for v in getattr(self, name))
             if len(value) != 2 or not value[0] <= value[1]:

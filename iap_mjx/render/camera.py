@@ -32,7 +32,7 @@ import numpy as np
 from mujoco import mjx
 
 from iap_mjx import chunks
-from iap_mjx.checks import is_int, is_number, require_int, require_number
+from iap_mjx.checks import is_int, is_number, require_choice, require_int, require_number
 from iap_mjx.render import scene as scene_lib
 from iap_mjx.render import shading, tracing
 from iap_mjx.render import sky as sky_lib
@@ -95,10 +95,8 @@ class CameraConfig:
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, CHUNK_PIXELS // (self.height * self.width))))
         require_int("batch_chunk", self.batch_chunk)
-        if self.shading not in SHADINGS:
-            raise ValueError(f"shading must be one of {SHADINGS}, got {self.shading!r}")
-        if self.sky not in SKIES:
-            raise ValueError(f"sky must be one of {SKIES}, got {self.sky!r}")
+        require_choice("shading", self.shading, SHADINGS)
+        require_choice("sky", self.sky, SKIES)
         if not (
             isinstance(self.background_color, (tuple, list))
             and len(self.background_color) == 3
