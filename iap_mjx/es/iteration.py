@@ -15,11 +15,13 @@ stream (``components.EVAL_STREAM``) the same way here and in :func:`make_centre_
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from iap_mjx.es.components import EVAL_STREAM, TRAIN_STREAM, Components, TrainState
+from iap_mjx.es.episode import EpisodeResult
 from iap_mjx.es.normalizer import ObsStats, merge_episodes
 from iap_mjx.es.strategy import OpenES
 
@@ -32,6 +34,45 @@ def _eval_keys(state: TrainState, episodes: int) -> jax.Array:
     """``(episodes,)`` keys of the centre's evaluation episodes at ``state``'s iteration."""
     key = jax.random.fold_in(jax.random.fold_in(state.key, EVAL_STREAM), state.iteration)
     return jax.random.split(key, episodes)
+
+
+def _metrics(
+    parts: Components,
+    state: TrainState,
+    strategy_state: Any,
+    fitness: jax.Array,
+    bad: jax.Array,
+    members: EpisodeResult,
+    eval_returns: jax.Array,
+    episode_metrics: dict[str, jax.Array],
+    member_episodes: int,
+) -> dict[str, jax.Array]:
+    """An iteration's ``()`` metrics (``metrics.csv``'s columns) from the population's ``(P,)``
+    fitness (NaN for a member with a bad episode) and ``(P, n_episodes)`` bad flags, the
+    members' episodes (``members``), the centre's ``(eval_episodes,)`` evaluation returns,
+    every episode's env statistics (``episode_metrics``, ``(member_episodes + eval_episodes,)``
+    each: the centre's evaluation episodes last) and the strategy after the update."""
+    eval_episodes = parts.config.run.eval_episodes
+    finite = jnp.isfinite(fitness)
+    metrics = {
+        "return_mean": jnp.nanmean(fitness),
+        "return_max": jnp.max(jnp.where(finite, fitness, -jnp.inf)),
+        "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
+        "return_std": jnp.nanstd(fitness),
+        "nan_episodes": jnp.sum(bad),
+        "contact_saturated_episodes": jnp.sum(members.saturated),
+        "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
+    }
+    if eval_episodes:
+        metrics["eval_return"] = jnp.mean(eval_returns)
+        metrics["eval_return_std"] = jnp.std(eval_returns)
+    for name, values in members.metrics.items():  # the env's per-episode statistics, if any
+        metrics[f"{name}_mean"] = jnp.mean(values)
+        if eval_episodes:
+            metrics[f"eval_{name}"] = jnp.mean(episode_metrics[name][member_episodes:])
+    if isinstance(parts.strategy, OpenES):
+        metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
+    return metrics
 
 
 def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState, dict]]:
@@ -73,25 +114,9 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         obs_stats = state.obs_stats
         if es.normalize_observations:
             obs_stats = merge_episodes(obs_stats, members.steps, members.obs_sum, members.obs_sq_sum, members.bad)
-        finite = jnp.isfinite(fitness)
-        metrics = {
-            "return_mean": jnp.nanmean(fitness),
-            "return_max": jnp.max(jnp.where(finite, fitness, -jnp.inf)),
-            "return_min": jnp.min(jnp.where(finite, fitness, jnp.inf)),
-            "return_std": jnp.nanstd(fitness),
-            "nan_episodes": jnp.sum(bad),
-            "contact_saturated_episodes": jnp.sum(members.saturated),
-            "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
-        }
-        if eval_episodes:
-            metrics["eval_return"] = jnp.mean(eval_returns)
-            metrics["eval_return_std"] = jnp.std(eval_returns)
-        for name, values in members.metrics.items():  # the env's per-episode statistics, if any
-            metrics[f"{name}_mean"] = jnp.mean(values)
-            if eval_episodes:
-                metrics[f"eval_{name}"] = jnp.mean(episodes.metrics[name][member_episodes:])
-        if isinstance(parts.strategy, OpenES):
-            metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
+        metrics = _metrics(
+            parts, state, strategy_state, fitness, bad, members, eval_returns, episodes.metrics, member_episodes
+        )
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
         return new_state, metrics
 
