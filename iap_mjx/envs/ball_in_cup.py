@@ -26,8 +26,8 @@ class BallInCupCatch(DmControlEnv):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         model = self.mj_model
-        self._ball_x = int(model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, "ball_x")])
-        self._ball_z = int(model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, "ball_z")])
+        self._ball_x = self._qpos_address("ball_x")
+        self._ball_z = self._qpos_address("ball_z")
         self._ball_body = self._id(mujoco.mjtObj.mjOBJ_BODY, "ball")
         self._target_site = self._id(mujoco.mjtObj.mjOBJ_SITE, "target")
         ball_radius = model.geom_size[self._id(mujoco.mjtObj.mjOBJ_GEOM, "ball"), 0]

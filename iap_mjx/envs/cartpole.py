@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -27,8 +26,8 @@ class CartpoleSwingup(DmControlEnv):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._slider = int(self.mj_model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, "slider")])
-        self._hinge = int(self.mj_model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, "hinge_1")])
+        self._slider = self._qpos_address("slider")
+        self._hinge = self._qpos_address("hinge_1")
 
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
         data = mjx.make_data(self.mj_model)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import mujoco
 from mujoco import mjx
 
 from iap_mjx.envs.dm_control_suite import cheetah
@@ -28,8 +27,7 @@ class CheetahRun(DmControlEnv):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        sensor = self._id(mujoco.mjtObj.mjOBJ_SENSOR, "torso_subtreelinvel")
-        self._speed_index = int(self.mj_model.sensor_adr[sensor])
+        self._speed_index = self._sensor_address("torso_subtreelinvel")
 
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
         model = self.mj_model

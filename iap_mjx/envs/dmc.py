@@ -116,6 +116,19 @@ def serial_lapack_batch(nv: int) -> int | None:
     return (_LAPACK_MIN_WORK_PER_TASK - 1) // (nv**3 // 3)
 
 
+def _compile(spec: mujoco.MjSpec) -> mujoco.MjModel:
+    """``spec`` compiled, its compiler's ``settotalmass`` applied after compiling: MuJoCo 3.17
+    deprecates the compiler's settotalmass (cheetah sets it), so the spec compiles without it
+    and the masses are scaled as it would have scaled them (the same model, to the last bit)."""
+    total_mass = float(spec.compiler.settotalmass)
+    spec.compiler.settotalmass = -1.0
+    mj_model = spec.compile()
+    if total_mass > 0:
+        mujoco.mj_setTotalmass(mj_model, total_mass)
+        mujoco.mj_setConst(mj_model, mujoco.MjData(mj_model))
+    return mj_model
+
+
 class DmControlEnv:
     """A dm_control suite task on MJX. Subclasses set the class constants and task hooks.
 
@@ -141,26 +154,11 @@ class DmControlEnv:
         spec = self._model_spec()
         spec.add_numeric(name="max_contact_points", data=[-1])  # -1: MJX keeps every candidate
         self._edit_spec(spec)
-        # MuJoCo 3.17 deprecates the compiler's settotalmass (cheetah sets it): compile without
-        # it and scale the masses as it would have (the same model, to the last bit).
-        total_mass = float(spec.compiler.settotalmass)
-        spec.compiler.settotalmass = -1.0
-        mj_model = spec.compile()  # once: the limit is set in the compiled model below
-        if total_mass > 0:
-            mujoco.mj_setTotalmass(mj_model, total_mass)
-            mujoco.mj_setConst(mj_model, mujoco.MjData(mj_model))
+        mj_model = _compile(spec)  # once: the contact limit is set in the compiled model below
         all_condims = collision_driver.make_condim(mj_model)
         self.max_contacts = self._resolve_max_contacts(all_condims)
         if self.max_contacts is not None:
-            slot = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
-            # MJX reads numeric_data[id] (not numeric_adr[id]): the same cell while every numeric
-            # before ours has size 1, as in every suite model (they define none).
-            if mj_model.numeric_adr[slot] != slot:
-                raise ValueError(
-                    f"{self.name}: a model numeric of size > 1 precedes max_contact_points, "
-                    "where MJX would read the wrong cell; use max_contacts='all'"
-                )
-            mj_model.numeric_data[slot] = self.max_contacts
+            self._limit_contacts(mj_model, self.max_contacts)
         # MJX does not compute energy (cartpole's XML enables it); no dynamics depend on it
         mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         mj_model.opt.iterations = self.config.solver_iterations
@@ -174,6 +172,19 @@ class DmControlEnv:
         self._limited_slots = tuple(
             np.flatnonzero(kept == c) for c in np.unique(all_condims) if np.sum(kept == c) < np.sum(all_condims == c)
         )
+
+    def _limit_contacts(self, mj_model: mujoco.MjModel, max_contacts: int) -> None:
+        """Writes ``max_contacts`` into the model's ``max_contact_points`` numeric, which MJX
+        reads as the number of contact slots it keeps."""
+        slot = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
+        # MJX reads numeric_data[id] (not numeric_adr[id]): the same cell while every numeric
+        # before ours has size 1, as in every suite model (they define none).
+        if mj_model.numeric_adr[slot] != slot:
+            raise ValueError(
+                f"{self.name}: a model numeric of size > 1 precedes max_contact_points, "
+                "where MJX would read the wrong cell; use max_contacts='all'"
+            )
+        mj_model.numeric_data[slot] = max_contacts
 
     # ---- the Env protocol -------------------------------------------------------------
 
@@ -391,10 +402,19 @@ class DmControlEnv:
         return jax.lax.fori_loop(0, n_steps + 1, round_, batched_like(data, data.qpos))
 
     def _id(self, obj: mujoco.mjtObj, name: str) -> int:
+        """The id of the model's ``obj`` named ``name`` (``ValueError`` if there is none)."""
         index = mujoco.mj_name2id(self.mj_model, obj, name)
         if index < 0:
             raise ValueError(f"{self.name}: no {obj.name} named {name!r} in the model.")
         return int(index)
+
+    def _qpos_address(self, joint: str) -> int:
+        """Where joint ``joint``'s coordinates start in ``qpos``."""
+        return int(self.mj_model.jnt_qposadr[self._id(mujoco.mjtObj.mjOBJ_JOINT, joint)])
+
+    def _sensor_address(self, sensor: str) -> int:
+        """Where sensor ``sensor``'s values start in ``sensordata``."""
+        return int(self.mj_model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, sensor)])
 
 
 def randomize_limited_and_rotational_joints(mj_model: mujoco.MjModel, key: jax.Array, qpos: jax.Array) -> jax.Array:

@@ -55,10 +55,9 @@ class FingerSpin(DmControlEnv):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        model = self.mj_model
 
         def sensor(name: str, width: int = 1) -> slice:
-            adr = int(model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, name)])
+            adr = self._sensor_address(name)
             return slice(adr, adr + width)
 
         self._joint_angles = [sensor("proximal"), sensor("distal")]

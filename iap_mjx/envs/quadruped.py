@@ -71,10 +71,9 @@ class QuadrupedFlat(DmControlEnv):
     def __init__(self, config: QuadrupedConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)
         model = self.mj_model
-        sensor = lambda name: int(model.sensor_adr[self._id(mujoco.mjtObj.mjOBJ_SENSOR, name)])  # noqa: E731
-        self._quat = sensor("trunk_quat")
-        self._gyro = sensor("gyro")
-        self._joint_pos = sensor(f"{a1.JOINT_NAMES[0]}_pos")
+        self._quat = self._sensor_address("trunk_quat")
+        self._gyro = self._sensor_address("gyro")
+        self._joint_pos = self._sensor_address(f"{a1.JOINT_NAMES[0]}_pos")
         self._trunk = self._id(mujoco.mjtObj.mjOBJ_BODY, "trunk")
         self.video_camera_id = self._id(mujoco.mjtObj.mjOBJ_CAMERA, "track")
         corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T

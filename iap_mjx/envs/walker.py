@@ -31,8 +31,7 @@ class WalkerWalk(DmControlEnv):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._torso = self._id(mujoco.mjtObj.mjOBJ_BODY, "torso")
-        sensor = self._id(mujoco.mjtObj.mjOBJ_SENSOR, "torso_subtreelinvel")
-        self._speed_index = int(self.mj_model.sensor_adr[sensor])
+        self._speed_index = self._sensor_address("torso_subtreelinvel")
 
     def _initial_data(self, key: jax.Array) -> tuple[mjx.Data, dict]:
         data = mjx.make_data(self.mj_model)
