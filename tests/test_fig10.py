@@ -52,7 +52,8 @@ def episodes(monkeypatch):
     reward a step."""
     keys = []
 
-    def load_run(run_dir):
+    def load_run(run_dir, *, env=None, policy=None):
+        assert env is not None and policy is not None  # the ones fig10's check built, not built again
         config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
         return types.SimpleNamespace(config=config, params="params", obs_stats=None)
 

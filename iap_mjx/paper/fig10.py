@@ -82,8 +82,8 @@ def reproduce_fig10(
         raise ValueError(f"fig10: two runs of the same patch size and stride ({', '.join(names)})")
     out_dir.mkdir(parents=True, exist_ok=True)
     parts = []
-    for (run_dir, (config, env, policy)), name in zip(checked.items(), names):
-        result = es.load_run(run_dir)
+    for (run_dir, (_, env, policy)), name in zip(checked.items(), names):
+        result = es.load_run(run_dir, env=env, policy=policy)  # the ones check built
         path, episode_return = video.episode_strip(
             env,
             policy,
