@@ -17,7 +17,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from jax.sharding import NamedSharding, PartitionSpec
 
 from iap_mjx.configs.training import OPEN_ES, ESConfig, RunConfig, TrainConfig
 from iap_mjx.es import checkpoint
@@ -33,9 +32,8 @@ def restore_state(parts: Components, run_dir, state: TrainState) -> TrainState:
     """``run_dir``'s latest checkpoint, shaped and typed like ``state`` and replicated over the
     mesh."""
     step, host_state = checkpoint.restore(run_dir, state)
-    replicated = NamedSharding(parts.mesh, PartitionSpec())
     restored = jax.tree_util.tree_map(
-        lambda like, x: jax.device_put(np.asarray(x, dtype=like.dtype), replicated),
+        lambda like, x: jax.device_put(np.asarray(x, dtype=like.dtype), parts.replicated),
         state,
         host_state,
     )
@@ -102,9 +100,8 @@ class CompiledCalls:
                 config.es.n_episodes,
                 self.parts.env.episode_length,
             )
-            replicated = NamedSharding(self.parts.mesh, PartitionSpec())
             start = time.perf_counter()
-            call = jax.jit(make_train_call(self.parts, count), out_shardings=replicated)
+            call = jax.jit(make_train_call(self.parts, count), out_shardings=self.parts.replicated)
             self.programs[count] = call.lower(state).compile()
             seconds = time.perf_counter() - start
             logger.info("compiled in %.0f s", seconds)

@@ -61,6 +61,12 @@ class Components:
     rollout: Callable[..., EpisodeResult]
 
     @property
+    def replicated(self) -> NamedSharding:
+        """A copy of the whole array on every device of the mesh: where the training state,
+        the compiled calls' outputs and a restored checkpoint live."""
+        return NamedSharding(self.mesh, PartitionSpec())
+
+    @property
     def steps_per_iteration(self) -> int:
         """Training env steps per iteration (members x episodes x horizon, ``env.step`` calls,
         one action each): the sample budget. dm_control's count (PlaNet's, DrQ's) is this times
@@ -206,5 +212,4 @@ def init_state(parts: Components) -> TrainState:
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    replicated = NamedSharding(parts.mesh, PartitionSpec())
-    return jax.jit(make, out_shardings=replicated)()
+    return jax.jit(make, out_shardings=parts.replicated)()

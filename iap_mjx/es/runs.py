@@ -15,7 +15,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import NamedSharding, PartitionSpec
 
 from iap_mjx.checks import require_int
 from iap_mjx.configs.overrides import apply_condition, check_condition
@@ -207,6 +206,5 @@ def evaluate_run_episodes(
     state = state.replace(key=jax.random.PRNGKey(seed))
     # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
-    replicated = NamedSharding(parts.mesh, PartitionSpec())
-    results = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=replicated)(state)
+    results = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=parts.replicated)(state)
     return checkpoint.to_host(results)
