@@ -13,6 +13,12 @@
 #   OUT      where the runs go (default results/; git ignores it)
 #   EXPORT   the tracked folder that receives trained checkpoints (default pretrained/)
 #   NICE     niceness of every run (default 10)
+#   START    the step to start from, skipping the ones before it (default: the first). Steps:
+#            table1-first fig7 fig8 fig11-tuning fig11 fig11-turn fig11-shared table1-shared
+#            table2 fig10 table1-rest table1-cnn table1-finger fig11-400 gates. Figures 7 and 8
+#            and the course's tuning runs are not exported: on a new machine, after
+#            restore-runs.sh, START=table1-rest resumes the runs still open without training
+#            those again.
 #
 # Figure 8 measures each method's seconds per iteration before it trains (once, stored in
 # $OUT/fig8/timings.json): leave the machine alone while it does (about 15 minutes).
@@ -20,6 +26,18 @@ set -uo pipefail
 OUT=${OUT:-results}
 EXPORT=${EXPORT:-pretrained}
 NICE=${NICE:-10}
+STEPS="table1-first fig7 fig8 fig11-tuning fig11 fig11-turn fig11-shared table1-shared table2 fig10 table1-rest table1-cnn table1-finger fig11-400 gates"
+START=${START:-table1-first}
+case " $STEPS " in
+    *" $START "*) ;;
+    *) echo "START=$START is not a step; valid: $STEPS" >&2; exit 2 ;;
+esac
+started=0
+step() {  # step NAME: whether NAME runs (it is START or comes after it)
+    [ "$1" = "$START" ] && started=1
+    [ "$started" = 1 ] || echo "== skipped step $1 (START=$START)"
+    [ "$started" = 1 ]
+}
 run() {
     echo "== $(date -u '+%F %T') iap-mjx $*"
     nice -n "$NICE" iap-mjx "$@"
@@ -27,17 +45,29 @@ run() {
     echo "== $(date -u '+%F %T') exit $status"
 }
 T1="reproduce table1 --seeds 3 --episodes 20 --out $OUT/table1 --export $EXPORT/dcs"
-run $T1 --tasks cartpole-swingup,cheetah-run   # reacher-easy ran here too, before b2bc056: it is trained again below
-run reproduce fig7 run.iterations=30 --out "$OUT/fig7"
-run reproduce fig8 run.iterations=30 --out "$OUT/fig8"
+if step table1-first; then
+    run $T1 --tasks cartpole-swingup,cheetah-run   # reacher-easy ran here too, before b2bc056: it is trained again below
+fi
+if step fig7; then
+    run reproduce fig7 run.iterations=30 --out "$OUT/fig7"
+fi
+if step fig8; then
+    run reproduce fig8 run.iterations=30 --out "$OUT/fig8"
+fi
 # the course's ES settings, chosen on short runs before Figure 11 (the rule: fig11-tuning.sh's header)
-echo "== $(date -u '+%F %T') experiments/fig11-tuning.sh"
-OUT="$OUT/fig11-tuning" NICE="$NICE" bash experiments/fig11-tuning.sh
-run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
+if step fig11-tuning; then
+    echo "== $(date -u '+%F %T') experiments/fig11-tuning.sh"
+    OUT="$OUT/fig11-tuning" NICE="$NICE" bash experiments/fig11-tuning.sh
+fi
+if step fig11; then
+    run reproduce fig11 --seeds 3 --out "$OUT/fig11" --export "$EXPORT/quadruped"
+fi
 # the same three high levels from a low level that turns both ways on command (issue 24): the shipped
 # export of quadruped-turn-pmtg seed 0 (RESULTS.md, section quadruped-turn, says how it was made)
-run reproduce fig11 policy.low_level_init=pretrained/quadruped-turn/low-level-seed0.npz --seeds 3 \
-    --out "$OUT/fig11-turn" --export "$EXPORT/quadruped-turn" --section fig11-turn
+if step fig11-turn; then
+    run reproduce fig11 policy.low_level_init=pretrained/quadruped-turn/low-level-seed0.npz --seeds 3 \
+        --out "$OUT/fig11-turn" --export "$EXPORT/quadruped-turn" --section fig11-turn
+fi
 # two settings tried on short runs before another Figure 11 (RESULTS.md, sections fig11-shared-tuning
 # and fig11-fall-tuning: the rules), then Figure 11 with the one adopted, shared courses, its seed 0
 # continuing the first test's runs to 200 iterations; the set stopped there by the rule written
@@ -49,41 +79,59 @@ short() {  # short RUN_DIR PRESET OVERRIDES...: 60 iterations, unless RUN_DIR ha
     last=$(ls "$dir/checkpoints" 2>/dev/null | sort -n | tail -1)
     [ "${last:-0}" -ge 60 ] || run train "$@" run.iterations=60 --run-dir "$dir" --no-progress
 }
-for p in iap blind cnn; do
-    short "$OUT/fig11-shared/quadruped-walls-$p-seed0" "quadruped-walls-$p" "$LOW" es.shared_episodes=true
-done
-for p in iap cnn blind; do
-    short "$OUT/fig11-fall/quadruped-walls-$p-seed0" "quadruped-walls-$p" "$LOW" es.shared_episodes=true env.fall_penalty=1.0
-done
-run reproduce fig11 "$LOW" es.shared_episodes=true --seeds 1 --out "$OUT/fig11-shared" \
-    --export "$EXPORT/quadruped-shared" --section fig11-shared
+if step fig11-shared; then
+    for p in iap blind cnn; do
+        short "$OUT/fig11-shared/quadruped-walls-$p-seed0" "quadruped-walls-$p" "$LOW" es.shared_episodes=true
+    done
+    for p in iap cnn blind; do
+        short "$OUT/fig11-fall/quadruped-walls-$p-seed0" "quadruped-walls-$p" "$LOW" es.shared_episodes=true env.fall_penalty=1.0
+    done
+    run reproduce fig11 "$LOW" es.shared_episodes=true --seeds 1 --out "$OUT/fig11-shared" \
+        --export "$EXPORT/quadruped-shared" --section fig11-shared
+fi
 # Table 1's shared-episodes short test (RESULTS.md, section table1-shared-tuning: the rule, the
 # results; not adopted): cartpole with shared episodes, reacher with shared ranks on own and on
 # shared episodes (its first shared run, ranks by position, predates b2bc056 and is not repeated)
-run train dcs-cartpole-swingup es.shared_episodes=true run.iterations=30 --run-dir "$OUT/table1-shared/dcs-cartpole-swingup-seed0" --no-progress
-run train dcs-reacher-easy run.iterations=30 --run-dir "$OUT/table1-ties/dcs-reacher-easy-seed0" --no-progress
-run train dcs-reacher-easy es.shared_episodes=true run.iterations=30 --run-dir "$OUT/table1-shared-ties/dcs-reacher-easy-seed0" --no-progress
+if step table1-shared; then
+    run train dcs-cartpole-swingup es.shared_episodes=true run.iterations=30 --run-dir "$OUT/table1-shared/dcs-cartpole-swingup-seed0" --no-progress
+    run train dcs-reacher-easy run.iterations=30 --run-dir "$OUT/table1-ties/dcs-reacher-easy-seed0" --no-progress
+    run train dcs-reacher-easy es.shared_episodes=true run.iterations=30 --run-dir "$OUT/table1-shared-ties/dcs-reacher-easy-seed0" --no-progress
+fi
 # Table 2's 4x4 setting is the preset's own run, Figure 11's seed 0: the same directory reuses it
-run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/fig11" --export "$EXPORT/quadruped"
-run reproduce fig10 --out "$OUT/fig11"
+if step table2; then
+    run reproduce table2 --settings 1x1,2x2,4x4,4x2 --out "$OUT/fig11" --export "$EXPORT/quadruped"
+fi
+if step fig10; then
+    run reproduce fig10 --out "$OUT/fig11"
+fi
 # the rest of Table 1 (issue 26) after the quadruped's experiments; reacher, ball_in_cup and
 # finger-spin trained again since centred ranks share ties (b2bc056: their returns tie, the old
 # runs are in pretrained/dcs-position-ties)
-run $T1 --tasks reacher-easy,ball_in_cup-catch,walker-walk
-run $T1 --policy cnn --tasks cartpole-swingup,cheetah-run
+if step table1-rest; then
+    run $T1 --tasks reacher-easy,ball_in_cup-catch,walker-walk
+fi
+if step table1-cnn; then
+    run $T1 --policy cnn --tasks cartpole-swingup,cheetah-run
+fi
 # finger-spin last of the suite: its seed 0 shows no learning signal from pixels (RESULTS.md, table1-analysis)
-run $T1 --tasks finger-spin
+if step table1-finger; then
+    run $T1 --tasks finger-spin
+fi
 # Figure 11's nine runs continued from 200 to 400 iterations (RESULTS.md, fig11-analysis: the one
 # setting left to try on the course, decided before it ran), on copies so that the 200-iteration
 # runs stay as they are
-mkdir -p "$OUT/fig11-400"
-for d in "$OUT"/fig11/quadruped-walls-*-seed*; do
-    [ -e "$OUT/fig11-400/$(basename "$d")" ] || cp -r "$d" "$OUT/fig11-400/"
-done
-run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400"
+if step fig11-400; then
+    mkdir -p "$OUT/fig11-400"
+    for d in "$OUT"/fig11/quadruped-walls-*-seed*; do
+        [ -e "$OUT/fig11-400/$(basename "$d")" ] || cp -r "$d" "$OUT/fig11-400/"
+    done
+    run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400"
+fi
 # beyond the paper (issue 24), after the paper's tables: the gates corridor seen through depth, IAP
 # and the blind control
-run train quadruped-gates-iap --run-dir "$OUT/gates/quadruped-gates-iap-seed0" --no-progress
-run train quadruped-gates-blind --run-dir "$OUT/gates/quadruped-gates-blind-seed0" --no-progress
-# its strip of depth frames with the selected patches, as Figure 10's (PNG in $OUT/gates)
-run reproduce fig10 --run-dirs "$OUT/gates/quadruped-gates-iap-seed0" --out "$OUT/gates"
+if step gates; then
+    run train quadruped-gates-iap --run-dir "$OUT/gates/quadruped-gates-iap-seed0" --no-progress
+    run train quadruped-gates-blind --run-dir "$OUT/gates/quadruped-gates-blind-seed0" --no-progress
+    # its strip of depth frames with the selected patches, as Figure 10's (PNG in $OUT/gates)
+    run reproduce fig10 --run-dirs "$OUT/gates/quadruped-gates-iap-seed0" --out "$OUT/gates"
+fi

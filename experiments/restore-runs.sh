@@ -3,8 +3,9 @@
 # (OUT, default results/), so that on a new machine the queue skips what is finished and resumes
 # what is not from its exported checkpoint. A run directory already under OUT is left alone.
 # Figures 7 and 8 and the course's tuning runs are not exported (their curves and tables are in
-# experiments/): on a new machine reproduce-all.sh trains them again. The shared-courses tuning
-# runs are fig11-shared's seed 0, exported with it.
+# experiments/): on a new machine reproduce-all.sh trains them again, unless START names a later
+# step (e.g. START=table1-rest, from Table 1's last tasks on). The shared-courses tuning runs are
+# fig11-shared's seed 0, exported with it.
 #
 #   bash experiments/restore-runs.sh && bash experiments/reproduce-all.sh
 set -euo pipefail

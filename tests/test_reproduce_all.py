@@ -1,0 +1,50 @@
+"""``experiments/reproduce-all.sh``'s steps: ``START`` skips the steps before the one it names
+(how a new machine resumes the open runs), and a name that is no step is refused. Run with a
+stand-in ``iap-mjx`` that only prints its arguments: nothing trains."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parent.parent / "experiments" / "reproduce-all.sh"
+
+
+def _run(tmp_path: Path, start: str) -> subprocess.CompletedProcess:
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir(exist_ok=True)
+    stand_in = bin_dir / "iap-mjx"
+    stand_in.write_text('#!/bin/sh\necho "iap-mjx $*"\n')
+    stand_in.chmod(0o755)
+    env = {
+        **os.environ,
+        "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}",
+        "OUT": str(tmp_path / "out"),
+        "START": start,
+    }
+    return subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, cwd=SCRIPT.parent.parent)
+
+
+def test_every_listed_step_guards_one_block_in_order():
+    text = SCRIPT.read_text()
+    listed = re.search(r'^STEPS="([^"]+)"', text, re.M).group(1).split()
+    assert re.findall(r"^if step ([\w-]+); then$", text, re.M) == listed
+
+
+def test_start_skips_the_steps_before_it(tmp_path):
+    result = _run(tmp_path, "table1-cnn")
+    assert result.returncode == 0, result.stderr
+    calls = [line for line in result.stdout.splitlines() if line.startswith("iap-mjx ")]
+    assert calls[0].startswith("iap-mjx reproduce table1 ") and "--policy cnn" in calls[0]
+    assert not any("fig7" in call or "table2" in call or "reacher-easy" in call for call in calls)
+    assert any(call.startswith("iap-mjx train quadruped-gates-blind") for call in calls)  # the last step ran
+    assert "== skipped step table1-rest (START=table1-cnn)" in result.stdout
+
+
+def test_a_start_that_is_no_step_is_refused_before_anything_runs(tmp_path):
+    result = _run(tmp_path, "table3")
+    assert result.returncode == 2
+    assert "START=table3 is not a step; valid: table1-first fig7" in result.stderr
+    assert "iap-mjx" not in result.stdout
