@@ -7,7 +7,7 @@
 # step (e.g. START=table1-rest, from Table 1's last tasks on). The shared-courses tuning runs are
 # fig11-shared's seed 0, exported with it.
 #
-#   bash experiments/restore-runs.sh && bash experiments/reproduce-all.sh
+#   bash experiments/restore-runs.sh && START=table1-rest bash experiments/reproduce-all.sh
 set -euo pipefail
 OUT=${OUT:-results}
 EXPORT=${EXPORT:-pretrained}

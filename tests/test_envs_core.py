@@ -125,7 +125,7 @@ def test_config_and_models_are_exposed():
 @pytest.mark.parametrize("name", envs.names())
 def test_episode_length_is_read_without_building_the_env(name):
     """``envs.episode_length`` (the figures' frame counts) agrees with the built env's, for
-    every task (the quadruped's flat task lasts 500 control steps, the others 1000), with an
+    every task (``quadruped-flat`` and ``quadruped-turn`` last 500 control steps, the others 1000), with an
     action repeat where the task takes one and with a set length; the dm_control tasks' default
     is dm_control's own step limit."""
     repeats = [{}] if name.startswith("quadruped") else [{}, {"action_repeat": 3}]
@@ -136,6 +136,11 @@ def test_episode_length_is_read_without_building_the_env(name):
 
         domain, task = name.split("-")
         assert envs.episode_length(name) == suite.load(domain, task)._step_limit
+
+
+def test_episode_length_of_an_unknown_env_names_the_valid_ones():
+    with pytest.raises(ValueError, match="Unknown env 'cheetah-walk'; valid names: ball_in_cup-catch"):
+        envs.episode_length("cheetah-walk")
 
 
 @pytest.mark.parametrize(

@@ -319,7 +319,7 @@ class OwnPolicy:
         return jnp.tanh(obs @ params["w"]), state
 
 
-def test_a_users_own_policy_trains_without_a_name(caplog):
+def test_a_users_own_policy_trains_without_a_name_and_is_logged_by_its_class(caplog):
     env = PointMass(episode_length=20)
     config = small_config(iterations=60, eval_episodes=64, checkpoint_every=0)
     config = dataclasses.replace(config, es=dataclasses.replace(config.es, population_size=32))

@@ -1,5 +1,6 @@
-"""Files written whole (``iap_mjx.files``): the content, a plain write's permissions, nothing
-left beside them, and the old file kept when a write fails halfway."""
+"""Files written whole (``iap_mjx.files``): the content, a plain write's permissions (or the
+replaced file's), a symlink kept, nothing left beside them, and the old file kept when a write
+fails halfway."""
 
 from __future__ import annotations
 
@@ -50,3 +51,15 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_nothing_beside_it(tmp_path
         files.write_json(path, {"new": "x" * 1000})
     assert json.loads(path.read_text()) == {"old": True}
     assert [p.name for p in tmp_path.iterdir()] == ["config.json"]
+
+
+def test_a_replaced_file_keeps_its_permissions_and_a_symlink_stays_a_link(tmp_path):
+    target = tmp_path / "RESULTS.md"
+    target.write_text("old\n")
+    target.chmod(0o640)
+    link = tmp_path / "link.md"
+    link.symlink_to(target)
+    files.write_text(link, "new\n")
+    assert link.is_symlink() and target.read_text() == "new\n"
+    assert target.stat().st_mode & 0o777 == 0o640
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["RESULTS.md", "link.md"]

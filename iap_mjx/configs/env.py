@@ -64,7 +64,7 @@ class EnvConfig:
     Attributes:
       action_repeat: control steps per env step (the action is held; rewards are summed).
       episode_length: env steps per episode; ``None`` means the task's default control steps
-        (dm_control's 1000; ``quadruped-flat``'s 500) over ``action_repeat``, rounded up
+        (dm_control's 1000; ``quadruped-flat``'s and ``quadruped-turn``'s 500) over ``action_repeat``, rounded up
         (``envs.episode_length`` reads it without building the env).
       solver_iterations: MJX constraint-solver iterations (MuJoCo ``opt.iterations``).
       ls_iterations: MJX line-search iterations (MuJoCo ``opt.ls_iterations``).
@@ -147,8 +147,8 @@ class EnvConfig:
             given = [f"{name}={value!r}" for name, value in self._distraction_settings().items()]
             if given:
                 raise ValueError(
-                    f"EnvConfig: {', '.join(given)} set without a distraction; set "
-                    f"distraction to one of {', '.join(DIFFICULTIES)}."
+                    f"env: {', '.join(given)} set without a distraction; set "
+                    f"env.distraction to one of {', '.join(DIFFICULTIES)}."
                 )
             return
         if self.obs_mode == "state":

@@ -3,9 +3,9 @@ hierarchical policies on the walled course (the paper's Figure 11 and Table 2).
 
 ``quadruped-flat-pmtg``: ES trains the linear PMTG policy (``iap_mjx.policies.pmtg``) from the
 state (IMU and joint angles; the TG phase is the policy's own) with a constant latent command,
-on ``quadruped-flat``'s 10 s episodes, starting from the policy's default ``initial_tg`` (a trot
-at 2.5 Hz that walks about 0.8 m/s with no residuals); the return is the capped distance walked in metres, so
-the mean forward speed is ``return / 10 s``. ``RESULTS.md`` (section ``quadruped-walking``)
+on ``quadruped-flat``'s 10 s episodes, starting from the policy's default ``initial_tg`` (a
+2.5 Hz trot that walks with no residuals); the return is the capped distance walked in metres,
+so the mean forward speed is ``return / 10 s``. ``RESULTS.md`` (section ``quadruped-walking``)
 has its three seeds.
 
 ``quadruped-turn-pmtg``: the same on ``quadruped-turn``, where each episode commands a yaw rate
@@ -61,8 +61,7 @@ TURN_PMTG = Preset(
 )
 """The flat preset's policy and ES on ``quadruped-turn``, 300 iterations (at 100 the low level
 turns both ways but walks a fraction of the flat trot's distance; RESULTS.md, section
-``quadruped-turn``, has both): a low
-level that turns both ways on command, for the hierarchy's ``policy.low_level_init`` (its
+``quadruped-turn``, has both): a low level that turns both ways on command, for the hierarchy's ``policy.low_level_init`` (its
 command becomes the latent's first entry: ``iap_mjx.policies.hierarchical.commanded_low_level``)."""
 
 COURSE_ENV: Options = (("obs_mode", "pixels+state"),)

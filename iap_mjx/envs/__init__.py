@@ -2,8 +2,8 @@
 ``quadruped-walls``, ``quadruped-gates``, ``quadruped-turn``), with the brax State convention.
 
 ``make(name, **overrides)`` builds one (see ``names()``; ``check`` validates the same
-arguments without building, ``episode_length`` reads an episode's env steps); ``EnvConfig`` lists the overrides (``QuadrupedConfig`` the
-quadruped's, ``QuadrupedWallsConfig`` the course's, ``QuadrupedGatesConfig`` the gates
+arguments without building, ``episode_length`` reads an episode's env steps); ``EnvConfig``
+lists the overrides (``QuadrupedConfig`` the quadruped's, ``QuadrupedWallsConfig`` the course's, ``QuadrupedGatesConfig`` the gates
 corridor's, ``QuadrupedTurnConfig`` the turn command's); ``batch`` chunks and shards a batch of
 env programs for the physics benchmarks (training batches its episodes in ``iap_mjx.es.rollout``).
 """

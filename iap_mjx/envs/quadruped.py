@@ -25,9 +25,9 @@ states counted in ``metrics["nan_terminations"]``, contact slots and
   read at the episode's end (``iap_mjx.es.episode.run_episode``) and logged per iteration
   (``iap_mjx.es.iteration``: ``metrics.csv``'s ``<name>_mean`` and ``eval_<name>`` columns).
 
-Batch size: vmap at most ``max_chunk_size`` (102 for this robot with the pinned jaxlib) envs together per device
-(chunk larger populations, ``lax.map``): a larger vmapped batch can deadlock XLA:CPU on two or
-more devices (:func:`iap_mjx.envs.dmc.serial_lapack_batch`).
+Batch size: vmap at most ``max_chunk_size`` (102 for this robot with the pinned jaxlib) envs
+together per device (chunk larger populations, ``lax.map``): a larger vmapped batch can
+deadlock XLA:CPU on two or more devices (:func:`iap_mjx.envs.dmc.serial_lapack_batch`).
 """
 
 from __future__ import annotations

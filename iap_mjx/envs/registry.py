@@ -79,7 +79,8 @@ def episode_length(name: str, config: EnvConfig | None = None, **overrides: Any)
     Raises:
       ValueError: as :func:`check`.
     """
-    return _task_classes()[name].episode_length_for(check(name, config, **overrides))
+    config = check(name, config, **overrides)  # an unknown name: a ValueError listing the valid ones
+    return _task_classes()[name].episode_length_for(config)
 
 
 def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:

@@ -190,7 +190,7 @@ def evaluate_run_episodes(
         that do not fit the policy on the condition's observations.
     """
     require_int("episodes", episodes)
-    check_condition(overrides)  # before the run is read: a condition that is not the env's
+    check_condition(overrides)  # before the run is read: a setting no condition may change
     config = apply_condition(trained_config(run_dir), overrides)
     if env is None:
         from iap_mjx import envs

@@ -42,7 +42,7 @@ def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmark
     path = Path(path)
     begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
     block = f"{begin}\n{body.rstrip()}\n{end}"
-    text = path.read_text() if path.exists() else f"{title}\n"
+    text = path.read_text(encoding="utf-8") if path.exists() else f"{title}\n"
     pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
     text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
     write_text(path, text)
