@@ -222,14 +222,14 @@ def test_stabilized_top_l_matches_float64_at_norm_ten(kind):
 
 def test_bad_arguments_raise_clear_errors():
     key = jax.random.PRNGKey(0)
-    with pytest.raises(ValueError, match="valid kinds: relu, exp, trig, hybrid, angular"):
+    with pytest.raises(ValueError, match="feature map kind must be one of relu, exp, trig, hybrid, angular, got 'favor'"):
         ft.draw_projections(key, "favor", m=4, d=4)
     with pytest.raises(ValueError, match="m must be an int >= 1"):
         ft.draw_projections(key, "exp", m=0, d=4)
     with pytest.raises(ValueError, match="r must be an int >= 1"):
         ft.draw_projections(key, "hybrid", m=4, d=4, r=-1)
     proj = ft.draw_projections(key, "exp", m=4, d=4)
-    with pytest.raises(ValueError, match="valid roles: query, key"):
+    with pytest.raises(ValueError, match="role must be one of query, key"):
         ft.feature_map("exp", jnp.ones(4), proj, role="value")
     with pytest.raises(ValueError, match="lack the matrices"):
         ft.feature_map("hybrid", jnp.ones(4), proj, role="query")

@@ -191,7 +191,9 @@ def test_layer_errors_are_clear_and_early():
         IAPAttention(AttentionConfig(patch_size=4, top_l=30), (20, 20, 3))
     with pytest.raises(ValueError, match="do not tile"):
         IAPAttention(AttentionConfig(patch_size=3), (20, 20, 3))
-    with pytest.raises(ValueError, match="valid kernels: brute, relu, exp, trig, hybrid, angular"):
+    with pytest.raises(
+        ValueError, match="AttentionConfig.kernel must be one of brute, relu, exp, trig, hybrid, angular"
+    ):
         AttentionConfig(kernel="softmax")
     with pytest.raises(ValueError, match="AttentionConfig.m must be an int >= 1"):
         AttentionConfig(m=0)
@@ -200,7 +202,7 @@ def test_layer_errors_are_clear_and_early():
     for scale in (0.0, float("inf"), "1"):
         with pytest.raises(ValueError, match=r"AttentionConfig.eq5_scale must be a finite number > 0, got"):
             AttentionConfig(eq5_scale=scale)
-    with pytest.raises(ValueError, match="valid scalings"):
+    with pytest.raises(ValueError, match="AttentionConfig.scaling must be one of eq4, eq5, none"):
         AttentionConfig(scaling="eq6")
     with pytest.raises(ValueError, match="row_normalize applies to kernel='brute' only"):
         AttentionConfig(kernel="hybrid", row_normalize=True)

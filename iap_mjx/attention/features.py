@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from iap_mjx.checks import require_int
+from iap_mjx.checks import require_choice, require_int
 from iap_mjx.chunks import ceil_div
 
 KINDS = ("relu", "exp", "trig", "hybrid", "angular")
@@ -61,14 +61,12 @@ class Projections:
 
 def check_kind(kind: str) -> None:
     """Raises ``ValueError`` naming the valid kinds if ``kind`` is not one of them."""
-    if kind not in KINDS:
-        raise ValueError(f"unknown feature map kind {kind!r}; valid kinds: {', '.join(KINDS)}")
+    require_choice("feature map kind", kind, KINDS)
 
 
 def check_role(role: str) -> None:
     """Raises ``ValueError`` naming the valid roles if ``role`` is not one of them."""
-    if role not in ROLES:
-        raise ValueError(f"unknown role {role!r}; valid roles: {', '.join(ROLES)}")
+    require_choice("role", role, ROLES)
 
 
 def _check_count(name: str, value: int | None) -> int:

@@ -21,7 +21,7 @@ from iap_mjx.attention import features as ft
 from iap_mjx.attention.patches import extract_patches, patch_centres, patch_corner, patch_grid
 from iap_mjx.attention.scores import brute_scores, hybrid_scores_rows, linear_scores, relu_scores_rows
 from iap_mjx.attention.selection import top_l
-from iap_mjx.checks import require_int, require_number
+from iap_mjx.checks import require_choice, require_int, require_number
 
 KERNELS = ("brute",) + ft.KINDS
 SCALINGS = ("eq4", "eq5", "none")
@@ -72,10 +72,8 @@ class AttentionConfig:
     batch_chunk: int | None = None
 
     def __post_init__(self):
-        if self.kernel not in KERNELS:
-            raise ValueError(f"unknown attention kernel {self.kernel!r}; valid kernels: {', '.join(KERNELS)}")
-        if self.scaling not in SCALINGS:
-            raise ValueError(f"unknown scaling {self.scaling!r}; valid scalings: {', '.join(SCALINGS)}")
+        require_choice("AttentionConfig.kernel", self.kernel, KERNELS)
+        require_choice("AttentionConfig.scaling", self.scaling, SCALINGS)
         for name in ("patch_size", "d_qk", "top_l", "m", "r"):
             require_int(f"AttentionConfig.{name}", getattr(self, name))
         require_int("AttentionConfig.stride", self.stride, none_ok=True)

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from iap_mjx.checks import require_choice
 from iap_mjx.es.shaping import ShapingFn, centred_ranks
 
 
@@ -149,8 +150,7 @@ class EvosaxStrategy:
     def _algorithm(self):
         from evosax.algorithms import algorithms
 
-        if self.name not in algorithms:
-            raise ValueError(f"unknown evosax strategy {self.name!r}; choose one of {sorted(algorithms)}")
+        require_choice("es.strategy", self.name, sorted(algorithms))
         return algorithms[self.name](
             population_size=self.population_size,
             solution=jnp.zeros((self.num_dims,), jnp.float32),

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
+from iap_mjx.checks import require_choice
 from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
 from iap_mjx.policies.base import Policy, check_options, constructor_options, init_param_count, param_count
 from iap_mjx.policies.convnet import CNNPolicy, ConvNet, ConvNetPolicy, make_cnn_policy, make_convnet_policy
@@ -62,8 +63,7 @@ def names() -> list[str]:
 
 def make(kind: str, observation_shape: Any, action_size: int, **options: Any) -> Policy:
     """Builds the policy ``kind`` for an env's observation shape and action size."""
-    if kind not in FACTORIES:
-        raise ValueError(f"unknown policy kind {kind!r}; choose one of {names()}")
+    require_choice("policy kind", kind, names())
     try:
         return FACTORIES[kind](observation_shape, action_size, **options)
     except TypeError as error:
