@@ -222,7 +222,9 @@ def test_stabilized_top_l_matches_float64_at_norm_ten(kind):
 
 def test_bad_arguments_raise_clear_errors():
     key = jax.random.PRNGKey(0)
-    with pytest.raises(ValueError, match="feature map kind must be one of relu, exp, trig, hybrid, angular, got 'favor'"):
+    with pytest.raises(
+        ValueError, match="feature map kind must be one of relu, exp, trig, hybrid, angular, got 'favor'"
+    ):
         ft.draw_projections(key, "favor", m=4, d=4)
     with pytest.raises(ValueError, match="m must be an int >= 1"):
         ft.draw_projections(key, "exp", m=0, d=4)
