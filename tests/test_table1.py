@@ -131,6 +131,26 @@ def test_the_bar_counts_tasks_at_or_above_the_better_baseline():
     assert "Six-task mean: 170.0" in table1.table(six, seeds=3)
 
 
+def test_wall_clock_per_run_is_the_finished_runs_mean():
+    def row(seed, seconds, finished):
+        return {
+            "task": "walker-walk",
+            "parameters": 1,
+            "seed": seed,
+            "curve": [1.0],
+            "seconds": seconds,
+            "iterations": 100 if finished else 50,
+            "env_steps": 10,
+            "control_steps": 40,
+            "finished": finished,
+            "conditions": {name: [1.0] for name in table1.CONDITIONS} if finished else {},
+        }
+
+    line = lambda markdown: next(x for x in markdown.splitlines() if x.startswith("| walker-walk"))  # noqa: E731
+    assert "| 40 | 7380 | 1 |" in line(table1.table([row(0, 7380.0, True), row(1, 9000.0, False)], seeds=3))
+    assert "| 40 | - | 1 |" in line(table1.table([row(1, 9000.0, False)], seeds=3))
+
+
 def test_export_copies_the_newest_checkpoint_and_the_run_files(tmp_path, monkeypatch):
     config = configs.apply_overrides(configs.get("dcs-cartpole-swingup"), ("run.iterations=3",))
     run = tmp_path / "out" / "dcs-cartpole-swingup-seed0"

@@ -200,6 +200,12 @@ def reproduce_table1(
     return markdown
 
 
+def _mean_seconds(finished: list[dict[str, Any]]) -> str:
+    """The table's wall-clock per run: the mean over the finished runs only (an unfinished run's
+    seconds cover part of the budget), ``-`` before the first finishes."""
+    return f"{np.mean([row['seconds'] for row in finished]):.0f}" if finished else "-"
+
+
 def write_results(
     path: Path,
     markdown: str,
@@ -267,7 +273,7 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
             f"{mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "
             f"{mean_std(per['held-out'])} | {mean_std(per['dynamic'])} | {mean_std(per['none'])} | "
             f"{len(done)} of {seeds} | {max(row['iterations'] for row in task_rows)} | "
-            f"{max(row['control_steps'] for row in task_rows):,} | {np.mean([row['seconds'] for row in task_rows]):.0f} | "
+            f"{max(row['control_steps'] for row in task_rows):,} | {_mean_seconds(done)} | "
             f"{task_rows[0]['parameters']:,} |"
         )
     scored = [task for task in BASELINES if task in means]
