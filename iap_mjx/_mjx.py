@@ -19,12 +19,19 @@ logger = logging.getLogger(__name__)
 
 _WARP_LINES = ("Failed to import warp:", "Failed to import mujoco_warp:")
 
-if "mujoco.mjx" not in sys.modules:
-    _captured = io.StringIO()
-    with contextlib.redirect_stdout(_captured):
+
+def _import_mjx_quietly() -> None:
+    """Imports ``mujoco.mjx`` with stdout captured: Warp's lines to the debug log, the rest
+    back to stdout."""
+    captured = io.StringIO()
+    with contextlib.redirect_stdout(captured):
         from mujoco import mjx  # noqa: F401
-    for _line in _captured.getvalue().splitlines(keepends=True):
-        if _line.startswith(_WARP_LINES):
-            logger.debug("mujoco.mjx: %s", _line.rstrip())
+    for line in captured.getvalue().splitlines(keepends=True):
+        if line.startswith(_WARP_LINES):
+            logger.debug("mujoco.mjx: %s", line.rstrip())
         else:
-            sys.stdout.write(_line)
+            sys.stdout.write(line)
+
+
+if "mujoco.mjx" not in sys.modules:
+    _import_mjx_quietly()

@@ -3,8 +3,8 @@
 Under ``vmap``, JAX's batching rule for ``lax.scan``/``fori_loop``/``while_loop`` re-batches
 the loop's body until the carry's batched leaves stop changing. A carry that starts partly
 unbatched (a zero return, a ``False`` flag, the fields MJX's ``make_data`` fills with
-constants) costs a second pass, or more: each pass traces the whole body again, which for an
-MJX physics step inside the rollout is seconds of the program's compile time. Handing the
+constants) costs a second pass, or more: each pass traces the whole body again, and for an
+MJX physics step inside the rollout each trace adds to the program's compile time. Handing the
 loop a carry whose leaves are all batched ends it in one pass. Outside ``vmap`` (and after
 batching) the marking is ``select(p, x, x)``, which XLA removes.
 """

@@ -101,7 +101,7 @@ def hoist_large_constants(max_embedded_bytes: int = LARGE_CONSTANT_BYTES) -> boo
     ``jax_use_simplified_jaxpr_constants``). The Distracting Control Suite's background videos
     (tens to hundreds of MB, closed over by the env) would otherwise be copied into every
     program, which then takes minutes to compile and fills the compilation cache; smaller
-    constants stay embedded as before.
+    constants stay embedded, where XLA can fold them.
 
     Takes effect only if JAX is not imported yet (the flag is read at import). Returns whether
     it is in force.

@@ -1,8 +1,15 @@
 """The shared setting checks: ``bool`` is never an int, and the error names the setting."""
 
+import jax.numpy as jnp
 import pytest
 
+from iap_mjx import policies
+from iap_mjx.attention import AttentionConfig, IAPAttention
+from iap_mjx.attention.features import closed_form_mse
+from iap_mjx.attention.patches import patch_grid
 from iap_mjx.checks import is_int, is_number, require_bool, require_choice, require_int, require_number
+from iap_mjx.policies import pmtg
+from iap_mjx.render import CameraConfig
 
 
 def test_bool_is_neither_int_nor_number():
@@ -82,3 +89,39 @@ def test_a_bad_setting_is_named_as_the_command_line_sets_it(override, message):
         config = configs.apply_overrides(configs.get("dcs-cartpole-swingup-quick"), (override,))
         envs.check(config.env.name, **dict(config.env.overrides))
     assert message in str(error.value)
+
+
+def _hierarchy(**options):
+    shape = {"pixels": (12, 16, 3), "state": (17,)}
+    return policies.make("hierarchical", shape, 12, kernel="relu", patch_size=4, top_l=2, **options)
+
+
+@pytest.mark.parametrize(
+    "build, setting, got",
+    [
+        (lambda: policies.make("attention", (8, 8, 3), 2), "policy.kind", "'attention'"),
+        (lambda: policies.ConvNet((16, 16, 3), 2, channels=()), "ConvNet.channels", "()"),
+        (lambda: policies.ConvNet((16, 16, 3), 2, strides=(2, 2)), "ConvNet.strides", "(2, 2)"),
+        (lambda: pmtg.TGConfig(frequency_range=(2.0, 1.0)), "TGConfig.frequency_range", "(2.0, 1.0)"),
+        (lambda: pmtg.TGConfig(intensity_range=(-0.1, 0.5)), "TGConfig.intensity_range", "(-0.1, 0.5)"),
+        (lambda: pmtg.TGConfig(ratio_range=(0.0, 1.0)), "TGConfig.ratio_range", "(0.0, 1.0)"),
+        (lambda: pmtg.PMTGPolicy(17, 8), "PMTGPolicy.action_size", "8"),
+        (lambda: pmtg.PMTGPolicy(17, initial_tg=(1.0, 2.0)), "PMTGPolicy.initial_tg", "(1.0, 2.0)"),
+        (lambda: _hierarchy(duration_range=(0, 5)), "HierarchicalPolicy.duration_range", "(0, 5)"),
+        (lambda: AttentionConfig(row_normalize=True), "AttentionConfig.row_normalize", "True"),
+        (lambda: IAPAttention(AttentionConfig(top_l=30), (8, 8, 3)), "AttentionConfig.top_l", "30"),
+        (lambda: patch_grid(4, 8, 5, 1), "patch_size", "5"),
+        (lambda: closed_form_mse("sin", jnp.zeros(3), jnp.zeros(3), m=4), "closed_form_mse's kind", "'sin'"),
+        (lambda: CameraConfig(camera_id=-1), "CameraConfig.camera_id", "-1"),
+        (lambda: CameraConfig(shading="phong"), "CameraConfig.shading", "'phong'"),
+        (lambda: CameraConfig(geom_groups=(7,)), "CameraConfig.geom_groups", "(7,)"),
+    ],
+)
+def test_policy_attention_and_camera_settings_fail_in_the_one_format(build, setting, got):
+    """``<setting> must be <valid>, got <value>.`` for the policies', the attention layer's and
+    the camera's own checks too (settings named by their class, as Python sets them)."""
+    with pytest.raises(ValueError) as error:
+        build()
+    message = str(error.value)
+    assert message.startswith(f"{setting} must be "), message
+    assert message.endswith(f", got {got}."), message

@@ -126,6 +126,19 @@ def test_override_path_names_the_setting_an_override_sets(override, path):
     assert configs.override_path(override) == path
 
 
+def test_quadruped_solver_defaults_are_the_robot_models():
+    """The config repeats the A1 model's solver settings as literals (configs import no JAX):
+    they must stay equal, or a default run would not use the MJCF's solver."""
+    from iap_mjx.robots import a1
+
+    config = QuadrupedConfig()
+    assert (config.solver, config.solver_iterations, config.ls_iterations) == (
+        a1.SOLVER,
+        a1.ITERATIONS,
+        a1.LS_ITERATIONS,
+    )
+
+
 def test_configs_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         configs.get("cheetah-run-state").run.iterations = 3

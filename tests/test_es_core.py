@@ -283,7 +283,7 @@ def test_policies_shapes_counts_and_registry():
     assert policies.param_count(mlp_params) == 17 * 32 + 32 + 32 * 16 + 16 + 16 * 6 + 6
     action, state = mlp.apply(mlp_params, 100 * jnp.ones(17), mlp.initial_state(None))
     assert action.shape == (6,) and state == () and float(jnp.max(jnp.abs(action))) <= 1.0
-    with pytest.raises(ValueError, match="policy kind must be one of "):
+    with pytest.raises(ValueError, match=r"policy\.kind must be one of "):
         policies.make("transformer", (17,), 6)
     with pytest.raises(
         ValueError,

@@ -235,7 +235,7 @@ def test_bad_arguments_raise_clear_errors():
         ft.feature_map("exp", jnp.ones(4), proj, role="value")
     with pytest.raises(ValueError, match="lack the matrices"):
         ft.feature_map("hybrid", jnp.ones(4), proj, role="query")
-    with pytest.raises(ValueError, match="closed_form_mse covers"):
+    with pytest.raises(ValueError, match="closed_form_mse's kind must be one of exp, trig, hybrid"):
         ft.closed_form_mse("angular", jnp.ones(4), jnp.ones(4), m=4)
 
 

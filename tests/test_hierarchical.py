@@ -180,7 +180,7 @@ def test_blind_high_level_sees_a_zeroed_image():
 
 def test_convnet_output_is_clipped_not_squashed():
     net = ConvNet((24, 32, 3), 5)
-    assert net.pooled_grid == (3, 4) and net.flat_size == 192
+    assert net.body.pooled_grid == (3, 4) and net.body.flat_size == 192
     params = net.init(jax.random.PRNGKey(0))
     last = params["dense"][-1]
     params["dense"][-1] = {"w": last["w"], "b": jnp.array([5.0, -5.0, 0.3, 0.0, 0.0])}

@@ -99,7 +99,9 @@ def test_cnn_policy_shapes():
 
 
 def test_bad_pixel_policy_settings_fail_early():
-    with pytest.raises(ValueError, match="top_l = 30 exceeds the number of patches L = 25"):
+    with pytest.raises(
+        ValueError, match=r"AttentionConfig\.top_l must be at most the number of patches L = 25 .*, got 30\."
+    ):
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=30)
     with pytest.raises(ValueError, match="do not tile"):
         policies.make("iap", SHAPE, 2, patch_size=3)

@@ -4,15 +4,15 @@ A feature map ``phi`` turns queries and keys of shape ``(..., d)`` into features
 ``(..., M)`` such that ``phi(x, role="query") . phi(y, role="key")`` estimates a kernel
 ``K(x, y)`` (``docs/iap-math.md`` sections 3-5):
 
-================  ==========================================  =====================
-kind              estimates                                   features ``M``
-================  ==========================================  =====================
-``"relu"``        the ReLU kernel ``(relu(x) + eps).(relu(y) + eps)`` (deterministic)   ``d``
-``"exp"``         ``exp(x.y)``, FAVOR+ positive features      ``m``
-``"trig"``        ``exp(x.y)``, trigonometric features         ``2m``
-``"hybrid"``      ``exp(x.y)``, hybrid features (eq. 7-9)      ``3m(r+1)``
-``"angular"``     ``1 - 2 theta / pi``, sign features          ``r``
-================  ==========================================  =====================
+=============  ===================================================================  ==============
+kind           estimates                                                            features ``M``
+=============  ===================================================================  ==============
+``"relu"``     the ReLU kernel ``(relu(x) + eps).(relu(y) + eps)`` (deterministic)  ``d``
+``"exp"``      ``exp(x.y)``, FAVOR+ positive features                               ``m``
+``"trig"``     ``exp(x.y)``, trigonometric features                                 ``2m``
+``"hybrid"``   ``exp(x.y)``, hybrid features (eq. 7-9)                              ``3m(r+1)``
+``"angular"``  ``1 - 2 theta / pi``, sign features                                  ``r``
+=============  ===================================================================  ==============
 
 The projection matrices are drawn once by :func:`draw_projections` and passed in, so the
 feature functions are pure and the same draw can serve every image of a batch.
@@ -330,8 +330,7 @@ def closed_form_mse(kind: str, x: jax.Array, y: jax.Array, *, m: int, r: int | N
       ``(...)`` the MSE of ``feature_map(kind, x) . feature_map(kind, y)`` as an estimate of
       ``exp(x.y)`` when ``omega`` and ``xi`` are iid Gaussian (``orthogonal=False``).
     """
-    if kind not in MSE_KINDS:
-        raise ValueError(f"closed_form_mse covers {', '.join(MSE_KINDS)}; got {kind!r}")
+    require_choice("closed_form_mse's kind", kind, MSE_KINDS)
     m = _check_count("m", m)
     sm = softmax_kernel(x, y)
     sq_norm_sum = jnp.sum((x + y) ** 2, axis=-1)

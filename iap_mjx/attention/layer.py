@@ -48,7 +48,6 @@ class AttentionConfig:
       eq5_scale: the constant ``c`` of eq. 5.
       row_normalize: brute force only: softmax each row (Tang et al.'s AttentionAgent).
       use_bias: affine ``x W + b`` queries/keys instead of linear.
-      redraw_projections: draw new random projections every episode instead of once.
       batch_chunk: ``relu``/``hybrid`` under ``vmap``: images scored together per step of a
         loop over the batch (at most half the batch, so the loop has two steps or more);
         ``None`` picks as many as hold about :data:`CHUNK_TOKENS` patches (2 images at
@@ -68,7 +67,6 @@ class AttentionConfig:
     eq5_scale: float = 1.0
     row_normalize: bool = False
     use_bias: bool = False
-    redraw_projections: bool = False
     batch_chunk: int | None = None
 
     def __post_init__(self):
@@ -81,8 +79,8 @@ class AttentionConfig:
         require_number("AttentionConfig.eq5_scale", self.eq5_scale, 0, low_open=True, high_open=True)
         if self.row_normalize and self.kernel != "brute":
             raise ValueError(
-                "row_normalize applies to kernel='brute' only "
-                "(IAP scores are column sums of an unnormalised attention matrix)"
+                f"AttentionConfig.row_normalize must be false with kernel {self.kernel!r} (IAP scores "
+                "are column sums of an unnormalised attention matrix; only 'brute' normalises rows), got True."
             )
 
     @property
@@ -135,14 +133,15 @@ class IAPAttention:
 
     def __post_init__(self):
         if len(self.image_shape) != 3:
-            raise ValueError(f"image_shape must be (H, W, C), got {self.image_shape!r}")
+            raise ValueError(f"IAPLayer.image_shape must be (H, W, C), got {self.image_shape!r}.")
         height, width, _ = self.image_shape
         stride = self.config.effective_stride
         patch_grid(height, width, self.config.patch_size, stride)
         if self.config.top_l > self.num_patches:
             raise ValueError(
-                f"top_l = {self.config.top_l} exceeds the number of patches L = {self.num_patches} "
-                f"({height}x{width} image, patch_size {self.config.patch_size}, stride {stride})"
+                f"AttentionConfig.top_l must be at most the number of patches L = {self.num_patches} "
+                f"({height}x{width} image, patch_size {self.config.patch_size}, stride {stride}), "
+                f"got {self.config.top_l}."
             )
 
     @property

@@ -25,7 +25,9 @@ def patch_grid(height: int, width: int, patch_size: int, stride: int) -> tuple[i
         # numpy's integers pass: the grid is computed from arrays' shapes too
         require_int(name, int(value) if isinstance(value, np.integer) else value)
     if patch_size > height or patch_size > width:
-        raise ValueError(f"patch_size {patch_size} is larger than the image ({height} x {width})")
+        raise ValueError(
+            f"patch_size must be at most the image's height and width ({height} x {width}), got {patch_size}."
+        )
     bad = [f"{name} {size}" for name, size in (("height", height), ("width", width)) if (size - patch_size) % stride]
     if bad:
         raise ValueError(

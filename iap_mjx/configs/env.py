@@ -208,7 +208,8 @@ class QuadrupedConfig(EnvConfig):
       solver: MuJoCo's constraint solver, ``"newton"`` or ``"cg"``.
       solver_iterations, ls_iterations: as in ``EnvConfig``; the quadruped's defaults (and
         ``solver``'s) are its MJCF's (``iap_mjx.robots.a1``: ``SOLVER``, ``ITERATIONS``,
-        ``LS_ITERATIONS``), chosen by the solver sweep in BENCHMARKS.md.
+        ``LS_ITERATIONS``), chosen by the solver sweep in BENCHMARKS.md; repeated here as
+        literals, since configs import no JAX (a test holds them equal).
     """
 
     solver_iterations: int = 8

@@ -19,7 +19,14 @@ from typing import Any
 from iap_mjx.checks import require_choice
 from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
 from iap_mjx.policies.base import Policy, check_options, constructor_options, init_param_count, param_count
-from iap_mjx.policies.convnet import CNNPolicy, ConvNet, ConvNetPolicy, make_cnn_policy, make_convnet_policy
+from iap_mjx.policies.convnet import (
+    CNNPolicy,
+    ConvFeatures,
+    ConvNet,
+    ConvNetPolicy,
+    make_cnn_policy,
+    make_convnet_policy,
+)
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
@@ -63,16 +70,19 @@ def names() -> list[str]:
 
 def make(kind: str, observation_shape: Any, action_size: int, **options: Any) -> Policy:
     """Builds the policy ``kind`` for an env's observation shape and action size."""
-    require_choice("policy kind", kind, names())
+    require_choice("policy.kind", kind, names())
     try:
         return FACTORIES[kind](observation_shape, action_size, **options)
     except TypeError as error:
-        raise ValueError(f"policy.options {options!r} do not fit policy {kind!r}: {error}") from None
+        # a value of the wrong type (a number where sizes go) fails inside the constructor:
+        # say which options, and keep the traceback
+        raise ValueError(f"policy.options {options!r} do not fit policy {kind!r}: {error}") from error
 
 
 __all__ = [
     "FACTORIES",
     "CNNPolicy",
+    "ConvFeatures",
     "ConvNet",
     "ConvNetPolicy",
     "HierarchicalPolicy",

@@ -21,8 +21,8 @@ import jax
 import jax.numpy as jnp
 
 from iap_mjx.attention import AttentionConfig, IAPAttention
-from iap_mjx.checks import require_int
-from iap_mjx.policies.base import check_options, constructor_options, lists_as_tuples
+from iap_mjx.checks import require_bool, require_int
+from iap_mjx.policies.base import check_options, constructor_options, field_names, lists_as_tuples, split_options
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.observations import pixel_shape, split_observation
 
@@ -42,6 +42,8 @@ class IAPPolicy:
       activation: the MLP controller's hidden activation.
       with_patches: also feed the selected patches' pixels to the controller.
       projection_seed: seed of the fixed random projections (unless redrawn per episode).
+      redraw_projections: draw new random projections every episode (from the episode's key)
+        instead of once.
     """
 
     image_shape: tuple[int, int, int]
@@ -53,10 +55,14 @@ class IAPPolicy:
     activation: str = "tanh"
     with_patches: bool = False
     projection_seed: int = 0
+    redraw_projections: bool = False
 
     def __post_init__(self):
         require_int("IAPPolicy.action_size", self.action_size)
         require_int("IAPPolicy.state_size", self.state_size, 0)
+        require_int("IAPPolicy.projection_seed", self.projection_seed, 0)
+        require_bool("IAPPolicy.with_patches", self.with_patches)
+        require_bool("IAPPolicy.redraw_projections", self.redraw_projections)
         IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
         _ = self.head  # builds the controller, which checks its settings
 
@@ -88,7 +94,7 @@ class IAPPolicy:
         """``(projections, carry)``: the episode's random projections (fixed seed unless
         ``redraw_projections``) and the controller's zero carry (an LSTM's ``(h, c)``; ``()``
         for a stateless controller)."""
-        if not self.attention.redraw_projections:
+        if not self.redraw_projections:
             key = jax.random.PRNGKey(self.projection_seed)
         return self.layer.draw_projections(key), self.head.initial_carry()
 
@@ -119,12 +125,12 @@ class IAPPolicy:
 def make_iap_policy(observation_shape: Any, action_size: int, **options: Any) -> IAPPolicy:
     """Factory for ``policies.make("iap", ...)``: attention fields go to ``AttentionConfig``."""
     image_shape, state_size = pixel_shape(observation_shape)
-    attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
+    attention_options, rest = split_options(options, AttentionConfig)
     check_options(
         "iap",
         options,
-        attention_fields | constructor_options(IAPPolicy, "image_shape", "action_size", "attention", "state_size"),
+        field_names(AttentionConfig)
+        | constructor_options(IAPPolicy, "image_shape", "action_size", "attention", "state_size"),
     )
-    attention = AttentionConfig(**{k: v for k, v in options.items() if k in attention_fields})
-    rest = lists_as_tuples({k: v for k, v in options.items() if k not in attention_fields})
-    return IAPPolicy(image_shape, action_size, attention, state_size=state_size, **rest)
+    attention = AttentionConfig(**attention_options)
+    return IAPPolicy(image_shape, action_size, attention, state_size=state_size, **lists_as_tuples(rest))

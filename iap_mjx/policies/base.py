@@ -13,8 +13,10 @@ over by ``jit``. The ES engine relies on three pure functions:
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from collections.abc import Iterable, Mapping
+from types import MappingProxyType
 from typing import Any, Protocol
 
 import jax
@@ -57,12 +59,15 @@ def init_param_count(policy: Policy) -> int:
     return param_count(jax.eval_shape(policy.init, jax.random.PRNGKey(0)))
 
 
-ACTIVATIONS = {
-    "tanh": jnp.tanh,
-    "relu": jax.nn.relu,
-    "elu": jax.nn.elu,
-    "gelu": jax.nn.gelu,
-}
+ACTIVATIONS = MappingProxyType(
+    {
+        "tanh": jnp.tanh,
+        "relu": jax.nn.relu,
+        "elu": jax.nn.elu,
+        "gelu": jax.nn.gelu,
+    }
+)
+"""The hidden layers' activations, by the name a policy's ``activation`` setting takes."""
 
 
 def constructor_options(cls: type, *set_by_factory: str) -> set[str]:
@@ -75,6 +80,20 @@ def lists_as_tuples(options: Mapping[str, Any]) -> dict[str, Any]:
     """``options`` with every list value a tuple: a config from JSON or a command line gives
     lists, and the policies are frozen, hashable dataclasses whose sizes are tuples."""
     return {name: tuple(value) if isinstance(value, list) else value for name, value in options.items()}
+
+
+def field_names(config_cls: type) -> set[str]:
+    """The field names of the dataclass ``config_cls`` (a policy's sub-config, such as
+    ``AttentionConfig``: a ``policy.*`` option can set each)."""
+    return {f.name for f in dataclasses.fields(config_cls)}
+
+
+def split_options(options: Mapping[str, Any], config_cls: type) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``options`` split in two: those that are fields of ``config_cls`` and the rest (the
+    policy's own)."""
+    fields = field_names(config_cls)
+    own = {k: v for k, v in options.items() if k in fields}
+    return own, {k: v for k, v in options.items() if k not in fields}
 
 
 def check_options(kind: str, options: Mapping[str, Any], valid: Iterable[str]) -> None:
@@ -91,8 +110,8 @@ def check_sizes(owner: str, field: str, value: Any, *, non_empty: bool = False) 
     (and not empty, if ``non_empty``)."""
     if not isinstance(value, tuple) or (non_empty and not value):
         raise ValueError(
-            f"{owner}.{field} = {value!r} must be a {'non-empty ' if non_empty else ''}tuple of "
-            "positive ints (one entry: (32,) in Python, 32, on the command line)"
+            f"{owner}.{field} must be a {'non-empty ' if non_empty else ''}tuple of positive ints "
+            f"(one entry: (32,) in Python, 32, on the command line), got {value!r}."
         )
     for size in value:
         require_int(f"{owner}.{field}[...]", size)

@@ -76,5 +76,5 @@ class Controller:
         in_gate, forget_gate, candidate, out_gate = jnp.split(gates, 4)
         cell = jax.nn.sigmoid(forget_gate) * cell + jax.nn.sigmoid(in_gate) * jnp.tanh(candidate)
         hidden = jax.nn.sigmoid(out_gate) * jnp.tanh(cell)
-        out = apply_dense_layers(params["out"], hidden, jnp.tanh)
-        return jnp.tanh(out), (hidden, cell)
+        (head,) = params["out"]  # one dense layer, hidden -> action
+        return jnp.tanh(hidden @ head["w"] + head["b"]), (hidden, cell)

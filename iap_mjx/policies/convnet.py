@@ -36,44 +36,43 @@ from iap_mjx.policies.observations import pixel_shape, split_observation
 
 
 @dataclasses.dataclass(frozen=True)
-class ConvNet:
-    """Convolutions -> max pool -> flatten (+ state) -> dense ``tanh`` -> linear, clipped.
+class ConvFeatures:
+    """Convolutions -> max pool -> flatten (+ state): the part :class:`ConvNet` and
+    :class:`ConvNetPolicy` share (each holds its own parameters and what follows).
 
     Attributes:
       image_shape: ``(H, W, C)`` of the pixel observation.
-      output_size: outputs in ``[-1, 1]`` (clipped, not squashed).
       channels: output channels of the convolutions (ReLU), one entry per layer.
       strides: their strides, one per layer.
       filter_size: the convolutions' square filter side.
       pool: side (and stride) of the max pool after the last convolution.
-      hidden_size: the fully connected ``tanh`` layer.
       state_size: length of a state vector concatenated to the flattened pool (0: none).
+      owner: the class whose settings these are, as error messages name them.
     """
 
     image_shape: tuple[int, int, int]
-    output_size: int
-    channels: tuple[int, ...] = (8, 16, 16)
-    strides: tuple[int, ...] = (2, 2, 1)
-    filter_size: int = 3
-    pool: int = 2
-    hidden_size: int = 16
-    state_size: int = 0
+    channels: tuple[int, ...]
+    strides: tuple[int, ...]
+    filter_size: int
+    pool: int
+    state_size: int
+    owner: str
 
     def __post_init__(self):
-        require_int("ConvNet.output_size", self.output_size)
-        check_sizes("ConvNet", "channels", self.channels, non_empty=True)
-        check_sizes("ConvNet", "strides", self.strides, non_empty=True)
+        check_sizes(self.owner, "channels", self.channels, non_empty=True)
+        check_sizes(self.owner, "strides", self.strides, non_empty=True)
         if len(self.strides) != len(self.channels):
             raise ValueError(
-                f"ConvNet.strides = {self.strides!r} needs one stride per convolution (channels = {self.channels!r})"
+                f"{self.owner}.strides must be one stride per convolution (channels = {self.channels!r}), "
+                f"got {self.strides!r}."
             )
-        for name in ("filter_size", "pool", "hidden_size"):
-            require_int(f"ConvNet.{name}", getattr(self, name))
-        require_int("ConvNet.state_size", self.state_size, 0)
+        for name in ("filter_size", "pool"):
+            require_int(f"{self.owner}.{name}", getattr(self, name))
+        require_int(f"{self.owner}.state_size", self.state_size, 0)
         rows, cols = self.pooled_grid
         if rows < 1 or cols < 1:
             raise ValueError(
-                f"ConvNet: a {self.image_shape[:2]} image shrinks to nothing under strides "
+                f"{self.owner}: a {self.image_shape[:2]} image shrinks to nothing under strides "
                 f"{self.strides} and a {self.pool}x{self.pool} pool; use smaller strides or pool"
             )
 
@@ -87,22 +86,13 @@ class ConvNet:
 
     @property
     def flat_size(self) -> int:
-        """The dense layer's input: the pooled grid's ``rows x cols x channels[-1]`` (+ state)."""
+        """The flattened output: the pooled grid's ``rows x cols x channels[-1]`` (+ state)."""
         rows, cols = self.pooled_grid
         return rows * cols * self.channels[-1] + self.state_size
 
-    def init(self, key: jax.Array) -> dict[str, Any]:
-        """``{"conv": [{"w": (f, f, in, out), "b": (out,)}], "dense": [(flat, hidden), (hidden,
-        output)]}``: LeCun-normal weights, zero biases."""
-        keys = jax.random.split(key, len(self.channels) + 1)
-        conv = init_convolutions(keys[:-1], self.image_shape[2], self.channels, self.filter_size)
-        dense = init_dense_layers(keys[-1], (self.flat_size, self.hidden_size, self.output_size))
-        return {"conv": conv, "dense": dense}
-
-    def initial_state(self, key: jax.Array) -> tuple:
-        """Stateless: the empty tuple."""
-        del key
-        return ()
+    def init(self, keys: jax.Array) -> list[dict[str, jax.Array]]:
+        """The convolutions' parameters, one key of ``keys`` each (:func:`init_convolutions`)."""
+        return init_convolutions(keys, self.image_shape[2], self.channels, self.filter_size)
 
     def embed(self, conv: list[dict[str, jax.Array]], obs: Any) -> jax.Array:
         """The convolutions, the pool and any state: ``(flat_size,)``."""
@@ -115,10 +105,63 @@ class ConvNet:
             features = jnp.concatenate([features, state])
         return features
 
-    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
+
+@dataclasses.dataclass(frozen=True)
+class ConvNet:
+    """Convolutions -> max pool -> flatten (+ state) -> dense ``tanh`` -> linear, clipped.
+
+    Attributes:
+      image_shape: ``(H, W, C)`` of the pixel observation.
+      output_size: outputs in ``[-1, 1]`` (clipped, not squashed).
+      channels, strides, filter_size, pool, state_size: the :class:`ConvFeatures`.
+      hidden_size: the fully connected ``tanh`` layer.
+    """
+
+    image_shape: tuple[int, int, int]
+    output_size: int
+    channels: tuple[int, ...] = (8, 16, 16)
+    strides: tuple[int, ...] = (2, 2, 1)
+    filter_size: int = 3
+    pool: int = 2
+    hidden_size: int = 16
+    state_size: int = 0
+
+    def __post_init__(self):
+        require_int("ConvNet.output_size", self.output_size)
+        require_int("ConvNet.hidden_size", self.hidden_size)
+        _ = self.body  # checks the convolutions' settings
+
+    @property
+    def body(self) -> ConvFeatures:
+        """The convolutions and pool."""
+        return ConvFeatures(
+            tuple(self.image_shape),
+            self.channels,
+            self.strides,
+            self.filter_size,
+            self.pool,
+            self.state_size,
+            "ConvNet",
+        )
+
+    def init(self, key: jax.Array) -> dict[str, Any]:
+        """``{"conv": [{"w": (f, f, in, out), "b": (out,)}], "dense": [(flat, hidden), (hidden,
+        output)]}``: LeCun-normal weights, zero biases."""
+        keys = jax.random.split(key, len(self.channels) + 1)
+        body = self.body
+        conv = body.init(keys[:-1])
+        dense = init_dense_layers(keys[-1], (body.flat_size, self.hidden_size, self.output_size))
+        return {"conv": conv, "dense": dense}
+
+    def initial_state(self, key: jax.Array) -> tuple:
+        """Stateless: the empty tuple."""
+        del key
+        return ()
+
+    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple) -> tuple[jax.Array, tuple]:
         """``obs`` (pixels ``(H, W, C)`` or ``{"pixels", "state"}``) -> ``(output
         (output_size,) in [-1, 1], policy_state)``."""
-        out = apply_dense_layers(params["dense"], self.embed(params["conv"], obs), jnp.tanh)
+        out = apply_dense_layers(params["dense"], self.body.embed(params["conv"], obs), jnp.tanh)
         return jnp.clip(out, -1.0, 1.0), policy_state
 
 
@@ -165,7 +208,7 @@ class ConvNetPolicy:
 
     Attributes:
       image_shape: ``(H, W, C)``; action_size: actions in ``[-1, 1]``.
-      channels, strides, filter_size, pool: :class:`ConvNet`'s.
+      channels, strides, filter_size, pool: the :class:`ConvFeatures`.
       embedding_size: the dense ``tanh`` layer between the pool and the controller.
       controller, hidden_sizes, activation: the :class:`~iap_mjx.policies.controller.Controller`.
       state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
@@ -185,22 +228,20 @@ class ConvNetPolicy:
 
     def __post_init__(self):
         require_int("ConvNetPolicy.action_size", self.action_size)
+        require_int("ConvNetPolicy.embedding_size", self.embedding_size)
         _ = self.body, self.head  # build both, which checks their settings
 
     @property
-    def body(self) -> ConvNet:
-        """The convolutions and pool. Only they are used (and ``flat_size``): the embedding
-        and the controller are this policy's own, so ``output_size`` and ``hidden_size`` are
-        placeholders (the embedding's size, which passes ``ConvNet``'s checks)."""
-        return ConvNet(
-            image_shape=tuple(self.image_shape),
-            output_size=self.embedding_size,
-            channels=self.channels,
-            strides=self.strides,
-            filter_size=self.filter_size,
-            pool=self.pool,
-            hidden_size=self.embedding_size,
-            state_size=self.state_size,
+    def body(self) -> ConvFeatures:
+        """The convolutions and pool (the embedding and the controller are this policy's own)."""
+        return ConvFeatures(
+            tuple(self.image_shape),
+            self.channels,
+            self.strides,
+            self.filter_size,
+            self.pool,
+            self.state_size,
+            "ConvNetPolicy",
         )
 
     @property
@@ -218,11 +259,8 @@ class ConvNetPolicy:
         """``{"conv": [...], "embed": [dense (flat, embedding)], "controller": ...}``."""
         conv_key, embed_key, head_key = jax.random.split(key, 3)
         body = self.body
-        conv = init_convolutions(
-            jax.random.split(conv_key, len(self.channels)), self.image_shape[2], self.channels, self.filter_size
-        )
         return {
-            "conv": conv,
+            "conv": body.init(jax.random.split(conv_key, len(self.channels))),
             "embed": init_dense_layers(embed_key, (body.flat_size, self.embedding_size)),
             "controller": self.head.init(head_key),
         }

@@ -3,8 +3,9 @@ the first-person camera and a linear PMTG low level that walks.
 
 Per control step, on ``"pixels+state"`` observations ``{"pixels": (H, W, 3), "state": (17,)}``:
 
-- The **high level** (IAP with deterministic ReLU features, :class:`IAPPolicy`; or the paper's
-  CNN, :class:`~iap_mjx.policies.convnet.ConvNet`) maps the image to ``1 + latent_size``
+- The **high level** (IAP, :class:`IAPPolicy`, whose presets choose the paper's deterministic
+  ReLU features, ``kernel="relu"``; or the paper's CNN,
+  :class:`~iap_mjx.policies.convnet.ConvNet`) maps the image to ``1 + latent_size``
   numbers in ``[-1, 1]``: a duration, then a latent command. It sees the camera only, no state
   sensors (``high_level_imu=True`` adds the IMU's roll, pitch and angular velocity, the state's
   first 5 entries): with no heading sensor on the robot, where the walls are is in the image
@@ -34,15 +35,14 @@ of its parameters, the latent and duration it settles on): the control that tell
 other policies use their eyes.
 
 ES trains both levels together, one flat parameter vector (``{"high": ..., "low": ...}``). The
-low level starts at the PMTG policy's ``initial_tg`` (a trot that walks with no residuals), or, with ``low_level_init`` (an ``.npz`` of ``w`` and ``b``, e.g. a trained
-``quadruped-flat-pmtg`` run's, :func:`fold_normalisation`), from those weights; the presets
-start from ``initial_tg``.
+low level starts at the PMTG policy's ``initial_tg`` (a trot that walks with no residuals), or,
+with ``low_level_init`` (an ``.npz`` of ``w`` and ``b``, e.g. a trained ``quadruped-flat-pmtg``
+run's, :func:`fold_normalisation`), from those weights; the presets start from ``initial_tg``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +54,7 @@ from flax import struct
 from iap_mjx.attention import AttentionConfig
 from iap_mjx.checks import is_int, require_choice, require_int
 from iap_mjx.policies.attention import IAPPolicy
-from iap_mjx.policies.base import check_options, constructor_options, lists_as_tuples, param_count
+from iap_mjx.policies.base import check_options, constructor_options, field_names, lists_as_tuples, param_count
 from iap_mjx.policies.convnet import ConvNet
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, PMTGState, TGConfig
@@ -129,8 +129,8 @@ class HierarchicalPolicy:
         lo_hi = tuple(self.duration_range)
         if len(lo_hi) != 2 or not all(is_int(v) for v in lo_hi) or not 1 <= lo_hi[0] <= lo_hi[1]:
             raise ValueError(
-                f"HierarchicalPolicy.duration_range = {self.duration_range!r} must be (lo, hi) "
-                "control steps, integers with 1 <= lo <= hi"
+                "HierarchicalPolicy.duration_range must be (lo, hi) control steps, integers with "
+                f"1 <= lo <= hi, got {self.duration_range!r}."
             )
         object.__setattr__(self, "duration_range", lo_hi)
         require_int("HierarchicalPolicy.state_size", self.state_size)
@@ -278,7 +278,6 @@ def low_level_weights(policy: PMTGPolicy, params: dict[str, Any], obs_stats: Any
     return w, b
 
 
-@functools.lru_cache(maxsize=8)
 def _load_low_level(path: str, input_size: int, output_size: int) -> dict[str, jax.Array]:
     if not Path(path).is_file():
         raise ValueError(
@@ -329,11 +328,13 @@ def make_hierarchical_policy(
         )
     image_shape, state_size = pixel_shape(observation_shape)
     options = lists_as_tuples(options)
-    attention_fields = {f.name for f in dataclasses.fields(AttentionConfig)}
-    tg_fields = {f.name for f in dataclasses.fields(TGConfig)}
+    attention_fields = field_names(AttentionConfig)
+    tg_fields = field_names(TGConfig)
     high_fields = attention_fields | _IAP_FIELDS if high_level == "iap" else _CNN_FIELDS
     valid = high_fields | tg_fields | _HIERARCHY_FIELDS | _LOW_FIELDS | {"high_level", "latent_size"}
-    check_options("hierarchical", options, valid)  # valid: high_level's own fields
+    # high_level and latent_size come as keywords, never in options: listed in valid so that a
+    # misspelt option's error names them among the settings there are
+    check_options("hierarchical", options, valid)
     pick = lambda names: {k: v for k, v in options.items() if k in names}  # noqa: E731
     imu = IMU_SIZE if options.get("high_level_imu") else 0
     outputs = 1 + latent_size

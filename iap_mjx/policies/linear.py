@@ -7,7 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.checks import require_int
+from iap_mjx.checks import require_bool, require_int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,6 +25,7 @@ class LinearPolicy:
     def __post_init__(self):
         require_int("LinearPolicy.obs_size", self.obs_size)
         require_int("LinearPolicy.action_size", self.action_size)
+        require_bool("LinearPolicy.zero_init", self.zero_init)
 
     def init(self, key: jax.Array) -> dict[str, jax.Array]:
         """Returns ``{"w": (obs_size, action_size), "b": (action_size,)}``."""
@@ -40,7 +41,7 @@ class LinearPolicy:
         del key
         return ()
 
-    def apply(self, params, obs: jax.Array, policy_state: tuple):
+    def apply(self, params: dict[str, jax.Array], obs: jax.Array, policy_state: tuple) -> tuple[jax.Array, tuple]:
         """``obs`` ``(obs_size,)`` -> ``(action (action_size,), policy_state)``."""
         action = jnp.tanh(jnp.ravel(obs) @ params["w"] + params["b"])
         return action, policy_state

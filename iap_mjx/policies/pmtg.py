@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import MappingProxyType
 from typing import Any, NamedTuple
 
 import jax
@@ -40,19 +41,21 @@ import numpy as np
 from flax import struct
 
 from iap_mjx.checks import require_choice, require_int, require_number
-from iap_mjx.policies.base import check_options, constructor_options
+from iap_mjx.policies.base import check_options, constructor_options, field_names, split_options
 from iap_mjx.robots import a1
 
 #: Phase offsets (fractions of a period) per leg in the PyBullet code's order FL, RL, FR, RR.
-GAITS_FL_RL_FR_RR = {
-    "walk": (0.0, 0.25, 0.5, 0.75),
-    "trot": (0.0, 0.5, 0.5, 0.0),
-    "bound": (0.0, 0.5, 0.0, 0.5),
-    "pace": (0.0, 0.0, 0.5, 0.5),
-    "pronk": (0.0, 0.0, 0.0, 0.0),
-}
+GAITS_FL_RL_FR_RR = MappingProxyType(
+    {
+        "walk": (0.0, 0.25, 0.5, 0.75),
+        "trot": (0.0, 0.5, 0.5, 0.0),
+        "bound": (0.0, 0.5, 0.0, 0.5),
+        "pace": (0.0, 0.0, 0.5, 0.5),
+        "pronk": (0.0, 0.0, 0.0, 0.0),
+    }
+)
 #: The same offsets in our legs' order (``a1.LEGS``: FR, FL, RR, RL).
-GAITS = {name: (o[2], o[0], o[3], o[1]) for name, o in GAITS_FL_RL_FR_RR.items()}
+GAITS = MappingProxyType({name: (o[2], o[0], o[3], o[1]) for name, o in GAITS_FL_RL_FR_RR.items()})
 TG_PARAMETERS = ("frequency", "intensity", "height", "ratio")
 
 
@@ -123,13 +126,14 @@ class TGConfig:
         for name in ("frequency_range", "intensity_range", "height_range", "ratio_range"):
             value = tuple(float(v) for v in getattr(self, name))
             if len(value) != 2 or not value[0] <= value[1]:
-                raise ValueError(f"TGConfig.{name} = {getattr(self, name)!r} must be (low, high), low <= high")
+                raise ValueError(f"TGConfig.{name} must be (low, high) with low <= high, got {getattr(self, name)!r}.")
             object.__setattr__(self, name, value)
-        if self.frequency_range[0] < 0 or self.intensity_range[0] < 0 or self.ratio_range[0] <= 0:
-            raise ValueError(
-                "TGConfig: frequency and intensity must be >= 0 and the ratio > 0, got "
-                f"{self.frequency_range}, {self.intensity_range}, {self.ratio_range}"
-            )
+        for name, low_open in (("frequency_range", False), ("intensity_range", False), ("ratio_range", True)):
+            low = getattr(self, name)[0]
+            if low < 0 or (low_open and low == 0):
+                raise ValueError(
+                    f"TGConfig.{name} must be (low, high) with low {'>' if low_open else '>='} 0, got {getattr(self, name)!r}."
+                )
         require_number("TGConfig.residual_range", self.residual_range, 0, high_open=True, unit="rad")
         require_number("TGConfig.dt", self.dt, 0, low_open=True, high_open=True, unit="s")
         lo, hi = self.target_bounds()
@@ -210,11 +214,9 @@ def joint_targets(
 
 
 class TGStep(NamedTuple):
-    """What one TG step produced: the new phase ``()``, the legs' phases ``(4,)`` and the joint
-    targets ``(12,)``."""
+    """What one TG step produced: the new phase ``()`` and the joint targets ``(12,)``."""
 
     phase: jax.Array
-    leg_phases: jax.Array
     targets: jax.Array
 
 
@@ -227,7 +229,7 @@ def tg_step(config: TGConfig, phase: jax.Array, u: jax.Array) -> TGStep:
     targets = joint_targets(
         config, phases, params["intensity"], params["height"], config.residual_range * u[: a1.N_JOINTS]
     )
-    return TGStep(phase, phases, targets)
+    return TGStep(phase, targets)
 
 
 @struct.dataclass
@@ -260,9 +262,9 @@ class PMTGPolicy:
         ``quadruped-flat`` with no residuals, an interior point (not the range's corner, which
         ``tanh`` reaches only with large weights) that already walks; ``None``: all-zero
         params, the TG's mid-range (1.5 Hz, 0.4, 0.225, 1), about a third as fast (both
-        speeds: RESULTS.md, section ``quadruped-walking``). The speed grows towards the high frequency and low height
-        bounds, which ``tanh`` outputs reach only with large weights, so ES from the
-        mid-range spends most of its iterations travelling there.
+        speeds: RESULTS.md, section ``quadruped-walking``). The speed grows towards the high
+        frequency and low height bounds, which ``tanh`` outputs reach only with large weights,
+        so ES from the mid-range spends most of its iterations travelling there.
     """
 
     obs_size: int
@@ -275,14 +277,17 @@ class PMTGPolicy:
         require_int("PMTGPolicy.obs_size", self.obs_size)
         if self.action_size != len(a1.JOINT_NAMES):
             raise ValueError(
-                f"PMTGPolicy.action_size = {self.action_size!r}: PMTG drives the quadruped's "
-                f"{len(a1.JOINT_NAMES)} joints (use env quadruped-flat or quadruped-walls)"
+                f"PMTGPolicy.action_size must be {len(a1.JOINT_NAMES)} (PMTG drives the quadruped's "
+                f"joints: use env quadruped-flat or quadruped-walls), got {self.action_size!r}."
             )
         object.__setattr__(self, "latent", tuple(float(v) for v in self.latent))
         if self.initial_tg is not None:
             initial = tuple(float(v) for v in self.initial_tg)
             if len(initial) != len(TG_PARAMETERS):
-                raise ValueError(f"PMTGPolicy.initial_tg = {self.initial_tg!r} must be {TG_PARAMETERS} or None")
+                raise ValueError(
+                    f"PMTGPolicy.initial_tg must be {len(TG_PARAMETERS)} numbers {TG_PARAMETERS} or None, "
+                    f"got {self.initial_tg!r}."
+                )
             units = self.tg.outputs_for(*initial)
             if np.any(np.abs(units) >= 1.0 - 1e-3):
                 raise ValueError(
@@ -333,8 +338,8 @@ def make_pmtg_policy(observation_shape: Any, action_size: int, **options: Any) -
     go to :class:`TGConfig`, the rest to :class:`PMTGPolicy`."""
     if not (isinstance(observation_shape, tuple) and len(observation_shape) == 1):
         raise ValueError(f"the pmtg policy needs a state vector observation, got shape {observation_shape!r}")
-    tg_fields = {f.name for f in dataclasses.fields(TGConfig)}
-    check_options("pmtg", options, tg_fields | constructor_options(PMTGPolicy, "obs_size", "action_size", "tg"))
-    tg = TGConfig(**{k: v for k, v in options.items() if k in tg_fields})
-    rest = {k: v for k, v in options.items() if k not in tg_fields}
-    return PMTGPolicy(int(observation_shape[0]), action_size, tg=tg, **rest)
+    tg_options, rest = split_options(options, TGConfig)
+    check_options(
+        "pmtg", options, field_names(TGConfig) | constructor_options(PMTGPolicy, "obs_size", "action_size", "tg")
+    )
+    return PMTGPolicy(int(observation_shape[0]), action_size, tg=TGConfig(**tg_options), **rest)

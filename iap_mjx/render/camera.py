@@ -13,10 +13,9 @@ Under ``vmap`` the batch is rendered in chunks (``batch_chunk`` images per step 
 intermediates stay in cache (``Camera._chunked_over_batch``); each pass's results are
 materialised once (``Camera._trace`` and ``Camera._shade``).
 
-It is one module at over 400 lines because it is one class and what it takes: ``CameraConfig``
-and its checks, ``Camera``'s public methods, the checks of their inputs, and the one program
-that joins the two passes and batches them; the passes themselves are in ``tracing.py`` and
-``shading.py``.
+The module is one class and what it takes: ``CameraConfig`` and its checks, ``Camera``'s public
+methods, the checks of their inputs, and the one program that joins the two passes and batches
+them; the passes themselves are in ``tracing.py`` and ``shading.py``.
 """
 
 from __future__ import annotations
@@ -83,26 +82,27 @@ class CameraConfig:
     cull_pairs_per_tile: float = 1.0
 
     def __post_init__(self):
-        if not is_int(self.camera_id) or self.camera_id < 0:
-            raise ValueError(f"camera_id must be an int >= 0 (a model camera), got {self.camera_id!r}")
+        require_int("CameraConfig.camera_id", self.camera_id, 0)
         for name in ("height", "width", "tile"):
-            require_int(name, getattr(self, name))
+            require_int(f"CameraConfig.{name}", getattr(self, name))
         if not (
             isinstance(self.geom_groups, (tuple, list)) and all(is_int(g) and 0 <= g < 6 for g in self.geom_groups)
         ):
-            raise ValueError(f"geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}")
-        require_number("cull_pairs_per_tile", self.cull_pairs_per_tile, 0, high_open=True)
+            raise ValueError(f"CameraConfig.geom_groups must be a tuple of ints in 0..5, got {self.geom_groups!r}.")
+        require_number("CameraConfig.cull_pairs_per_tile", self.cull_pairs_per_tile, 0, high_open=True)
         if self.batch_chunk is None:
             object.__setattr__(self, "batch_chunk", max(1, min(4, CHUNK_PIXELS // (self.height * self.width))))
-        require_int("batch_chunk", self.batch_chunk)
-        require_choice("shading", self.shading, SHADINGS)
-        require_choice("sky", self.sky, SKIES)
+        require_int("CameraConfig.batch_chunk", self.batch_chunk)
+        require_choice("CameraConfig.shading", self.shading, SHADINGS)
+        require_choice("CameraConfig.sky", self.sky, SKIES)
         if not (
             isinstance(self.background_color, (tuple, list))
             and len(self.background_color) == 3
             and all(is_number(c) and 0 <= c <= 1 for c in self.background_color)
         ):
-            raise ValueError(f"background_color must be 3 numbers in [0, 1], got {self.background_color!r}")
+            raise ValueError(
+                f"CameraConfig.background_color must be 3 numbers in [0, 1], got {self.background_color!r}."
+            )
         object.__setattr__(self, "geom_groups", tuple(self.geom_groups))
         object.__setattr__(self, "background_color", tuple(float(c) for c in self.background_color))
 

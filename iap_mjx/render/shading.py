@@ -12,7 +12,7 @@ interleaved ``(H, W, 3)`` array, until the camera stacks the result.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +20,9 @@ import numpy as np
 
 from iap_mjx.render import scene as scene_lib
 from iap_mjx.render import sky as sky_lib
+
+if TYPE_CHECKING:  # camera.py imports this module
+    from iap_mjx.render.camera import CameraConfig
 
 
 class Shader:
@@ -31,7 +34,12 @@ class Shader:
     (``Camera.poses``); ``frames`` are ``Tracer.geom_frames``'s."""
 
     def __init__(
-        self, scene: scene_lib.Scene, config: Any, x: np.ndarray, y: np.ndarray, pixel_pitch: tuple[float, float]
+        self,
+        scene: scene_lib.Scene,
+        config: CameraConfig,
+        x: np.ndarray,
+        y: np.ndarray,
+        pixel_pitch: tuple[float, float],
     ):
         """``config``: the camera's ``CameraConfig``; ``x`` ``(1, W)``, ``y`` ``(H, 1)``: the
         pixels' image coordinates and ``pixel_pitch`` their spacing (``Tracer``'s)."""

@@ -16,7 +16,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -25,6 +25,9 @@ import numpy as np
 from iap_mjx.chunks import ceil_div
 from iap_mjx.render import intersect
 from iap_mjx.render import scene as scene_lib
+
+if TYPE_CHECKING:  # camera.py imports this module
+    from iap_mjx.render.camera import CameraConfig
 
 
 class Tracer:
@@ -49,11 +52,11 @@ class Tracer:
       dense_geoms: indices of the geoms traced against every pixel.
     """
 
-    def __init__(self, scene: scene_lib.Scene, config: Any, fovy: float):
-        """``config``: the camera's ``CameraConfig``; ``fovy``: vertical field of view in
-        degrees."""
+    def __init__(self, scene: scene_lib.Scene, config: CameraConfig, fovy: float):
+        """``fovy``: vertical field of view in degrees."""
         self.scene = scene
-        self.height, self.width = height, width = config.height, config.width
+        height, width = config.height, config.width
+        self.height, self.width = height, width
         half_h = np.tan(np.deg2rad(fovy) / 2.0)
         half_w = half_h * width / height
         self.pixel_pitch = (float(2.0 * half_w / width), float(2.0 * half_h / height))

@@ -44,10 +44,12 @@ N_JOINTS = len(JOINT_NAMES)  # 12: the actions, and the joint angles of the stat
 HOME_HEIGHT = 0.27
 HOME_LEG = (0.0, 0.9, -1.8)
 HOME_JOINTS = np.tile(np.asarray(HOME_LEG, np.float32), 4)
+HOME_JOINTS.setflags(write=False)  # a module constant: read-only, so no caller changes it for all
 
 # Joint ranges (rad) per leg joint, and the same for all 12 joints, (12, 2).
 LEG_RANGES = ((-0.803, 0.803), (-1.047, 4.189), (-2.697, -0.916))
 JOINT_RANGES = np.tile(np.asarray(LEG_RANGES, np.float32), (4, 1))
+JOINT_RANGES.setflags(write=False)
 
 TRUNK_HALF_SIZE = (0.125, 0.04, 0.057)
 TRUNK_MASS = 4.713
@@ -60,6 +62,7 @@ THIGH_MASS, THIGH_RADIUS = 1.013, 0.022
 CALF_MASS, CALF_RADIUS = 0.226, 0.013
 FOOT_RADIUS = 0.02
 FOOT_FRICTION = 0.8  # sliding, Menagerie's foot (its torsional and rolling 0.02 and 0.01 too)
+FRICTION = f"{FOOT_FRICTION:g} 0.02 0.01"  # MJCF friction: sliding, torsional, rolling
 
 # The robot's half-width (m; 0.154): hip offset, thigh offset and thigh radius sideways.
 HALF_WIDTH = HIP_OFFSET[1] + THIGH_OFFSET + THIGH_RADIUS
@@ -155,7 +158,7 @@ def robot_xml() -> tuple[str, str, str, str]:
       <default class="limb"><geom type="capsule"/></default>
       <default class="foot">
         <geom type="sphere" size="{FOOT_RADIUS:g}" conaffinity="{GROUND_BIT | WALL_BIT}" condim="3"
-              friction="{FOOT_FRICTION:g} 0.02 0.01" rgba="0.1 0.1 0.1 1"/>
+              friction="{FRICTION}" rgba="0.1 0.1 0.1 1"/>
       </default>
     </default>"""
     body = f"""
@@ -211,7 +214,7 @@ def world_xml(
         ground = (
             f'    <geom name="platform" type="box" pos="{(x_min + x_max) / 2:g} 0 {-drop / 2:g}" '
             f'size="{(x_max - x_min) / 2:g} {half_width:g} {drop / 2:g}" contype="{GROUND_BIT}" '
-            f'conaffinity="0" condim="3" friction="{FOOT_FRICTION:g} 0.02 0.01" '
+            f'conaffinity="0" condim="3" friction="{FRICTION}" '
             f'group="{WORLD_GROUP}" rgba="0.55 0.57 0.6 1"/>'
         )
     walls = "\n".join(
@@ -326,7 +329,7 @@ def _model_xml(floor_z: float, floor_bits: tuple[int, int], world: str) -> str:
   <worldbody>
     <light name="sun" directional="true" pos="0 0 5" dir="-0.3 0.2 -1" diffuse="0.5 0.5 0.5"/>
     <geom name="floor" type="plane" size="0 0 1" pos="0 0 {floor_z:g}" material="grid" group="{WORLD_GROUP}"
-          contype="{floor_bits[0]}" conaffinity="{floor_bits[1]}" condim="3" friction="{FOOT_FRICTION:g} 0.02 0.01"/>
+          contype="{floor_bits[0]}" conaffinity="{floor_bits[1]}" condim="3" friction="{FRICTION}"/>
 {world}
 {body}
   </worldbody>
