@@ -110,6 +110,7 @@ def _hierarchy(**options):
         (lambda: _hierarchy(duration_range=(0, 5)), "HierarchicalPolicy.duration_range", "(0, 5)"),
         (lambda: AttentionConfig(row_normalize=True), "AttentionConfig.row_normalize", "True"),
         (lambda: IAPAttention(AttentionConfig(top_l=30), (8, 8, 3)), "AttentionConfig.top_l", "30"),
+        (lambda: IAPAttention(AttentionConfig(), (8, 8)), "IAPAttention.image_shape", "(8, 8)"),
         (lambda: patch_grid(4, 8, 5, 1), "patch_size", "5"),
         (lambda: closed_form_mse("sin", jnp.zeros(3), jnp.zeros(3), m=4), "closed_form_mse's kind", "'sin'"),
         (lambda: CameraConfig(camera_id=-1), "CameraConfig.camera_id", "-1"),

@@ -133,7 +133,7 @@ class IAPAttention:
 
     def __post_init__(self):
         if len(self.image_shape) != 3:
-            raise ValueError(f"IAPLayer.image_shape must be (H, W, C), got {self.image_shape!r}.")
+            raise ValueError(f"IAPAttention.image_shape must be (H, W, C), got {self.image_shape!r}.")
         height, width, _ = self.image_shape
         stride = self.config.effective_stride
         patch_grid(height, width, self.config.patch_size, stride)

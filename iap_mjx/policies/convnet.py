@@ -91,7 +91,8 @@ class ConvFeatures:
         return rows * cols * self.channels[-1] + self.state_size
 
     def init(self, keys: jax.Array) -> list[dict[str, jax.Array]]:
-        """The convolutions' parameters, one key of ``keys`` each (:func:`init_convolutions`)."""
+        """``keys (len(channels), 2)`` -> ``[{"w": (f, f, in, out), "b": (out,)}]``, one layer per
+        key (:func:`init_convolutions`)."""
         return init_convolutions(keys, self.image_shape[2], self.channels, self.filter_size)
 
     def embed(self, conv: list[dict[str, jax.Array]], obs: Any) -> jax.Array:
