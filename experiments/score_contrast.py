@@ -13,11 +13,13 @@ patch's mean RGB from the frame's mean RGB). It prints, as medians over those fr
   orders patches as one linear function of their pixels does (``k = W_K^T patch``, so ``q.k``
   is the patch's pixels projected on ``W_K q``): a fixed colour filter, not a comparison of
   each patch with the rest;
-- the selected patches' contrast percentile: where the top ``l`` patches' contrast ranks among
-  all L patches of their frame (50: no preference; 100: the most contrasting patches).
+- the selected patches' contrast percentile: where the ``l`` selected patches' contrast ranks among
+  all L patches of their frame (50: no preference; 100: the most contrasting patches);
+- the scores' spread, ``(max - median) / max |score|``: how much the patches' scores differ at all.
 
 The patches the episode selected are checked to hold the top ``l`` of the scores recomputed here
-(up to float32 rounding), so the frames are the ones the policy saw.
+(up to float32 rounding), so the frames are the ones the policy saw; frames whose scores spread
+too little for that check are measured, not verified, and counted.
 
     python experiments/score_contrast.py pretrained/dcs/cartpole-swingup-seed{0,1,2} --episodes 3
 """
@@ -38,8 +40,12 @@ from iap_mjx.viz import video
 
 
 def ranks(x: jax.Array) -> jax.Array:
-    """Ranks ``0..n-1`` of ``x (n,)`` (ties broken by position; the inputs are continuous)."""
-    return jnp.argsort(jnp.argsort(x)).astype(jnp.float32)
+    """Ranks ``0..n-1`` of ``x (n,)``, tied values sharing their mean rank (a picture's
+    saturated highlights tie in contrast)."""
+    ordered = jnp.sort(x)
+    first = jnp.searchsorted(ordered, x, side="left")
+    past = jnp.searchsorted(ordered, x, side="right")
+    return (first + past - 1).astype(jnp.float32) / 2.0
 
 
 def spearman(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -49,16 +55,18 @@ def spearman(a: jax.Array, b: jax.Array) -> jax.Array:
     return jnp.sum(ra * rb) / jnp.sqrt(jnp.sum(ra**2) * jnp.sum(rb**2))
 
 
-def frame_measures(layer, attention_params, frame: jax.Array, scores: jax.Array) -> dict[str, jax.Array]:
-    """For one frame ``(H, W, 3)`` and its patches' ``scores (L,)``: the three rank
-    correlations and the top ``l`` patches' mean contrast percentile."""
+def frame_measures(
+    layer, attention_params, frame: jax.Array, scores: jax.Array, selected: jax.Array
+) -> dict[str, jax.Array]:
+    """For one frame ``(H, W, 3)``, its patches' ``scores (L,)`` and the patches the episode
+    selected, ``selected (l,)``: the three rank correlations and the selected patches' mean
+    contrast percentile."""
     p = layer.config.patch_size
     queries, keys = layer.queries_keys(attention_params, frame)
     patches, _ = extract_patches(frame, p, layer.config.effective_stride)  # (L, p * p * C)
     colour = patches.reshape(patches.shape[0], p * p, -1).mean(axis=1)  # (L, C)
     contrast = jnp.linalg.norm(colour - frame.reshape(-1, frame.shape[-1]).mean(axis=0), axis=1)
-    top = jax.lax.top_k(scores, layer.config.top_l)[1]
-    percentile = 100.0 * ranks(contrast)[top].mean() / (contrast.shape[0] - 1)
+    percentile = 100.0 * ranks(contrast)[selected].mean() / (contrast.shape[0] - 1)
     return {
         "rho_contrast": spearman(scores, contrast),
         "rho_key_norm": spearman(scores, jnp.linalg.norm(keys, axis=1)),
@@ -67,35 +75,46 @@ def frame_measures(layer, attention_params, frame: jax.Array, scores: jax.Array)
     }
 
 
+ROW_NAMES = ("rho_contrast", "rho_key_norm", "rho_mean_query", "percentile", "spread")
+
+
 def measure(result, params, *, episodes: int, every: int, seed: int) -> dict[str, float]:
-    """Medians over the sampled frames of ``episodes`` episodes of ``params``."""
+    """Medians over the sampled frames of ``episodes`` episodes of ``params`` (and of the
+    scores' spread, ``(max - median) / max |score|``), the number of ``frames`` and of those
+    ``verified`` (below)."""
     env, policy = result.env, result.policy
     program = video.episode_program(env, policy, steps=env.episode_length, scene=False)
     score_frame = jax.jit(lambda layer, a, pr, frame: layer.scores(a, pr, frame), static_argnums=0)
     measure_frame = jax.jit(frame_measures, static_argnums=0)
-    rows = []
+    rows, verified = [], 0
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
         record = video.record_episode(
             env, policy, params, key, steps=env.episode_length, obs_stats=result.obs_stats, program=program
         )
         frames = np.flatnonzero(record["alive"])[::every]
-        projections, _ = policy.initial_state(key)
+        projections, _ = policy.initial_state(jax.random.split(key)[1])  # the episode's policy key
         images = [jnp.asarray(record["frames"][t]) for t in frames]
-        per_image = [score_frame(policy.layer, params["attention"], projections, image) for image in images]
-        per = [measure_frame(policy.layer, params["attention"], i, s) for i, s in zip(images, per_image)]
-        out = {name: np.stack([np.asarray(m[name]) for m in per]) for name in per[0]}
-        # the episode's selected patches must hold the top l scores recomputed here, up to float32
-        # rounding: this program and the episode's round the scores differently in their last
-        # bits (patches at the top l's edge may swap), a different frame scores differently
-        scores = np.stack([np.asarray(s) for s in per_image])
-        chosen = np.take_along_axis(scores, record["indices"][frames], axis=1)
-        edge = np.sort(scores, axis=1)[:, -chosen.shape[1]]
-        tolerance = 1e-5 * np.abs(scores).max(axis=1)
-        if np.any(chosen < (edge - tolerance)[:, None]):
+        scores = np.stack([np.asarray(score_frame(policy.layer, params["attention"], projections, i)) for i in images])
+        selected = record["indices"][frames]
+        # The episode's selected patches must hold the top l scores recomputed here, up to float32
+        # rounding (this program and the episode's round the scores differently in their last
+        # bits, so patches at the top l's edge may swap), which a different frame would not. A
+        # frame whose scores spread less than 100 times that rounding cannot tell: it is measured
+        # but not verified (the frames come from the same record as the verified ones).
+        rounding = 1e-5 * np.abs(scores).max(axis=1)
+        spread = scores.max(axis=1) - np.median(scores, axis=1)
+        kept = spread > 100 * rounding
+        chosen = np.take_along_axis(scores, selected, axis=1)
+        edge = np.sort(scores, axis=1)[:, -selected.shape[1]]
+        if np.any((chosen < (edge - rounding)[:, None])[kept]):
             raise RuntimeError("the episode's selected patches are not the top scores here: not the frames it saw")
-        rows.append(out)
-    merged = {name: np.concatenate([row[name] for row in rows]) for name in rows[0]}
-    return {name: float(np.median(values)) for name, values in merged.items()} | {"frames": len(merged["percentile"])}
+        verified += int(np.sum(kept))
+        for t in range(len(frames)):
+            row = measure_frame(policy.layer, params["attention"], images[t], jnp.asarray(scores[t]), selected[t])
+            relative_spread = spread[t] / np.abs(scores[t]).max()
+            rows.append({name: float(value) for name, value in row.items()} | {"spread": float(relative_spread)})
+    medians = {name: float(np.median([row[name] for row in rows])) for name in ROW_NAMES}
+    return medians | {"frames": len(rows), "verified": verified}
 
 
 def main(argv=None) -> None:
@@ -106,17 +125,17 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=2021, help="episode keys: split(PRNGKey(seed), episodes)")
     args = parser.parse_args(argv)
     print(
-        "| run | parameters | frames | rho(score, contrast) | rho(score, abs k) | rho(score, q.k) "
-        "| selected patches' contrast percentile |"
+        "| run | parameters | frames (verified) | score spread | rho(score, contrast) | rho(score, abs k) "
+        "| rho(score, q.k) | selected patches' contrast percentile |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
     for run_dir in args.run_dirs:
         result = es.load_run(run_dir)
         initial = build(result.config, env=result.env, policy=result.policy).template_params
         for name, params in (("initial", initial), ("trained", result.params)):
             m = measure(result, params, episodes=args.episodes, every=args.every, seed=args.seed)
             print(
-                f"| {run_dir} | {name} | {m['frames']} | {m['rho_contrast']:.2f} | {m['rho_key_norm']:.2f} "
+                f"| {run_dir} | {name} | {m['frames']} ({m['verified']}) | {m['spread']:.1e} | {m['rho_contrast']:.2f} | {m['rho_key_norm']:.2f} "
                 f"| {m['rho_mean_query']:.2f} | {m['percentile']:.1f} |",
                 flush=True,
             )
