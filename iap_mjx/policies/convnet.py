@@ -76,6 +76,13 @@ class ConvFeatures:
                 f"{self.strides} and a {self.pool}x{self.pool} pool; use smaller strides or pool"
             )
 
+    @classmethod
+    def of(cls, settings: Any, owner: str) -> ConvFeatures:
+        """The features set by the same-named fields of ``settings`` (a :class:`ConvNet` or a
+        :class:`ConvNetPolicy`), ``owner`` naming it in error messages."""
+        fields = (settings.channels, settings.strides, settings.filter_size, settings.pool, settings.state_size)
+        return cls(tuple(settings.image_shape), *fields, owner)
+
     @property
     def pooled_grid(self) -> tuple[int, int]:
         """``(rows, cols)`` after the convolutions ("SAME": ``ceil(size / stride)``) and the pool."""
@@ -135,15 +142,7 @@ class ConvNet:
     @property
     def body(self) -> ConvFeatures:
         """The convolutions and pool."""
-        return ConvFeatures(
-            tuple(self.image_shape),
-            self.channels,
-            self.strides,
-            self.filter_size,
-            self.pool,
-            self.state_size,
-            "ConvNet",
-        )
+        return ConvFeatures.of(self, "ConvNet")
 
     def init(self, key: jax.Array) -> dict[str, Any]:
         """``{"conv": [{"w": (f, f, in, out), "b": (out,)}], "dense": [(flat, hidden), (hidden,
@@ -235,15 +234,7 @@ class ConvNetPolicy:
     @property
     def body(self) -> ConvFeatures:
         """The convolutions and pool (the embedding and the controller are this policy's own)."""
-        return ConvFeatures(
-            tuple(self.image_shape),
-            self.channels,
-            self.strides,
-            self.filter_size,
-            self.pool,
-            self.state_size,
-            "ConvNetPolicy",
-        )
+        return ConvFeatures.of(self, "ConvNetPolicy")
 
     @property
     def head(self) -> Controller:
