@@ -4,6 +4,7 @@ evaluated for a few steps."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,6 @@ def test_a_run_started_from_a_low_level_file_loads_from_any_folder(tmp_path, mon
 def test_show_prints_such_a_run_from_any_folder_with_its_stored_config(tmp_path, monkeypatch, capsys):
     """``iap-mjx show RUN_DIR`` builds the run as it is loaded and prints the config it stored,
     the file its low level started from included."""
-    import json
 
     from iap_mjx import cli
 
@@ -98,6 +98,11 @@ def test_eval_in_a_condition_that_resizes_the_policy_names_the_sizes_and_the_set
     from iap_mjx import cli
 
     run = PRETRAINED / "quadruped" / "quadruped-walls-cnn-seed0"
+    sizes = []
+    for overrides in ([], ["env.height=48"]):  # the parameters as shipped, and as the condition builds them
+        assert cli.main(["show", str(run), *overrides]) == 0
+        sizes.append(json.loads(capsys.readouterr().out)["policy"]["parameters"])
+    assert sizes[0] != sizes[1]
     assert cli.main(["eval", str(run), "env.height=48", "--episodes", "1"]) == 2
     err = capsys.readouterr().err
-    assert "strategy_state.mean (7269,) stored, (10341,) built" in err and "env.height=48" in err
+    assert f"strategy_state.mean ({sizes[0]},) stored, ({sizes[1]},) built" in err and "env.height=48" in err
