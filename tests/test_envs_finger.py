@@ -12,7 +12,7 @@ import pytest
 import spread
 from dm_control import suite
 from scipy import stats
-from test_envs_parity import Case, _flat, _our_rollouts
+from test_envs_parity import Case, _flat, _our_rollouts, _states_before
 
 from iap_mjx import envs
 from iap_mjx.envs.dmc import physics_step
@@ -128,7 +128,10 @@ def test_touch_and_spin_reward_match_dm_control(finger):
       step too few (tested) needs 3.6e6. Later touches add up what rounding does not explain:
       8 float32 Newton iterations against dm_control's 200 leave each touch's contact force
       ~4e-3 apart (above), ~1e4 float32 ulps, and by step 123 the trajectory needs 150x
-      the spread, by step 150 860x; the identical-state checks above cover those steps.
+      the spread, by step 150 860x.
+    - One step: from each of the 200 states, one control step of ours against dm_control's
+      (``test_envs_parity``'s), within 1e-2 plus 100x dm_control's spread over that step; the
+      touching steps past the trajectory's window are checked here.
     """
     reference = _square_wave_rollout(seed=5)
     touch = reference["obs"][:, 7:]
@@ -158,3 +161,15 @@ def test_touch_and_spin_reward_match_dm_control(finger):
     spread.assert_within_spread(ours["reward"][window], reward, reward_spread, atol=0.0, what="finger-spin rewards")
     wrong, _ = spread.dm_control_run("finger-spin", 0, actions, sub_steps=spread.wrong_sub_steps(finger.n_sub_steps))
     spread.assert_wrong_step_is_caught(wrong, obs, obs_spread, atol=1e-2)
+
+    # One step from each of the 200 states, the touches past the window included.
+    qpos, qvel = _states_before(reference)
+    step_obs_spread, step_reward_spread = spread.dm_control_step_spread(
+        "finger-spin", 0, qpos, qvel, reference["actions"], reference["obs"], reference["reward"]
+    )
+    spread.assert_within_spread(
+        ours["step_obs"], reference["obs"], step_obs_spread, atol=1e-2, what="finger-spin one-step observations"
+    )
+    spread.assert_within_spread(
+        ours["step_reward"], reference["reward"], step_reward_spread, atol=0.0, what="finger-spin one-step rewards"
+    )

@@ -2,12 +2,18 @@
 
 For each task dm_control is reset with a fixed seed, our env starts from the same
 qpos/qvel (and task variables), and both take the same 200 actions: 100 uniform in
-[-1, 1], then 100 saturated at +-1. Two comparisons:
+[-1, 1], then 100 saturated at +-1. Three comparisons:
 
 - trajectory: per-step observation and reward on all 200 steps, within a per-task tolerance
   plus dm_control's own spread under float32 noise (``tests/spread.py``): where contacts
   make dm_control's own trajectory part from itself, float32 MJX (8 Newton iterations)
-  may part from float64 MuJoCo (100) by as much, on whatever CPU the test runs;
+  may part from float64 MuJoCo (100) by as much, on whatever CPU the test runs. Where the
+  spread opens for good (walker's fall: after about 20 steps) the bound outgrows the entries'
+  range and says nothing more; a wrong physics step must break it before then;
+- one step: from each of dm_control's 200 states (the one before each step), one control
+  step of ours against dm_control's, within the same tolerance plus dm_control's spread over
+  that one step: the physics step at every state of the trajectory, contacts included,
+  with nothing amplified by the steps before; a wrong physics step breaks it at most states;
 - identical states: at every one of dm_control's 200 states, our observation and
   reward functions evaluated on the same qpos/qvel/ctrl must agree to float32 precision,
   whatever the trajectories did.
@@ -54,7 +60,9 @@ class Case:
 # written on, the whole 200 steps of every task needed a factor of at most 14 (walker; cheetah,
 # cartpole, ball_in_cup, reacher and finger stay within the tolerance alone), and a wrong
 # physics step (one physics step too few, or too many for the single-step tasks) needs over
-# 2e5 wherever it has more than one physics step.
+# 2e5 wherever it has more than one physics step. One control step from each of dm_control's
+# states stays within 0.07-0.28 of the same bound (largest: finger, 5.9e-4 against 2e-3, and
+# walker, 5.0e-3 against 2.8e-2), and a wrong physics step breaks it at 99.5-100% of the states.
 CASES = [
     Case("cheetah-run", obs_atol=1e-3, reward_atol=1e-4),
     Case("walker-walk", obs_atol=2e-2, reward_atol=2e-3),
@@ -136,14 +144,34 @@ def _our_rollouts(case: Case, reference: dict) -> dict:
     same_obs, same_reward = at_states(
         reference["qpos"], reference["qvel"], jnp.asarray(reference["actions"], jnp.float32)
     )
+
+    @jax.jit
+    @jax.vmap
+    def one_step(qpos, qvel, action):
+        state = env.step(env.reset_to(qpos, qvel, **start["info"]), action)
+        return state.obs, state.reward
+
+    qpos, qvel = _states_before(reference)
+    step_obs, step_reward = one_step(qpos, qvel, jnp.asarray(reference["actions"], jnp.float32))
     ours = dict(
         first_obs=np.asarray(first.obs),
         obs=np.asarray(obs),
         reward=np.asarray(reward),
         same_obs=np.asarray(same_obs),
         same_reward=np.asarray(same_reward),
+        step_obs=np.asarray(step_obs),
+        step_reward=np.asarray(step_reward),
     )
     return ours
+
+
+def _states_before(reference: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``qpos (T, nq)``, ``qvel (T, nv)``: dm_control's state before each of its ``T`` steps."""
+    start = reference["start"]
+    return (
+        np.concatenate([start["qpos"][None], reference["qpos"][:-1]]),
+        np.concatenate([start["qvel"][None], reference["qvel"][:-1]]),
+    )
 
 
 @pytest.mark.slow
@@ -171,6 +199,40 @@ def test_parity_with_dm_control(case):
         case.name, 3, reference["actions"], sub_steps=spread.wrong_sub_steps(envs.make(case.name).n_sub_steps)
     )
     spread.assert_wrong_step_is_caught(wrong_obs, reference["obs"], obs_spread, atol=case.obs_atol)
+
+    # One step from each of dm_control's states: its own step from a state set afresh is the
+    # trajectory's (the solver's warm start aside, far below the tolerances), so the
+    # trajectory's observations and rewards are the reference.
+    qpos, qvel = _states_before(reference)
+    step_obs_spread, step_reward_spread = spread.dm_control_step_spread(
+        case.name, 3, qpos, qvel, reference["actions"], reference["obs"], reference["reward"]
+    )
+    spread.assert_within_spread(
+        ours["step_obs"],
+        reference["obs"],
+        step_obs_spread,
+        atol=case.obs_atol,
+        what=f"{case.name} one-step observations",
+    )
+    spread.assert_within_spread(
+        ours["step_reward"],
+        reference["reward"],
+        step_reward_spread,
+        atol=case.reward_atol,
+        what=f"{case.name} one-step rewards",
+    )
+    wrong_step, _ = spread.dm_control_steps(
+        case.name,
+        3,
+        qpos,
+        qvel,
+        reference["actions"],
+        sub_steps=spread.wrong_sub_steps(envs.make(case.name).n_sub_steps),
+    )
+    caught = spread.violations(wrong_step, reference["obs"], step_obs_spread, atol=case.obs_atol).any(axis=1)
+    assert caught.mean() > 0.5, (
+        f"a wrong physics step breaks the one-step bound at only {caught.mean():.0%} of the states"
+    )
 
     # Identical states: float32 evaluation of float64 states, so a relative error of a few
     # float32 ulps, amplified by a few chained operations (kinematics, subtree momentum).
