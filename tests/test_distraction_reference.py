@@ -6,8 +6,9 @@ its ``camera.py``, ``color.py`` and ``suite_utils.py`` compute what the google-r
 files at commit 0c1bbe5 compute, statement for statement (checked by reading both). Its
 ``background.py`` imports OpenCV (not a dependency here) and uploads every frame through an
 OpenGL context, so it is not run: its module constants are read from its source with
-``ast`` (nothing executed) and its frame-index walk (``DistractingBackgroundEnv.step``) is
-restated in :func:`_reference_ping_pong`.
+``ast`` (nothing executed), and the statements of its frame-index walk
+(``DistractingBackgroundEnv.step``) are compiled from its source and run on a stand-in wrapper
+(:func:`_reference_ping_pong`).
 
 Each test builds our layer (``Distraction``) from our own env and compares what it does with
 what the reference's wrappers do on dm_control's env in the same state: the settings a level
@@ -24,6 +25,7 @@ import ast
 import copy
 import functools
 import math
+import types
 import warnings
 from pathlib import Path
 
@@ -299,19 +301,31 @@ def test_dynamic_colour_step_has_the_reference_size():
     assert abs(steps.std() / expected - 1) < 5 / math.sqrt(2 * n), steps.std() / expected
 
 
+@functools.cache
+def _reference_frame_walk() -> types.CodeType:
+    """The frame-index walk of the reference's ``DistractingBackgroundEnv.step`` (the body of
+    its ``if self._dynamic and self._video_paths:``, without the texture upload
+    ``self._apply()``), compiled from its source with ``ast``: the reference's own statements."""
+    tree = ast.parse(REFERENCE_BACKGROUND.read_text())
+    (wrapper,) = [n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "DistractingBackgroundEnv"]
+    (step,) = [n for n in wrapper.body if isinstance(n, ast.FunctionDef) and n.name == "step"]
+    (walk,) = [n for n in step.body if isinstance(n, ast.If) and "self._dynamic" in ast.unparse(n.test)]
+    body = [n for n in walk.body if ast.unparse(n) != "self._apply()"]
+    assert len(body) == len(walk.body) - 1, ast.unparse(walk)
+    return compile(ast.Module(body=body, type_ignores=[]), str(REFERENCE_BACKGROUND), "exec")
+
+
 def _reference_ping_pong(frame, direction, length, steps):
-    """The index walk of distracting_control/background.py ``DistractingBackgroundEnv.step``
-    (dynamic), restated: the index moves by the direction, turns at either end, clamped."""
+    """The reference's frame index after each of ``steps`` dynamic steps of a video of
+    ``length`` frames, its statements (:func:`_reference_frame_walk`) run on a stand-in
+    wrapper holding only what they read and write."""
+    wrapper = types.SimpleNamespace(
+        _current_img_index=frame, _step_direction=direction, _background=types.SimpleNamespace(textures=[None] * length)
+    )
     out = []
     for _ in range(steps):
-        frame += direction
-        if frame <= 0:
-            frame = 0
-            direction = abs(direction)
-        if frame >= length:
-            frame = length - 1
-            direction = -abs(direction)
-        out.append(frame)
+        exec(_reference_frame_walk(), {"self": wrapper})
+        out.append(wrapper._current_img_index)
     return out
 
 
