@@ -16,7 +16,8 @@ implies, the camera's box, velocity scale and look-at point at reset, the walk a
 it writes into ``cam_xpos``/``cam_xmat`` over several control steps, the colour box, the
 colours the camera then draws (against the geoms and colours MuJoCo's own visualiser,
 ``mjv_updateScene``, draws with the reference's perturbed materials), the floor's alpha, the
-dynamic colour step's size and the background's frame walk.
+dynamic colour step's size, the background's frame walk, and the distributions of the
+reset's camera and colour draws against as many of the reference's own draws.
 """
 
 from __future__ import annotations
@@ -346,3 +347,59 @@ def test_dynamic_background_walks_frames_as_the_reference():
         expected = _reference_ping_pong(int(first.frame[e]), int(first.direction[e]), length, 15)
         got = list(np.asarray(trajectory.frame[:, e]))
         assert got == expected[2::3], (e, length, got, expected)  # 3 control steps per env step
+
+
+@pytest.mark.parametrize("task", ["cheetah-run", "reacher-easy"])
+def test_reset_draws_are_distributed_as_the_reference_draws(task):
+    """The camera's reset draw (``camera_walk.start``: radius, angles, roll, the velocity's
+    direction and size, the roll velocity) and the colours' (``Distraction.reset``) against as
+    many of the reference's own draws (``DistractingCameraEnv.setup_camera``,
+    ``DistractingColorEnv._reset_color``) from the same state: the two-sample mean,
+    covariance and KS tests of ``test_envs_parity`` at its family-wise false-alarm rate.
+    Hard and dynamic (the velocities are drawn only then); a tracking camera with the
+    upper-quadrant limit (cheetah) and a fixed one without it (reacher)."""
+    from test_envs_parity import _assert_same_distribution
+
+    n = 4096
+    domain, name = task.split("-")
+    env = suite.load(domain, name, task_kwargs={"random": 3})
+    env.reset()
+    ref_cam = ref_camera.DistractingCameraEnv(
+        env, camera_id=0, seed=7, **ref_suite.get_camera_kwargs(domain, dcs.DIFFICULTY_SCALE["hard"], True)
+    )
+    ref_col = ref_color.DistractingColorEnv(
+        env, seed=8, **ref_suite.get_color_kwargs(dcs.DIFFICULTY_SCALE["hard"], True)
+    )
+    theirs_camera, theirs_colour = [], []
+    for _ in range(n):
+        ref_cam.setup_camera()
+        ref_col._reset_color()
+        theirs_camera.append(
+            np.concatenate(
+                [
+                    [ref_cam._radius, ref_cam._h_angle, ref_cam._v_angle, ref_cam._roll],
+                    ref_cam._camera_vel,
+                    [ref_cam._roll_vel],
+                ]
+            )
+        )
+        theirs_colour.append(np.ravel(ref_col._current_rgb))
+
+    layer = _layer(task, "hard", True, kinds=("camera", "colour")).distraction
+    data = mjx.put_data(env.physics.model.ptr, env.physics.data.ptr)
+
+    @jax.jit
+    def ours(keys):
+        cam_pos, cam_mat, com = layer._camera_now(data)
+        drawn = jax.vmap(lambda k: camera_walk.start(k, layer.walk_settings, cam_pos, cam_mat, com, layer.tracking))(
+            keys
+        )
+        colour = jax.vmap(lambda k: layer.reset(k, data).colour)(keys)
+        camera = jnp.concatenate(
+            [drawn.sphere, drawn.roll[:, None], drawn.velocity, drawn.roll_velocity[:, None]], axis=1
+        )
+        return camera, colour.reshape(len(keys), -1)
+
+    camera, colour = ours(jax.random.split(jax.random.PRNGKey(5), n))
+    _assert_same_distribution(np.asarray(camera, np.float64), np.array(theirs_camera))
+    _assert_same_distribution(np.asarray(colour, np.float64), np.array(theirs_colour))
