@@ -3,7 +3,8 @@
 For random poses of the six dm_control tasks (and a synthetic scene holding every supported
 primitive), each pixel's ray is cast by ``mj_ray`` from the camera position along the same
 direction; the hit geom must agree and the depth be within 1e-4 relative on at least 99.5% of
-the pixels (the issue's bar).
+the pixels (the issue's bar). The directions themselves are checked against MuJoCo's own
+mapping of a viewport point to a ray (``mjv_select``).
 """
 
 from __future__ import annotations
