@@ -246,16 +246,25 @@ def test_settle_is_forward_then_n_steps_then_forward(n_steps):
     start = mjx.make_data(model).replace(qpos=jnp.asarray(qpos))
     ours = jax.jit(lambda d: env._settle(d, n_steps))(start)
 
-    native = mujoco.MjData(model)
-    native.qpos[:] = qpos
-    mujoco.mj_forward(model, native)
-    for _ in range(n_steps):
-        mujoco.mj_step(model, native)
-    mujoco.mj_forward(model, native)
+    def native_settle(steps: int) -> mujoco.MjData:
+        native = mujoco.MjData(model)
+        native.qpos[:] = qpos
+        mujoco.mj_forward(model, native)
+        for _ in range(steps):
+            mujoco.mj_step(model, native)
+        mujoco.mj_forward(model, native)
+        return native
+
+    native = native_settle(n_steps)
     np.testing.assert_allclose(ours.qpos, native.qpos, atol=1e-4)
     np.testing.assert_allclose(ours.qvel, native.qvel, atol=1e-4)
     np.testing.assert_allclose(ours.xpos, native.xpos, atol=1e-4)
     np.testing.assert_allclose(ours.sensordata, native.sensordata, atol=1e-4)
+    # the bound's power: a round too many or too few is outside it
+    for wrong in {n_steps + 1, max(n_steps - 1, 0)} - {n_steps}:
+        other = native_settle(wrong)
+        gap = max(np.max(np.abs(ours.qpos - other.qpos)), np.max(np.abs(ours.qvel - other.qvel)))
+        assert gap > 1e-3, (wrong, gap)
 
 
 def test_importing_and_building_every_env_prints_nothing():
