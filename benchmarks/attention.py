@@ -8,7 +8,7 @@ brute force runs its batch in chunks small enough for the memory budget, and is 
 with the memory it would need, where not even one image fits.
 
     python benchmarks/attention.py            # full table, writes the attention section of BENCHMARKS.md
-    python benchmarks/attention.py --quick    # a small table, printed only (the README's first command)
+    python benchmarks/attention.py --quick    # a small table, printed only (the README's example)
 """
 
 from __future__ import annotations

@@ -77,10 +77,7 @@ def run_job(job: dict) -> dict:
 def worker_main(job: dict) -> None:
     from iap_mjx import runtime
 
-    runtime.hoist_large_constants()
-    runtime.set_host_device_count()
-    runtime.enable_compilation_cache()
-    runtime.disable_dm_control_rendering()
+    runtime.setup()
     print(json.dumps(work(job)))
 
 

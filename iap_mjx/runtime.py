@@ -146,6 +146,20 @@ def disable_dm_control_rendering() -> str:
     return os.environ.setdefault("MUJOCO_GL", "disable")
 
 
+def setup() -> Path:
+    """Everything an entry point sets up before anything imports JAX or dm_control, as the CLI
+    does: large constants as arguments (:func:`hoist_large_constants`), one XLA device per core
+    (:func:`set_host_device_count`), the persistent compilation cache
+    (:func:`enable_compilation_cache`) and no OpenGL for dm_control
+    (:func:`disable_dm_control_rendering`). A script or notebook calls it first; returns the
+    cache directory."""
+    hoist_large_constants()
+    set_host_device_count()
+    cache_dir = enable_compilation_cache()
+    disable_dm_control_rendering()
+    return cache_dir
+
+
 @contextlib.contextmanager
 def persistent_cache_off() -> Iterator[None]:
     """Within the block JAX compiles every program and neither reads nor writes the

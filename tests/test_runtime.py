@@ -170,3 +170,29 @@ def test_persistent_cache_off_compiles_without_the_cache_and_restores_it(tmp_pat
     assert counts["inside"] == counts["before"], counts
     assert counts["after"] > counts["inside"], counts
     assert counts["enabled"], counts
+
+
+def test_setup_does_what_the_cli_does_before_jax_starts(tmp_path):
+    """``runtime.setup()`` first in a fresh interpreter (as a script or the notebook calls it):
+    one XLA device per core, the cache directory in force, large constants as arguments,
+    dm_control without OpenGL; with the environment clean of the tests' own settings."""
+    script = textwrap.dedent("""
+        import json, os
+        from iap_mjx import runtime
+        cache_dir = runtime.setup()
+        import jax
+        print(json.dumps({"devices": jax.device_count(), "cores": os.cpu_count(), "cache": str(cache_dir),
+                          "jax_cache": jax.config.jax_compilation_cache_dir,
+                          "hoisted": bool(jax.config.jax_use_simplified_jaxpr_constants),
+                          "gl": os.environ.get("MUJOCO_GL")}))
+    """)
+    environment = {
+        key: value
+        for key, value in os.environ.items()
+        if key not in ("XLA_FLAGS", "MUJOCO_GL", "JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "JAX_COMPILATION_CACHE_DIR")
+    }
+    environment[runtime.CACHE_ENV_VAR] = str(tmp_path)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, env=environment)
+    state = json.loads(done.stdout.splitlines()[-1])
+    assert state["devices"] == state["cores"] and state["cache"] == state["jax_cache"] == str(tmp_path), state
+    assert state["hoisted"] and state["gl"] == "disable", state

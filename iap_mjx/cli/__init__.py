@@ -35,10 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: sets up devices and the compilation cache, then runs the command."""
-    runtime.hoist_large_constants()
-    runtime.set_host_device_count()
-    runtime.enable_compilation_cache()
-    runtime.disable_dm_control_rendering()
+    runtime.setup()
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
     if unknown:  # refused by the command's own parser, whose usage lists the options it takes

@@ -1,5 +1,5 @@
 """The commands over presets and run directories: ``presets``, ``show``, ``train``, ``eval``,
-``video``, ``attended`` and ``figures``, one function each, and ``add_commands``, which wires
+``video``, ``attended``, ``figures`` and ``runs``, one function each, and ``add_commands``, which wires
 them into the ``iap-mjx`` parser. JAX is imported inside the commands, after
 :func:`iap_mjx.cli.main` has split the CPU into devices and turned on the compilation cache.
 """
@@ -217,6 +217,26 @@ def cmd_figures(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_runs(args: argparse.Namespace) -> int:
+    """Prints a markdown table of the run directories in ``args.folder``: what each trains, how
+    far it has got, its evaluations (``iap_mjx.es.listing``); with ``--results``, also writes
+    it as that file's ``runs`` section."""
+    from iap_mjx.es import listing
+    from iap_mjx.viz.sections import write_section
+
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        return usage_error(ValueError(f"folder {str(folder)!r}: not a directory"))
+    found = listing.run_dirs(folder)
+    if not found:
+        return usage_error(ValueError(f"folder {str(folder)!r}: no run directory in it (config.json and a checkpoint)"))
+    markdown = listing.table([listing.summarise(run) for run in found], relative_to=folder)
+    if args.results is not None:
+        write_section(Path(args.results), "runs", markdown, title=f"# The runs in {folder}")
+    print(markdown)
+    return 0
+
+
 def add_commands(commands: Any) -> None:
     """Adds this module's commands to the ``iap-mjx`` subparsers ``commands``; each sets
     ``func`` to its command function and ``command_parser`` to its parser."""
@@ -324,3 +344,17 @@ def add_commands(commands: Any) -> None:
     figures.add_argument("--out", default="figures", help="output directory (default: figures)")
     figures.add_argument("--draws", type=arguments.count, default=100_000, help="Monte Carlo draws per point")
     figures.set_defaults(func=cmd_figures, command_parser=figures)
+
+    runs = commands.add_parser(
+        "runs",
+        help="list the run directories in a folder",
+        description="A markdown table of every run directory in FOLDER (or below): env, policy, "
+        "seed, parameters, checkpoint against the iterations asked for, the last logged "
+        "evaluation return and the evaluations stored beside the checkpoint (eval.json). "
+        "Reads files only: nothing is built or compiled.",
+    )
+    runs.add_argument("folder", nargs="?", default="runs", help="default: runs")
+    runs.add_argument(
+        "--results", default=None, metavar="FILE.md", help="also write the table as this file's runs section"
+    )
+    runs.set_defaults(func=cmd_runs, command_parser=runs)
