@@ -152,11 +152,26 @@ def setup() -> Path:
     (:func:`set_host_device_count`), the persistent compilation cache
     (:func:`enable_compilation_cache`) and no OpenGL for dm_control
     (:func:`disable_dm_control_rendering`). A script or notebook calls it first; returns the
-    cache directory."""
-    hoist_large_constants()
-    set_host_device_count()
+    cache directory. Called after JAX was imported, the device count and the constants stay
+    as JAX started with them, and a warning says so."""
+    import sys
+
+    late = "jax" in sys.modules
+    hoisted = hoist_large_constants()
+    count = set_host_device_count()
     cache_dir = enable_compilation_cache()
     disable_dm_control_rendering()
+    if late:
+        import jax
+
+        if jax.device_count() != count or not hoisted:
+            logger.warning(
+                "runtime.setup() ran after JAX was imported: %d XLA device(s) instead of %d, large constants "
+                "%s; call it before anything imports jax",
+                jax.device_count(),
+                count,
+                "passed as arguments" if hoisted else "embedded in every program",
+            )
     return cache_dir
 
 

@@ -163,13 +163,13 @@ def test_touch_and_spin_reward_match_dm_control(finger):
     spread.assert_wrong_step_is_caught(wrong, obs, obs_spread, atol=1e-2)
 
     # One step from each of the 200 states, the touches past the window included.
-    qpos, qvel = _states_before(reference)
-    step_obs_spread, step_reward_spread = spread.dm_control_step_spread(
-        "finger-spin", 0, qpos, qvel, reference["actions"], reference["obs"], reference["reward"]
-    )
-    spread.assert_within_spread(
-        ours["step_obs"], reference["obs"], step_obs_spread, atol=1e-2, what="finger-spin one-step observations"
-    )
-    spread.assert_within_spread(
-        ours["step_reward"], reference["reward"], step_reward_spread, atol=0.0, what="finger-spin one-step rewards"
+    spread.assert_one_steps_within_spread(
+        "finger-spin",
+        0,
+        _states_before(reference),
+        reference["actions"],
+        (reference["obs"], reference["reward"]),
+        (ours["step_obs"], ours["step_reward"]),
+        obs_atol=1e-2,
+        reward_atol=0.0,
     )

@@ -150,8 +150,8 @@ def test_antithetic_gradient_estimate_matches_true_gradient_on_quadratic():
 def test_plain_gradient_estimate_is_unbiased_on_quadratic():
     # Without mirroring the estimate is the sample mean of F(x + s e) e / s: check it against
     # the true gradient with the tolerance of that sample mean's own standard error. The
-    # population is large enough that the tolerance is a small fraction of every coordinate
-    # of the gradient: the same check on half the update must fail (a scale error is caught).
+    # population is large enough that the tolerance is below half of every coordinate of the
+    # gradient: the same check on half the update must fail (a scale error is caught).
     objective, _, _ = _quadratic(4)
     mean = jnp.array([0.3, -0.2, 0.5, 0.1])
     true_grad = jax.grad(objective)(mean)
@@ -160,9 +160,10 @@ def test_plain_gradient_estimate_is_unbiased_on_quadratic():
     update, population = _one_step(strategy, objective, mean, jax.random.PRNGKey(2))
     eps = (population - mean) / sigma
     terms = jax.vmap(objective)(population)[:, None] * eps / sigma
-    # the update is exactly that sample mean (float32 sums in another order)
-    np.testing.assert_allclose(update, jnp.mean(terms, axis=0), rtol=1e-4, atol=1e-6)
     stderr = jnp.std(terms, axis=0) / jnp.sqrt(terms.shape[0])
+    # the update is that sample mean, up to float32 sums taken in another order: far below
+    # the statistical tolerance
+    np.testing.assert_allclose(update, jnp.mean(terms, axis=0), rtol=0, atol=0.01 * float(jnp.min(stderr)))
     z = np.asarray((update - true_grad) / stderr)
     assert np.all(np.abs(z) < 4.5), z
     z_half = np.asarray((0.5 * update - true_grad) / stderr)

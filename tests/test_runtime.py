@@ -194,5 +194,13 @@ def test_setup_does_what_the_cli_does_before_jax_starts(tmp_path):
     environment[runtime.CACHE_ENV_VAR] = str(tmp_path)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, env=environment)
     state = json.loads(done.stdout.splitlines()[-1])
-    assert state["devices"] == state["cores"] and state["cache"] == state["jax_cache"] == str(tmp_path), state
+    assert state["devices"] == state["cores"], state
+    assert state["cache"] == state["jax_cache"] == str(tmp_path), state
     assert state["hoisted"] and state["gl"] == "disable", state
+    assert "after JAX was imported" not in done.stderr
+
+    # too late: JAX started first, with one device and embedded constants, and setup says so
+    late = "import jax; jax.devices()\n" + script
+    done = subprocess.run([sys.executable, "-c", late], capture_output=True, text=True, check=True, env=environment)
+    assert json.loads(done.stdout.splitlines()[-1])["devices"] == 1
+    assert "runtime.setup() ran after JAX was imported: 1 XLA device(s)" in done.stderr, done.stderr

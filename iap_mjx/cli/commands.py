@@ -230,7 +230,10 @@ def cmd_runs(args: argparse.Namespace) -> int:
     found = listing.run_dirs(folder)
     if not found:
         return usage_error(ValueError(f"folder {str(folder)!r}: no run directory in it (config.json and a checkpoint)"))
-    markdown = listing.table([listing.summarise(run) for run in found], relative_to=folder)
+    try:
+        markdown = listing.table([listing.listed(run) for run in found], relative_to=folder)
+    except ValueError as error:
+        return usage_error(error)
     if args.results is not None:
         write_section(Path(args.results), "runs", markdown, title=f"# The runs in {folder}")
     print(markdown)

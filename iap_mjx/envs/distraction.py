@@ -155,8 +155,8 @@ class Distraction:
             if videos.nbytes > (1 << 24) and not jax.config.jax_use_simplified_jaxpr_constants:
                 logger.warning(
                     "the background videos (%.0f MB) will be embedded in every compiled program "
-                    "(slow to compile); call iap_mjx.runtime.hoist_large_constants() before "
-                    "importing jax",
+                    "(slow to compile); call iap_mjx.runtime.setup() (or hoist_large_constants()) "
+                    "before importing jax",
                     videos.nbytes / 1e6,
                 )
             # packed once (``sky.pack_rgb``): a frame is then one gather per pixel, no repacking

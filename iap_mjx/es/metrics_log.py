@@ -29,6 +29,7 @@ import io
 import json
 import logging
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +108,21 @@ def read_history(run_dir: str | Path, up_to: int | None = None) -> list[dict[str
                 raise ValueError(f"{path}, line {number}: not a JSON row") from None
             logger.warning("%s: dropping a truncated last line", path)
     return [r for r in rows if up_to is None or r["iteration"] <= up_to]
+
+
+def evaluation_key(name: str, step: int, episodes: int, seed: int) -> str:
+    """The :data:`EVAL_FILE` key of evaluation ``name`` (``train``, ``held-out``, ``course``, ...)
+    of checkpoint ``step`` on ``episodes`` episodes drawn from ``seed``."""
+    return f"{name}@{step}x{episodes}s{seed}"
+
+
+def parse_evaluation_key(key: str) -> tuple[str, int, int, int]:
+    """``(name, step, episodes, seed)`` of an :func:`evaluation_key` (``ValueError`` otherwise)."""
+    match = re.fullmatch(r"(.+)@(\d+)x(\d+)s(-?\d+)", key)
+    if match is None:
+        raise ValueError(f"{key!r} is not an evaluation key (name@<step>x<episodes>s<seed>)")
+    name, step, episodes, seed = match.groups()
+    return name, int(step), int(episodes), int(seed)
 
 
 class MetricsWriter:

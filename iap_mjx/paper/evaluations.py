@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from iap_mjx.configs.training import EVAL_SEED
+from iap_mjx.es import metrics_log
 from iap_mjx.es.metrics_log import EVAL_FILE
 from iap_mjx.files import write_json
 
@@ -26,8 +27,8 @@ logger = logging.getLogger(__name__)
 
 def evaluation_key(name: str, step: int, episodes: int) -> str:
     """The ``eval.json`` key of evaluation ``name`` of checkpoint ``step`` on ``episodes``
-    episodes drawn from :data:`EVAL_SEED`."""
-    return f"{name}@{step}x{episodes}s{EVAL_SEED}"
+    episodes drawn from :data:`EVAL_SEED` (``metrics_log.evaluation_key``)."""
+    return metrics_log.evaluation_key(name, step, episodes, EVAL_SEED)
 
 
 def episode_count(entry: Any) -> int:
