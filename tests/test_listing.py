@@ -45,8 +45,8 @@ def test_a_run_is_listed_from_its_own_files(tmp_path, capsys):
     """Shipped runs copied and altered: a Table 1 run whose eval.json also holds an older
     checkpoint's entry, a shorter evaluation and another seed's (all three left out); the same
     run asking for more iterations and without metrics (unfinished, no parameters, no logged
-    return); a blind quadruped run (its course entry is a dict). An empty folder, a missing one
-    and a broken eval.json are refused by name."""
+    return); a blind quadruped run (its course entry is a dict); a run before its first
+    checkpoint. An empty folder, a missing one and a broken eval.json are refused by name."""
     dcs, blind = PRETRAINED / "dcs" / "cheetah-run-seed0", PRETRAINED / "quadruped" / "quadruped-walls-blind-seed0"
     shutil.copytree(dcs, tmp_path / "a" / "done")
     shutil.copytree(dcs, tmp_path / "b" / "longer")
@@ -87,6 +87,14 @@ def test_a_run_is_listed_from_its_own_files(tmp_path, capsys):
     assert f"train {means[train]:.1f}" in lines[2] and "(20 each)" in lines[2]
     assert cli.main(["runs", str(tmp_path / "a" / "done")]) == 0  # a run directory itself, by its name
     assert capsys.readouterr().out.splitlines()[2].startswith("| `done` |")
+
+    (tmp_path / "d" / "started").mkdir(parents=True)  # a run before its first checkpoint
+    shutil.copy(dcs / "config.json", tmp_path / "d" / "started" / "config.json")
+    started = listing.listed(tmp_path / "d" / "started")
+    assert started.step is None and not started.finished and started.evaluations == {} and started.eval_return is None
+    assert cli.main(["runs", str(tmp_path / "d")]) == 0
+    iterations = json.loads((dcs / "config.json").read_text())["run"]["iterations"]
+    assert f"| none yet / {iterations} (unfinished) |" in capsys.readouterr().out.splitlines()[2]
 
     (tmp_path / "c" / "blind" / "eval.json").write_text(json.dumps({"course": [1.0]}))
     assert cli.main(["runs", str(tmp_path)]) == 2

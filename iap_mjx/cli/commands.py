@@ -229,7 +229,7 @@ def cmd_runs(args: argparse.Namespace) -> int:
         return usage_error(ValueError(f"folder {str(folder)!r}: not a directory"))
     found = listing.run_dirs(folder)
     if not found:
-        return usage_error(ValueError(f"folder {str(folder)!r}: no run directory in it (config.json and a checkpoint)"))
+        return usage_error(ValueError(f"folder {str(folder)!r}: no run directory in it (a config.json)"))
     try:
         markdown = listing.table([listing.listed(run) for run in found], relative_to=folder)
     except ValueError as error:

@@ -27,7 +27,8 @@ class ListedRun:
       seed: its config's ``run.seed``.
       parameters: the policy's trainable parameters (``metrics.jsonl``'s column; ``None``
         without a row, or for runs logged before the column existed).
-      step, iterations: its newest checkpoint and the iterations its config asks for.
+      step, iterations: its newest checkpoint (``None`` before the first) and the iterations
+        its config asks for.
       eval_return: the last evaluation return logged up to the newest checkpoint (the centre
         at the start of that checkpoint's last iteration; ``None`` without a row).
       evaluations: ``{name: (mean return, episodes)}`` of the ``eval.json`` entries of the
@@ -40,7 +41,7 @@ class ListedRun:
     policy: str
     seed: int
     parameters: int | None
-    step: int
+    step: int | None
     iterations: int
     eval_return: float | None
     evaluations: dict[str, tuple[float, int]]
@@ -49,24 +50,20 @@ class ListedRun:
     def finished(self) -> bool:
         """Whether the newest checkpoint is the config's last iteration (a run stopped by
         ``run.max_minutes`` is not)."""
-        return self.step >= self.iterations
+        return self.step is not None and self.step >= self.iterations
 
 
 def run_dirs(folder: str | Path) -> list[Path]:
-    """Every run directory (a ``config.json`` and a checkpoint) in ``folder`` or below it,
-    sorted; a run without a checkpoint yet is left out."""
-    folder = Path(folder)
-    found = [path.parent for path in folder.rglob(CONFIG_FILE) if checkpoint.latest_step(path.parent) is not None]
-    return sorted(found)
+    """Every run directory (a ``config.json``, which training writes first) in ``folder`` or
+    below it, sorted."""
+    return sorted(path.parent for path in Path(folder).rglob(CONFIG_FILE))
 
 
 def listed(run_dir: str | Path) -> ListedRun:
-    """:class:`ListedRun` of one run directory (``FileNotFoundError`` without a checkpoint,
-    ``ValueError`` naming the file that does not hold what a run writes)."""
+    """:class:`ListedRun` of one run directory (``ValueError`` naming the file that does not
+    hold what a run writes)."""
     run_dir = Path(run_dir)
     step = checkpoint.latest_step(run_dir)
-    if step is None:
-        raise FileNotFoundError(f"no checkpoint in {run_dir}")
     try:
         config = read_config(run_dir)
         options = config["policy"]["options"]
@@ -76,7 +73,7 @@ def listed(run_dir: str | Path) -> ListedRun:
         raise ValueError(f"{run_dir / CONFIG_FILE}: not a run's config ({error!r})") from None
     if "high_level" in options:
         policy += f" ({options['high_level']}{', blind' if options.get('blind') else ''})"
-    history = read_history(run_dir, up_to=step)
+    history = read_history(run_dir, up_to=step) if step is not None else []
     last = history[-1] if history else {}
     return ListedRun(
         path=run_dir,
@@ -87,7 +84,7 @@ def listed(run_dir: str | Path) -> ListedRun:
         step=step,
         iterations=iterations,
         eval_return=float(last["eval_return"]) if "eval_return" in last else None,
-        evaluations=_evaluations(run_dir, step),
+        evaluations=_evaluations(run_dir, step) if step is not None else {},
     )
 
 
@@ -120,7 +117,8 @@ def table(runs: list[ListedRun], relative_to: str | Path | None = None) -> str:
         if relative_to is not None:
             path = run.path.relative_to(relative_to) if run.path != Path(relative_to) else Path(run.path.name)
         parameters = f"{run.parameters:,}" if run.parameters is not None else "-"
-        progress = f"{run.step} / {run.iterations}" + ("" if run.finished else " (unfinished)")
+        progress = f"{run.step if run.step is not None else 'none yet'} / {run.iterations}"
+        progress += "" if run.finished else " (unfinished)"
         eval_return = f"{run.eval_return:.1f}" if run.eval_return is not None else "-"
         lines.append(
             f"| `{path}` | {run.env} | {run.policy} | {run.seed} | {parameters} | {progress} | {eval_return} | "
