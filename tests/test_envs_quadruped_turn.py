@@ -22,9 +22,11 @@ def episodes():
     0.8 m/s straight ahead): two drawn commands, a full left turn, none; the physics states
     before and after every step, the rewards and observations."""
     env = envs.make("quadruped-turn")
-    first = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+    # compiled: run op by op, the reset's settling loop took two minutes
+    first = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4))
     qpos, qvel = first.data.qpos[0], first.data.qvel[0]
-    pinned = [env.reset_to(qpos, qvel, command=c) for c in (1.0, 0.0)]
+    reset_to = jax.jit(env.reset_to)
+    pinned = [reset_to(qpos, qvel, command=c) for c in (1.0, 0.0)]
     first = jax.tree.map(lambda drawn, *fixed: jnp.concatenate([drawn[:2], jnp.stack(fixed)]), first, *pinned)
     trot = PMTGPolicy(env.observation_size)
     params = trot.init(jax.random.PRNGKey(0))
