@@ -142,7 +142,12 @@ def _our_rollouts(case: Case, reference: dict) -> dict:
             lanes = jax.tree.map(lambda ours, set_: jnp.stack([ours, set_[0]]), state, states)
             after = jax.vmap(env.step, in_axes=(0, None))(lanes, action)
             data = jax.tree.map(lambda x: x[1], states.data).replace(ctrl=action)
-            return jax.tree.map(lambda x: x[0], after), (after.obs, after.reward, env.state_observation(data), env.reward(data))
+            return jax.tree.map(lambda x: x[0], after), (
+                after.obs,
+                after.reward,
+                env.state_observation(data),
+                env.reward(data),
+            )
 
         inputs = (actions, qpos, qvel, qpos_before, qvel_before)
         obs, reward, same_obs, same_reward = jax.lax.scan(body, first, inputs)[1]
