@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Every paper experiment of RESULTS.md, in the order they were run on the 2-core development
+# Every paper experiment of RESULTS.md since Table 1 (Figures 1 and 6 came before it: their
+# sections hold their commands), in the order they were run on the 2-core development
 # machine: one heavy run at a time, each `iap-mjx reproduce` resumable (finished runs are skipped,
 # the others continue from their last checkpoint), so rerunning this script after an interrupt
 # loses at most the iterations since the last checkpoint.
