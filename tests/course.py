@@ -4,6 +4,7 @@ run's episode video of a course shows, and native MuJoCo's contacts at our state
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 
 import jax
@@ -116,29 +117,45 @@ def native_touches(model: mujoco.MjModel, states: Sequence, geom: int) -> list[f
     return closest
 
 
-def mjx_touches(model: mujoco.MjModel, states: Sequence, geom: int) -> list[bool]:
-    """Per state: whether MJX's own collision, run on ``model`` at the state's ``qpos``,
-    ``qvel`` and ``mocap_pos``, has ``geom`` in a contact at zero or negative distance."""
+def mjx_touches(model: mujoco.MjModel) -> Callable[[Sequence, int], list[bool]]:
+    """A compiled check on ``model``: given states and a geom, per state whether MJX's own
+    collision, run at the state's ``qpos``, ``qvel`` and ``mocap_pos``, has ``geom`` in a
+    contact at zero or negative distance. The geom is an argument, so one compile serves every
+    geom and call of the same number of states."""
     mx = mjx.put_model(model)
 
-    def touch(qpos, qvel, mocap_pos):
+    @jax.jit
+    @functools.partial(jax.vmap, in_axes=(0, 0, 0, None))
+    def touch(qpos, qvel, mocap_pos, geom):
         data = mjx.forward(mx, mjx.make_data(mx).replace(qpos=qpos, qvel=qvel, mocap_pos=mocap_pos))
         contact = data._impl.contact
         return jnp.any(((contact.geom1 == geom) | (contact.geom2 == geom)) & (contact.dist <= 0.0))
 
-    stacked = [jnp.stack([getattr(s, name) for s in states]) for name in ("qpos", "qvel", "mocap_pos")]
-    return [bool(x) for x in jax.jit(jax.vmap(touch))(*stacked)]
+    def touches(states: Sequence, geom: int) -> list[bool]:
+        stacked = [jnp.stack([getattr(s, name) for s in states]) for name in ("qpos", "qvel", "mocap_pos")]
+        return [bool(x) for x in touch(*stacked, jnp.int32(geom))]
+
+    return touches
 
 
-def check_touches(ours: Sequence[bool], model: mujoco.MjModel, states: Sequence, geom: int, *, at_least: int) -> None:
+def check_touches(
+    ours: Sequence[bool],
+    model: mujoco.MjModel,
+    states: Sequence,
+    geom: int,
+    *,
+    at_least: int,
+    touches: Callable[[Sequence, int], list[bool]] | None = None,
+) -> None:
     """The env's contact flag per state (``ours``: its one colliding copy standing on the
     nearest obstacle) against ``model``, where every obstacle collides: equal to MJX's own
     collision on ``model`` at every state (the same routine: the copy must stand where the
     obstacle is), and that to native MuJoCo's at every state but where native's contact is
-    within :data:`SHALLOW` of zero distance; native touches on ``at_least`` states."""
+    within :data:`SHALLOW` of zero distance; native touches on ``at_least`` states.
+    ``touches``: :func:`mjx_touches` of ``model``, to reuse its compile across calls."""
     closest = native_touches(model, states, geom)
     native = [d <= 0.0 for d in closest]
-    theirs = mjx_touches(model, states, geom)
+    theirs = (touches or mjx_touches(model))(states, geom)
     assert list(ours) == theirs, (list(ours), theirs)
     assert sum(native) >= at_least, closest
     assert all(a == b or abs(d) < SHALLOW for a, b, d in zip(theirs, native, closest)), (theirs, closest)

@@ -30,6 +30,12 @@ def walls():
     return env, jax.jit(env.reset), jax.jit(env.step)
 
 
+@pytest.fixture(scope="module")
+def forward(walls):
+    """The env's position stage, compiled once for the module's tests."""
+    return jax.jit(walls[0].forward)
+
+
 def test_the_robot_is_built_from_the_figures():
     env = envs.make("quadruped-flat")
     m = env.mj_model
@@ -57,11 +63,11 @@ def test_the_robot_is_built_from_the_figures():
 
 
 @pytest.mark.slow
-def test_walls_step_native_parity_reward_and_episode_end(walls):
+def test_walls_step_native_parity_reward_and_episode_end(walls, forward):
     """The compiled step, checked three ways (one compile): parity with native MuJoCo, the
     capped-displacement reward, the episode's end."""
     _check_parity_with_native_mujoco(*walls)
-    _check_one_colliding_wall_touches_like_all_walls(*walls)
+    _check_one_colliding_wall_touches_like_all_walls(*walls, forward)
     _check_reward_is_the_capped_forward_displacement(*walls)
     _check_episode_ends_on_falling_off_or_touching_the_ground(*walls)
 
@@ -122,14 +128,14 @@ def _all_walls_collide(env) -> mujoco.MjModel:
     return m
 
 
-def _check_one_colliding_wall_touches_like_all_walls(env, reset, step):
+def _check_one_colliding_wall_touches_like_all_walls(env, reset, step, forward):
     """The second wall 0.1 m ahead of the trunk's front, the robot pushed into it: MJX (one
     colliding wall, moved to the nearest) against native MuJoCo with every wall colliding, 40
     control steps. The native run must touch the wall, and the trajectories agree."""
     state = reset(jax.random.key(4))
     walls = np.asarray(env.walls(state.data)).copy()
     walls[1] = [a1.TRUNK_HALF_SIZE[0] + 0.1 + env.WALL_HALF_SIZE[0], 0.0, env.WALL_HALF_SIZE[2]]
-    data0 = jax.jit(env.forward)(
+    data0 = forward(
         env.place_walls(state.data, walls).replace(qvel=state.data.qvel.at[0].set(1.5))
     )  # walking into the wall at 1.5 m/s
     state = state.replace(data=data0)
@@ -198,13 +204,13 @@ def _check_episode_ends_on_falling_off_or_touching_the_ground(env, reset, step):
     assert float(bad.done) == 1.0 and float(bad.metrics["nan_terminations"]) == 1.0
 
 
-def test_first_person_camera_sees_the_world_not_the_robot(walls):
+def test_first_person_camera_sees_the_world_not_the_robot(walls, forward):
     env, reset, _ = walls
     pixels = envs.make("quadruped-walls", obs_mode="pixels+state")
     assert pixels.observation_shape == {"pixels": (24, 32, 3), "state": (17,)}
     state = reset(jax.random.key(3))
     wall = np.array([[0.8, 0.0, env.WALL_HALF_SIZE[2]]] + [[5.0 + i, 0.0, 0.25] for i in range(env.config.n_walls - 1)])
-    data = jax.jit(env.forward)(env.place_walls(state.data, wall))
+    data = forward(env.place_walls(state.data, wall))
     depth, ids = jax.jit(pixels.camera.trace)(data)
     ids = np.asarray(ids)
     robot = {m for m in range(env.mj_model.ngeom) if env.mj_model.geom_group[m] == a1.ROBOT_GROUP}
@@ -299,13 +305,13 @@ def test_a_fall_penalty_is_taken_once_at_a_fall_and_never_at_the_finish(walls):
     assert float(step2(state, jnp.full((12,), jnp.nan)).reward) == 0.0  # a bad state is no fall
 
 
-def test_course_statistics_count_walls_passed_falls_contacts_and_distance(walls):
+def test_course_statistics_count_walls_passed_falls_contacts_and_distance(walls, forward):
     """The per-episode course statistics (``QuadrupedWalls.course_metrics``) on states placed
     by hand, and over a push into a wall against native MuJoCo's contacts."""
     env, reset, step = walls
     state = reset(jax.random.key(5))
     assert {name: float(state.metrics[name]) for name in env.episode_metrics} == dict.fromkeys(env.episode_metrics, 0.0)
-    forward, metrics = jax.jit(env.forward), jax.jit(env.course_metrics)
+    metrics = jax.jit(env.course_metrics)
     wall0 = float(env.walls(state.data)[0, 0])
     beyond = wall0 + env.WALL_HALF_SIZE[0] + a1.TRUNK_HALF_SIZE[0]  # the trunk box wholly past wall 0
 

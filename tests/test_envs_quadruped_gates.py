@@ -35,6 +35,12 @@ def gates():
     return env, jax.jit(env.reset), jax.jit(env.step)
 
 
+@pytest.fixture(scope="module")
+def forward(gates):
+    """The env's position stage, compiled once for the module's tests."""
+    return jax.jit(gates[0].forward)
+
+
 def test_corridor_model_collides_feet_with_floor_and_robot_with_the_three_copies():
     env = envs.make("quadruped-gates")
     m = env.mj_model
@@ -142,10 +148,10 @@ def test_openings_are_where_drawn_in_the_model(gates):
 
 
 @pytest.mark.slow
-def test_gates_step_native_parity_and_obstacle_contacts(gates):
+def test_gates_step_native_parity_and_obstacle_contacts(gates, forward):
     """The compiled step against native MuJoCo, three ways (one compile)."""
     _check_parity_with_native_mujoco(*gates)
-    _check_pushes_touch_like_every_obstacle_colliding(*gates)
+    _check_pushes_touch_like_every_obstacle_colliding(*gates, forward)
 
 
 def _follow(env):
@@ -203,15 +209,15 @@ def every_obstacle_collides(env) -> mujoco.MjModel:
     return m
 
 
-def _pushed(env, state, gates, clutter):
+def _pushed(env, forward, state, gates, clutter):
     """``state`` with the course placed at ``gates``/``clutter`` and the trunk moving at
-    1.5 m/s along +x (its position stage computed)."""
+    1.5 m/s along +x (its position stage computed by ``forward``, the env's compiled)."""
     data = env.place_course(state.data, jnp.asarray(gates), jnp.asarray(clutter))
-    data = jax.jit(env.forward)(data.replace(qvel=state.data.qvel.at[0].set(1.5)))
+    data = forward(data.replace(qvel=state.data.qvel.at[0].set(1.5)))
     return state.replace(data=data)
 
 
-def _check_pushes_touch_like_every_obstacle_colliding(env, reset, step):
+def _check_pushes_touch_like_every_obstacle_colliding(env, reset, step, forward):
     """The robot pushed into gate 1's right segment (its opening off to the left), then into
     clutter box 1: MJX (nearest copies) against native MuJoCo with every obstacle colliding,
     40 control steps each. Native must touch the obstacle; the trajectories agree, and after
@@ -222,10 +228,11 @@ def _check_pushes_touch_like_every_obstacle_colliding(env, reset, step):
     gate_push = ([far_gates[0], [front + env.GATE_THICKNESS / 2, 0.3], far_gates[2]], far_clutter)
     clutter_push = (far_gates, [far_clutter[0], [front + env.CLUTTER_HALF_SIZE[0], 0.05], far_clutter[2]])
     m = every_obstacle_collides(env)
+    touches = course.mjx_touches(m)
     hold = jnp.asarray(a1.targets_to_action(a1.HOME_JOINTS), jnp.float32)
     targets = np.tile(np.asarray(a1.HOME_JOINTS, np.float64), (PUSH_STEPS, 1))
     for (gates, clutter), obstacle in ((gate_push, "gate1_right"), (clutter_push, "clutter1")):
-        state = _pushed(env, reset(jax.random.key(4)), gates, clutter)
+        state = _pushed(env, forward, reset(jax.random.key(4)), gates, clutter)
         copies = np.asarray(state.data.mocap_pos)[env._contact_rows]
         seen = np.asarray(state.data.mocap_pos)[m.body(obstacle).mocapid[0]]
         assert any(np.allclose(c, seen) for c in copies)  # a copy stands on the pushed obstacle
@@ -247,10 +254,10 @@ def _check_pushes_touch_like_every_obstacle_colliding(env, reset, step):
         )
         assert touched > 0, obstacle
         assert float(state.metrics["collisions"]) == sum(collided) > 0
-        course.check_touches(collided, m, states, m.geom(obstacle).id, at_least=1)
+        course.check_touches(collided, m, states, m.geom(obstacle).id, at_least=1, touches=touches)
 
 
-def test_course_statistics_on_a_scripted_trajectory(gates):
+def test_course_statistics_on_a_scripted_trajectory(gates, forward):
     """Gates passed, leaving the corridor, falls, contacts and distance, on states placed by
     hand along a path through the corridor (``course_metrics`` step by step)."""
     env, reset, _ = gates
@@ -258,7 +265,7 @@ def test_course_statistics_on_a_scripted_trajectory(gates):
     assert {name: float(state.metrics[name]) for name in env.episode_metrics} == dict.fromkeys(env.episode_metrics, 0.0)
     course = ([[1.5, 0.2], [4.0, -0.3], [6.5, 0.0]], [[2.75, -0.5], [5.25, 0.5], [7.75, -0.5]])
     state = state.replace(data=env.place_course(state.data, *map(jnp.asarray, course)))
-    forward, metrics = jax.jit(env.forward), jax.jit(env.course_metrics)
+    metrics = jax.jit(env.course_metrics)
     clear = env.GATE_THICKNESS / 2 + a1.TRUNK_HALF_SIZE[0]  # the trunk box wholly past a gate
 
     def at(x, y=0.0, z=a1.HOME_HEIGHT, done=0.0, metrics_from=None):
@@ -296,8 +303,9 @@ def test_course_statistics_on_a_scripted_trajectory(gates):
     ended = metrics(at(0.0, done=1.0), at(1.5 + clear + 0.5, y=1.0, z=0.0))
     assert {k: float(v) for k, v in ended.items()} == dict.fromkeys(env.episode_metrics, 0.0)
     # and the env's own step ends the episode where the statistics say so
-    assert bool(jax.jit(env._terminated)(at(0.5, y=side + 0.01).data))
-    assert not bool(jax.jit(env._terminated)(at(0.5, y=side - 0.01).data))
+    terminated = jax.jit(env._terminated)
+    assert bool(terminated(at(0.5, y=side + 0.01).data))
+    assert not bool(terminated(at(0.5, y=side - 0.01).data))
 
 
 def test_depth_observation_is_the_cameras_depth_scaled():
