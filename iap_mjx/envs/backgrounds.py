@@ -141,16 +141,18 @@ def _axis_taps(in_size: int, out_size: int, start: float, extent: float):
 
 def _sample_window(pixels: np.ndarray, top: float, left: float, height: float, width: float, size: int) -> np.ndarray:
     """``size x size`` bilinear samples of the window ``[top, top+height) x [left, left+width)``
-    of ``pixels`` ``(H, W, 3)`` float32; float32 ``(size, size, 3)``."""
+    of ``pixels`` ``(H, W, 3)`` float32; float32 ``(size, size, 3)``.
+
+    Interpolates across first, on the source rows the taps use only, then down: the same
+    float32 operations per sample as interpolating each output pixel from its four taps, with
+    each row's horizontal pass done once (``np.take`` along one axis, not a 2-D gather)."""
     rows = _axis_taps(pixels.shape[0], size, top, height)
     cols = _axis_taps(pixels.shape[1], size, left, width)
-    top_row, bottom_row = rows[0][:, None], rows[1][:, None]
-    left_col, right_col = cols[0][None, :], cols[1][None, :]
-    x_weight = cols[2][None, :, None]
-    top_left, top_right = pixels[top_row, left_col], pixels[top_row, right_col]
-    bottom_left, bottom_right = pixels[bottom_row, left_col], pixels[bottom_row, right_col]
-    top_values = top_left + (top_right - top_left) * x_weight
-    bottom_values = bottom_left + (bottom_right - bottom_left) * x_weight
+    needed, where = np.unique(np.concatenate([rows[0], rows[1]]), return_inverse=True)
+    picked = np.take(pixels, needed, axis=0)
+    left_values, right_values = np.take(picked, cols[0], axis=1), np.take(picked, cols[1], axis=1)
+    across = left_values + (right_values - left_values) * cols[2][None, :, None]  # (rows, size, 3)
+    top_values, bottom_values = np.take(across, where[:size], axis=0), np.take(across, where[size:], axis=0)
     return top_values + (bottom_values - top_values) * rows[2][:, None, None]
 
 
