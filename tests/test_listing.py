@@ -13,6 +13,7 @@ from iap_mjx import cli
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint, listing
 from iap_mjx.es.metrics_log import METRICS_JSONL, evaluation_key, parse_evaluation_key, read_history
+from iap_mjx.viz import sections
 
 PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained"
 
@@ -20,8 +21,7 @@ PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained"
 def test_the_shipped_runs_table_is_what_the_command_writes():
     """``pretrained/README.md``'s table is ``iap-mjx runs pretrained``'s: regenerate it after
     exporting a run (the command is in the file)."""
-    text = (PRETRAINED / "README.md").read_text()
-    section = text.split("<!-- BEGIN runs -->\n", 1)[1].split("\n<!-- END runs -->", 1)[0]
+    section = sections.read_section(PRETRAINED / "README.md", "runs")
     expected = listing.table([listing.listed(run) for run in listing.run_dirs(PRETRAINED)], relative_to=PRETRAINED)
     assert section == expected, "pretrained/README.md is stale: iap-mjx runs pretrained --results pretrained/README.md"
 

@@ -33,6 +33,12 @@ def mean_std(values: list[float], digits: int = 1) -> str:
     return f"{np.mean(values):.{digits}f} ± {np.std(values):.{digits}f}" if len(values) else "-"
 
 
+def _section_pattern(name: str) -> re.Pattern:
+    """``<!-- BEGIN name -->``, the section's text (group ``body``), ``<!-- END name -->``."""
+    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
+    return re.compile(re.escape(begin) + "\n?(?P<body>.*?)\n?" + re.escape(end), re.S)
+
+
 def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmarks") -> None:
     """Replaces the text between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` in ``path``.
 
@@ -40,12 +46,18 @@ def write_section(path: Path, name: str, body: str, *, title: str = "# Benchmark
     every script owns only its own part of the file.
     """
     path = Path(path)
-    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
-    block = f"{begin}\n{body.rstrip()}\n{end}"
+    block = f"<!-- BEGIN {name} -->\n{body.rstrip()}\n<!-- END {name} -->"
     text = path.read_text(encoding="utf-8") if path.exists() else f"{title}\n"
-    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    pattern = _section_pattern(name)
     text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
     write_text(path, text)
+
+
+def read_section(path: Path, name: str) -> str | None:
+    """The text :func:`write_section` put between ``name``'s markers in ``path`` (``None``:
+    no such section)."""
+    found = _section_pattern(name).search(Path(path).read_text(encoding="utf-8"))
+    return None if found is None else found.group("body")
 
 
 def reproduce_command(figure: str, options: Iterable[str], *, out: Path, results: Path) -> str:
