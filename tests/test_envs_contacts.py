@@ -37,8 +37,9 @@ def _run(env):
 def _one_step_gaps(candidates, reference, qpos, qvel, actions):
     """Per env of ``candidates`` and per state: the largest ``|qpos|`` difference after one
     step of the env and of ``reference`` from the same ``qpos``, ``qvel`` and action (leading
-    axes flattened), and whether the env's contact slots saturated on that step. One program:
-    the reference's step is traced once for every candidate."""
+    axes flattened), and whether the env's contact slots saturated on that step: a list of
+    ``(gaps (N,), saturated (N,))``, one per candidate. One program: the reference's step is
+    traced once for every candidate."""
 
     def gaps(q, v, a):
         theirs = reference.step(reference.reset_to(q, v), a)

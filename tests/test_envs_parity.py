@@ -57,12 +57,13 @@ class Case:
 # (tests/test_envs_finger.py has one that does); the hinge's frictionloss row is solved in 8
 # float32 iterations vs dm_control's 200 (measured <= 2.2e-4). Past the tolerance, what the
 # trajectory may do is dm_control's own spread times spread.FACTOR: on the machine this was
-# written on, the whole 200 steps of every task needed a factor of at most 14 (walker; cheetah,
-# cartpole, ball_in_cup, reacher and finger stay within the tolerance alone), and a wrong
-# physics step (one physics step too few, or too many for the single-step tasks) needs over
-# 2e5 wherever it has more than one physics step. One control step from each of dm_control's
-# states stays within 0.07-0.28 of the same bound (largest: finger, 5.9e-4 against 2e-3, and
-# walker, 5.0e-3 against 2.8e-2), and a wrong physics step breaks it at 99.5-100% of the states.
+# written on, the whole 200 steps of every task need a factor of at most 1.7 (walker; cheetah,
+# cartpole, ball_in_cup, reacher and finger stay within the tolerance alone; the same
+# trajectory computed unbatched, rounded otherwise, needed 14), and a wrong physics step (one
+# physics step too few, or too many for the single-step tasks) needs over 2e5 wherever it has
+# more than one physics step. One control step from each of dm_control's states stays within
+# 0.002-0.28 of the same bound (largest: finger 0.28, walker 0.18, reacher 0.12), and a wrong
+# physics step breaks it at 99.5-100% of the states.
 CASES = [
     Case("cheetah-run", obs_atol=1e-3, reward_atol=1e-4),
     Case("walker-walk", obs_atol=2e-2, reward_atol=2e-3),
@@ -120,7 +121,8 @@ def _dm_control_rollout(name: str, seed: int) -> dict:
 
 def _our_rollouts(case: Case, reference: dict) -> dict:
     """Our trajectory from dm_control's start, one step of ours from each of dm_control's
-    states, and our observation and reward at dm_control's states.
+    states, and our observation and reward at dm_control's states: ``first_obs (n,)``, then
+    ``obs``/``step_obs``/``same_obs (T, n)`` and ``reward``/``step_reward``/``same_reward (T,)``.
 
     One compiled program: each scan step runs the trajectory's state and a state set to
     dm_control's as two lanes of one batched physics step (as a population steps), so the

@@ -211,7 +211,8 @@ def every_obstacle_collides(env) -> mujoco.MjModel:
 
 def _pushed(env, forward, state, gates, clutter):
     """``state`` with the course placed at ``gates``/``clutter`` and the trunk moving at
-    1.5 m/s along +x (its position stage computed by ``forward``, the env's compiled)."""
+    1.5 m/s along +x (its position stage computed by ``forward``, the env's compiled position
+    stage)."""
     data = env.place_course(state.data, jnp.asarray(gates), jnp.asarray(clutter))
     data = forward(data.replace(qvel=state.data.qvel.at[0].set(1.5)))
     return state.replace(data=data)

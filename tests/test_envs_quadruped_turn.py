@@ -22,7 +22,7 @@ def episodes():
     0.8 m/s straight ahead): two drawn commands, a full left turn, none; the physics states
     before and after every step, the rewards and observations."""
     env = envs.make("quadruped-turn")
-    # compiled: run op by op, the reset's settling loop took two minutes
+    # compiled: op by op, the reset's settling loop takes about two minutes
     first = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4))
     qpos, qvel = first.data.qpos[0], first.data.qvel[0]
     reset_to = jax.jit(env.reset_to)

@@ -22,6 +22,7 @@ def test_the_shipped_runs_table_is_what_the_command_writes():
     """``pretrained/README.md``'s table is ``iap-mjx runs pretrained``'s: regenerate it after
     exporting a run (the command is in the file)."""
     section = sections.read_section(PRETRAINED / "README.md", "runs")
+    assert section is not None, "pretrained/README.md has no runs section"
     expected = listing.table([listing.listed(run) for run in listing.run_dirs(PRETRAINED)], relative_to=PRETRAINED)
     assert section == expected, "pretrained/README.md is stale: iap-mjx runs pretrained --results pretrained/README.md"
 

@@ -42,7 +42,9 @@ def test_start_skips_the_steps_before_it(tmp_path):
     assert calls[0].startswith("iap-mjx reproduce table1 ") and "--policy cnn" in calls[0]
     assert not any("fig7" in call or "table2" in call or "reacher-easy" in call for call in calls)
     assert any(call.startswith("iap-mjx train quadruped-gates-blind") for call in calls)
-    assert "--section fig11-turn" in calls[-1]  # the last step ran
+    assert "--section fig11-turn" in calls[-1]  # the last step ran: step fig11-turn's command again
+    turn = _run(tmp_path, "fig11-turn")
+    assert [line for line in turn.stdout.splitlines() if line.startswith("iap-mjx ")][0] == calls[-1]
     assert "== skipped step table1-rest (START=table1-cnn)" in result.stdout
     assert result.stderr == ""  # no Figure 11 runs to copy: nothing tried on the bare pattern
 

@@ -151,7 +151,7 @@ def _sample_window(pixels: np.ndarray, top: float, left: float, height: float, w
     needed, where = np.unique(np.concatenate([rows[0], rows[1]]), return_inverse=True)
     picked = np.take(pixels, needed, axis=0)
     left_values, right_values = np.take(picked, cols[0], axis=1), np.take(picked, cols[1], axis=1)
-    across = left_values + (right_values - left_values) * cols[2][None, :, None]  # (rows, size, 3)
+    across = left_values + (right_values - left_values) * cols[2][None, :, None]  # (len(needed), size, 3)
     top_values, bottom_values = np.take(across, where[:size], axis=0), np.take(across, where[size:], axis=0)
     return top_values + (bottom_values - top_values) * rows[2][:, None, None]
 
