@@ -30,10 +30,15 @@ def _stats_or_none(parts: Components, stats: ObsStats) -> ObsStats | None:
     return stats if parts.config.es.normalize_observations else None
 
 
+def _stream_key(state: TrainState, stream: int) -> jax.Array:
+    """The key of ``stream`` (training or evaluation) at ``state``'s iteration: the same at a
+    given iteration whether the run was resumed or not."""
+    return jax.random.fold_in(jax.random.fold_in(state.key, stream), state.iteration)
+
+
 def _eval_keys(state: TrainState, episodes: int) -> jax.Array:
     """``(episodes,)`` keys of the centre's evaluation episodes at ``state``'s iteration."""
-    key = jax.random.fold_in(jax.random.fold_in(state.key, EVAL_STREAM), state.iteration)
-    return jax.random.split(key, episodes)
+    return jax.random.split(_stream_key(state, EVAL_STREAM), episodes)
 
 
 def _metrics(
@@ -88,11 +93,13 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
     eval_episodes = parts.config.run.eval_episodes
 
     def iteration(state: TrainState):
-        key = jax.random.fold_in(jax.random.fold_in(state.key, TRAIN_STREAM), state.iteration)
-        ask_key, episode_key, tell_key = jax.random.split(key, 3)
-        centre = parts.strategy.mean(state.strategy_state)
-        population, strategy_state = parts.strategy.ask(ask_key, state.strategy_state)
-        flat = jnp.concatenate(
+        """With P members, n episodes each and E evaluation episodes of the centre, over D
+        parameters: one rollout of P * n + E episodes, members first."""
+        ask_key, episode_key, tell_key = jax.random.split(_stream_key(state, TRAIN_STREAM), 3)
+        centre = parts.strategy.mean(state.strategy_state)  # (D,)
+        population, strategy_state = parts.strategy.ask(ask_key, state.strategy_state)  # (P, D)
+        # (P * n + E, D): one row per episode, each member's n rows together, the centre's E last
+        episode_params = jnp.concatenate(
             [
                 jnp.repeat(population, n_episodes, axis=0),
                 jnp.broadcast_to(centre, (eval_episodes, centre.shape[0])),
@@ -102,20 +109,20 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
             member_keys = jnp.tile(jax.random.split(episode_key, n_episodes), (population_size, 1))
         else:
             member_keys = jax.random.split(episode_key, member_episodes)
-        keys = jnp.concatenate([member_keys, _eval_keys(state, eval_episodes)])
-        # the members' episodes, then the centre's evaluation episodes
-        episodes = parts.rollout(flat, keys, _stats_or_none(parts, state.obs_stats))
-        members = jax.tree_util.tree_map(lambda x: x[:member_episodes], episodes)
-        eval_returns = episodes.ret[member_episodes:]
-        returns = members.ret.reshape(population_size, n_episodes)
-        bad = members.bad.reshape(population_size, n_episodes)
+        keys = jnp.concatenate([member_keys, _eval_keys(state, eval_episodes)])  # (P * n + E, 2)
+        results = parts.rollout(episode_params, keys, _stats_or_none(parts, state.obs_stats))
+        members = jax.tree_util.tree_map(lambda x: x[:member_episodes], results)
+        eval_returns = results.ret[member_episodes:]  # (E,)
+        returns = members.ret.reshape(population_size, n_episodes)  # (P, n)
+        bad = members.bad.reshape(population_size, n_episodes)  # (P, n): 1.0 where the physics diverged
+        # (P,): a member with a diverged episode gets NaN, which the fitness shaping ranks lowest
         fitness = jnp.where(jnp.any(bad > 0, axis=1), jnp.nan, jnp.mean(returns, axis=1))
         strategy_state = parts.strategy.tell(tell_key, population, fitness, strategy_state)
         obs_stats = state.obs_stats
         if es.normalize_observations:
             obs_stats = merge_episodes(obs_stats, members.steps, members.obs_sum, members.obs_sq_sum, members.bad)
         metrics = _metrics(
-            parts, state, strategy_state, fitness, bad, members, eval_returns, episodes.metrics, member_episodes
+            parts, state, strategy_state, fitness, bad, members, eval_returns, results.metrics, member_episodes
         )
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
         return new_state, metrics
