@@ -157,7 +157,7 @@ def draw_projections(
 
 
 @struct.dataclass
-class Components:
+class FeatureFactors:
     """The factors every softmax-estimating map is built from, for tokens ``(..., d)``.
 
     A feature is ``exp(log_magnitude - shift) * unit``; ``m`` features share one ``omega``.
@@ -218,12 +218,12 @@ def signs_of(x: jax.Array, xi: jax.Array) -> jax.Array:
     return jnp.where(x @ xi.T >= 0, 1.0, -1.0).astype(x.dtype)
 
 
-def components(x: jax.Array, projections: Projections) -> Components:
-    """Computes :class:`Components` of ``x (..., d)`` for ``projections.omega`` ``(m, d)``."""
+def feature_factors(x: jax.Array, projections: Projections) -> FeatureFactors:
+    """Computes :class:`FeatureFactors` of ``x (..., d)`` for ``projections.omega`` ``(m, d)``."""
     projected = x @ projections.omega.T
     half_sq_norm = 0.5 * jnp.sum(x * x, axis=-1, keepdims=True)
     sin, cos = sincos(projected)
-    return Components(
+    return FeatureFactors(
         trig_log=half_sq_norm,
         sin=sin,
         cos=cos,
@@ -232,19 +232,19 @@ def components(x: jax.Array, projections: Projections) -> Components:
     )
 
 
-def stabilizing_shift(comps: Components, kind: str, stabilize: bool) -> jax.Array:
+def stabilizing_shift(factors: FeatureFactors, kind: str, stabilize: bool) -> jax.Array:
     """The log-scale subtracted from every feature of one set: ``(..., 1, 1)`` or scalar 0.
 
     The maximum log-magnitude over the set axis ``-2`` and every feature the kind uses, so
     the largest feature of each set is of order one; one constant per set keeps rankings.
     """
     if not stabilize:
-        return jnp.zeros((), comps.exp_log.dtype)
+        return jnp.zeros((), factors.exp_log.dtype)
     parts = []
     if kind in ("trig", "hybrid"):
-        parts.append(jnp.max(comps.trig_log, axis=(-2, -1), keepdims=True))
+        parts.append(jnp.max(factors.trig_log, axis=(-2, -1), keepdims=True))
     if kind in ("exp", "hybrid"):
-        parts.append(jnp.max(comps.exp_log, axis=(-2, -1), keepdims=True))
+        parts.append(jnp.max(factors.exp_log, axis=(-2, -1), keepdims=True))
     return jax.lax.stop_gradient(functools.reduce(jnp.maximum, parts))
 
 
@@ -281,16 +281,16 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
             f"projections lack the matrices that kind {kind!r} needs; "
             f"draw them with draw_projections(key, {kind!r}, ...)"
         )
-    comps = components(x, projections)
-    shift = stabilizing_shift(comps, kind, stabilize)
-    m = comps.exp_log.shape[-1]
-    trig = jnp.exp(comps.trig_log - shift) * jnp.concatenate([comps.sin, comps.cos], axis=-1)
-    positive = jnp.exp(comps.exp_log - shift)
+    factors = feature_factors(x, projections)
+    shift = stabilizing_shift(factors, kind, stabilize)
+    m = factors.exp_log.shape[-1]
+    trig = jnp.exp(factors.trig_log - shift) * jnp.concatenate([factors.sin, factors.cos], axis=-1)
+    positive = jnp.exp(factors.exp_log - shift)
     if kind == "trig":
         return trig / math.sqrt(m)
     if kind == "exp":
         return positive / math.sqrt(m)
-    signs = comps.signs
+    signs = factors.signs
     r = signs.shape[-1]
     beta_sign = 1.0 if role == "query" else -1.0
     # alpha: (..., 2m, r) -> (..., 2mr); beta: (..., m, r) -> (..., mr).

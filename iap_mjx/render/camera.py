@@ -109,15 +109,15 @@ class CameraConfig:
 
 class _Traced(NamedTuple):
     """What :meth:`Camera._trace` hands the colour pass, per image (a leading axis when
-    batched): the geoms' frames, ``seen`` (the camera pose is finite) and its ``(..., 1, 1)``
-    broadcast ``seen_px``, ``finite`` (some image of the batch is seen), the padded planes
+    batched): the geoms' frames ``geom_frames``, ``seen`` (the camera pose is finite) and its ``(..., 1, 1)``
+    broadcast ``seen_px``, ``any_seen`` (some image of the batch is seen), the padded planes
     ``(depth_p, best_p)`` ``(H + 2, W + 2)``, and the image's ``depth`` and geom ``ids``
     ``(H, W)``."""
 
-    frames: dict
+    geom_frames: dict
     seen: jax.Array
     seen_px: jax.Array
-    finite: jax.Array
+    any_seen: jax.Array
     padded: tuple[jax.Array, jax.Array]
     depth: jax.Array
     ids: jax.Array
@@ -357,11 +357,11 @@ class Camera:
         geom) pairs than the budget, dense tracing. ``lift``: ``jax.vmap`` over a batch, or the
         identity for one image."""
         tracer = self.tracer
-        frames = lift(tracer.geom_frames)(poses)
+        geom_frames = lift(tracer.geom_frames)(poses)
         seen = jnp.all(jnp.isfinite(poses["cam_pos"]), axis=-1) & jnp.all(
             jnp.isfinite(poses["cam_mat"]), axis=(-2, -1)
         )  # () or (C,) per image
-        finite = jnp.any(seen)
+        any_seen = jnp.any(seen)
         shape = jnp.shape(poses["cam_pos"])[:-1] + (self.config.height, self.config.width)
 
         def nothing():
@@ -375,7 +375,7 @@ class Camera:
         def padded_of(trace):
             return lambda: lift(tracing.pad_by_one_pixel)(trace())
 
-        # Each stage runs inside a ``lax.cond`` on ``finite`` (the other branch gives zeros):
+        # Each stage runs inside a ``lax.cond`` on ``any_seen`` (the other branch gives zeros):
         # its results are materialised once, where XLA would otherwise fuse the nearest-hit
         # selection, or the shading, into every consumer (and the interleaved (H, W, 3) output
         # per channel) and redo it many times. Computed inside the branch, a stage writes its
@@ -383,30 +383,30 @@ class Camera:
         def dense():
             # the nearest-hit keys materialised first (fused into the padded outputs, the
             # search over all geoms would run once per output element and per output)
-            keys = _materialised(lambda: lift(tracer.dense_keys)(frames), finite)
+            keys = _materialised(lambda: lift(tracer.dense_keys)(geom_frames), any_seen)
             return lift(tracing.pad_by_one_pixel)(lift(tracer.decode)(keys))
 
         if tracer.culled_groups:
-            keys, overflow = lift(tracer.culled_keys)(frames)
+            keys, overflow = lift(tracer.culled_keys)(geom_frames)
             depth_p, best_p = jax.lax.cond(
-                jnp.any(overflow & seen) | ~finite,
-                lambda: jax.lax.cond(finite, dense, padded_of(nothing)),
+                jnp.any(overflow & seen) | ~any_seen,
+                lambda: jax.lax.cond(any_seen, dense, padded_of(nothing)),
                 padded_of(lambda: lift(tracer.decode_tiled)(keys)),
             )
         else:
-            depth_p, best_p = jax.lax.cond(finite, dense, padded_of(nothing))
+            depth_p, best_p = jax.lax.cond(any_seen, dense, padded_of(nothing))
         # a non-finite image of a traced batch: nothing seen (its own trace, a search with NaN
         # or inf poses, is not relied on)
         seen_px = seen[..., None, None]
         depth = jnp.where(seen_px, depth_p[..., 1:-1, 1:-1], jnp.float32(self.scene.zfar))
         best = best_p[..., 1:-1, 1:-1].astype(jnp.int32)
         ids = jnp.where(seen_px, jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best], -1)
-        return _Traced(frames, seen, seen_px, finite, (depth_p, best_p), depth, ids)
+        return _Traced(geom_frames, seen, seen_px, any_seen, (depth_p, best_p), depth, ids)
 
     def _shade(self, poses, traced: _Traced, background, geom_rgb, sky_texture, sky_frame, lift) -> jax.Array:
         """The colour pass over :meth:`_trace`'s planes: ``(H, W, 3)`` (per image)."""
         shader = self.shader
-        frames, seen, seen_px, finite, padded, depth, _ = traced
+        geom_frames, seen, seen_px, any_seen, padded, depth, _ = traced
         depth_p, best_p = padded
         # Neighbour lookups read slices of the padded planes (no concatenates, which XLA's
         # CPU loops do not vectorise). The light (normals, lights) and a skybox texture's
@@ -415,17 +415,17 @@ class Camera:
         if self.config.shading == "flat":
             light = (jnp.ones_like(depth),)
         else:
-            light = _materialised(lambda: lift(shader.incident_light)(poses, padded), finite)
+            light = _materialised(lambda: lift(shader.incident_light)(poses, padded), any_seen)
         if background.size == 0 and sky_texture.size != 0:
             # a non-finite pose's directions would index outside the texture stack
             safe_mat = jnp.where(seen[..., None, None], poses["cam_mat"], 0.0)
-            texels = _materialised(lambda: shader.skybox_texels(safe_mat, sky_texture, sky_frame), finite)
+            texels = _materialised(lambda: shader.skybox_texels(safe_mat, sky_texture, sky_frame), any_seen)
             background = tuple(sky_lib.unpack_rgb(texels))
         planes = _materialised(
             lambda: lift(shader.compose)(
-                poses, lift(shader.surface_colour)(frames, padded, geom_rgb), light, best_p, background
+                poses, lift(shader.surface_colour)(geom_frames, padded, geom_rgb), light, best_p, background
             ),
-            finite,
+            any_seen,
         )
         return jnp.where(seen_px[..., None], jnp.stack(planes, axis=-1), 0.0)
 
