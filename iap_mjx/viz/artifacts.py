@@ -12,12 +12,16 @@ import concurrent.futures
 import logging
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
 from iap_mjx.checks import require_int
 from iap_mjx.viz import curves, recording, video
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 logger = logging.getLogger(__name__)
 
@@ -62,7 +66,7 @@ def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6
     )
 
 
-def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Future | None:
+def compile_video_in_background(env: Env, policy: Policy) -> concurrent.futures.Future | None:
     """Starts compiling the episode video :func:`write_run_artifacts` will render of ``policy``
     on ``env`` (the ones the run trains), in a daemon thread, and returns its future (``None``
     for a state env: a run writes no video of one).

@@ -10,7 +10,7 @@ describe exactly the frames the policy saw.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import mujoco
@@ -19,6 +19,10 @@ import numpy as np
 from iap_mjx.attention.patches import patch_corner
 from iap_mjx.checks import require_int
 from iap_mjx.viz import recording
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 BACKGROUND = "background"
 
@@ -55,7 +59,7 @@ def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int,
     return {int(i): int(c) for i, c in zip(ids, counts)}
 
 
-def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
+def episode_program(env: Env, policy: Policy, *, steps: int) -> Any:
     """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
     each frame the policy sees."""
 
@@ -66,8 +70,8 @@ def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
 
 
 def episode_counts(
-    env: Any,
-    policy: Any,
+    env: Env,
+    policy: Policy,
     params: Any,
     *,
     episodes: int = 3,
@@ -109,7 +113,7 @@ def shares(counts: list[dict[str, int]]) -> dict[str, float]:
     return {label: count / total for label, count in sorted(totals.items(), key=lambda item: -item[1])}
 
 
-def attended_shares(env: Any, policy: Any, params: Any, **kwargs: Any) -> dict[str, float]:
+def attended_shares(env: Env, policy: Policy, params: Any, **kwargs: Any) -> dict[str, float]:
     """:func:`shares` of :func:`episode_counts` (same arguments)."""
     return shares(episode_counts(env, policy, params, **kwargs))
 

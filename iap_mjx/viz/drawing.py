@@ -8,12 +8,16 @@ corner (:func:`inset`); and a strip's frames tiled into a grid (:func:`tile_grid
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from iap_mjx.attention.patches import patch_corner
 from iap_mjx.viz import recording
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 RED = (230, 30, 30)
 WHITE = (255, 255, 255)
@@ -52,8 +56,8 @@ def inset(scene: np.ndarray, view: np.ndarray) -> np.ndarray:
 
 
 def draw_steps(
-    env: Any,
-    policy: Any,
+    env: Env,
+    policy: Policy,
     record: dict[str, Any],
     steps: np.ndarray,
     *,

@@ -17,11 +17,15 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
 SCENE_VIDEO_SIZE = (360, 480)  # (height, width) of the scene around a pixel env's inset view
@@ -36,18 +40,18 @@ def newest_rgb(obs: Any, channels_per_frame: int) -> jax.Array:
     return jnp.repeat(newest, 3, axis=-1) if channels_per_frame == 1 else newest
 
 
-def has_pixels(env: Any) -> bool:
+def has_pixels(env: Env) -> bool:
     """Whether ``env`` observes pixels (else a video renders the env's own camera)."""
     return getattr(env, "obs_mode", "state") != "state"
 
 
-def has_scene(env: Any) -> bool:
+def has_scene(env: Env) -> bool:
     """Whether ``env`` observes pixels and names a camera to show its scene from
     (``video_camera_id``): its videos show that scene with the observed view inset."""
     return has_pixels(env) and hasattr(env, "video_camera_id")
 
 
-def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
+def state_camera(env: Env, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
     """The ray-cast camera a video of a state env is rendered with: the model camera
     ``env.video_camera_id`` (default 0), every geom group drawn."""
     from iap_mjx.render import Camera
@@ -60,7 +64,7 @@ def state_camera(env: Any, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
 
 
 def episode_program(
-    env: Any, policy: Any, *, steps: int, extra: Callable[[Any], dict] | None = None, scene: bool = True
+    env: Env, policy: Policy, *, steps: int, extra: Callable[[Any], dict] | None = None, scene: bool = True
 ) -> Any:
     """The jitted episode ``(params, obs_stats, key) -> record`` that :func:`record_episode` runs.
 
@@ -116,7 +120,7 @@ def episode_program(
     return program
 
 
-def compile_episode_program(env: Any, policy: Any, *, steps: int, obs_stats: Any = None) -> Any:
+def compile_episode_program(env: Env, policy: Policy, *, steps: int, obs_stats: Any = None) -> Any:
     """:func:`episode_program` compiled ahead of time for ``policy``'s params shapes (and
     ``obs_stats``'s, if given): pass it to :func:`record_episode` as ``program``. Safe to call
     from a background thread while something else compiles or trains."""
@@ -126,7 +130,7 @@ def compile_episode_program(env: Any, policy: Any, *, steps: int, obs_stats: Any
 
 
 def record_episode(
-    env: Any, policy: Any, params: Any, key: jax.Array, *, steps: int, obs_stats: Any = None, program: Any = None
+    env: Env, policy: Policy, params: Any, key: jax.Array, *, steps: int, obs_stats: Any = None, program: Any = None
 ) -> dict[str, Any]:
     """Rolls one episode of ``steps`` control steps and records what a video needs.
 
@@ -167,7 +171,7 @@ def _scene_renderer(camera: Any) -> Callable[[dict], jax.Array]:
 
 
 def render_scene(
-    env: Any, poses: dict[str, np.ndarray], size: tuple[int, int] = SCENE_VIDEO_SIZE, *, batch: int | None = None
+    env: Env, poses: dict[str, np.ndarray], size: tuple[int, int] = SCENE_VIDEO_SIZE, *, batch: int | None = None
 ) -> np.ndarray:
     """``(N, H, W, 3)`` uint8: the scene camera's (:func:`state_camera`, ``size``) frames of
     ``N`` recorded steps' poses (a record's ``"scene"`` at those steps), rendered ``batch`` at a

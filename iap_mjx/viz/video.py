@@ -13,13 +13,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
 
 from iap_mjx.checks import require_int
 from iap_mjx.viz import drawing, recording
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 logger = logging.getLogger(__name__)
 
@@ -56,8 +60,8 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: int = 30
 
 
 def episode_video(
-    env: Any,
-    policy: Any,
+    env: Env,
+    policy: Policy,
     params: Any,
     path: str | Path,
     *,
@@ -93,8 +97,8 @@ def episode_video(
 
 
 def episode_strip(
-    env: Any,
-    policy: Any,
+    env: Env,
+    policy: Policy,
     params: Any,
     path: str | Path,
     *,
