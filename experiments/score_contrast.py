@@ -36,7 +36,7 @@ import numpy as np
 from iap_mjx import es
 from iap_mjx.attention.patches import extract_patches
 from iap_mjx.es.components import build
-from iap_mjx.viz import video
+from iap_mjx.viz import recording
 
 
 def ranks(x: jax.Array) -> jax.Array:
@@ -83,12 +83,12 @@ def measure(result, params, *, episodes: int, every: int, seed: int) -> dict[str
     scores' spread, ``(max - median) / max |score|``), the number of ``frames`` and of those
     ``verified`` (below)."""
     env, policy = result.env, result.policy
-    program = video.episode_program(env, policy, steps=env.episode_length, scene=False)
+    program = recording.episode_program(env, policy, steps=env.episode_length, scene=False)
     score_frame = jax.jit(lambda layer, a, pr, frame: layer.scores(a, pr, frame), static_argnums=0)
     measure_frame = jax.jit(frame_measures, static_argnums=0)
     rows, verified = [], 0
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
-        record = video.record_episode(
+        record = recording.record_episode(
             env, policy, params, key, steps=env.episode_length, obs_stats=result.obs_stats, program=program
         )
         frames = np.flatnonzero(record["alive"])[::every]

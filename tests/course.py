@@ -27,17 +27,17 @@ SHRINK = [
 
 def check_scene_video(path, camera_shape: tuple[int, int] = (24, 32)) -> None:
     """A course run's ``episode.mp4`` (5-step episodes) is the scene from the camera that
-    follows the robot (``video.SCENE_VIDEO_SIZE``) with the robot's own view inset in its
+    follows the robot (``recording.SCENE_VIDEO_SIZE``) with the robot's own view inset in its
     top-right corner: there, right of the caption's text, the caption bar is black where the
     scene behind it is bright sky (H.264 blurs it a little)."""
     import imageio.v3 as iio
 
-    from iap_mjx.viz import video
+    from iap_mjx.viz import drawing, recording
 
     frames = iio.imread(path, plugin="pyav")
-    assert 1 <= len(frames) <= 5 and frames.shape[1:] == (*video.SCENE_VIDEO_SIZE, 3)
-    scale = 4  # the video's inset scale; the 24x32 view fits the scene at it (video.fit_inset)
-    top, left = video.INSET_MARGIN, video.SCENE_VIDEO_SIZE[1] - video.INSET_MARGIN - camera_shape[1] * scale
+    assert 1 <= len(frames) <= 5 and frames.shape[1:] == (*recording.SCENE_VIDEO_SIZE, 3)
+    scale = 4  # the video's inset scale; the 24x32 view fits the scene at it (drawing.fit_inset)
+    top, left = drawing.INSET_MARGIN, recording.SCENE_VIDEO_SIZE[1] - drawing.INSET_MARGIN - camera_shape[1] * scale
     caption = frames[:, top + 3 : top + 13, left + 96 : left + camera_shape[1] * scale - 4].astype(float)
     sky = frames[:, top + 3 : top + 13, left - 60 : left - 20].astype(float)  # beside the inset
     assert caption.mean() < 40 and sky.mean() > 120, (caption.mean(), sky.mean())

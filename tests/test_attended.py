@@ -11,7 +11,7 @@ import pytest
 
 from iap_mjx import cli, envs, policies
 from iap_mjx.attention.patches import extract_patches, patch_grid
-from iap_mjx.viz import attended, video
+from iap_mjx.viz import attended, recording
 
 
 def _layer(height, width, patch, stride):
@@ -65,7 +65,7 @@ def test_shares_over_a_distracted_episode_describe_the_frames_the_policy_saw():
 
     # the recorded geom maps are those of the frames the policy saw
     key = jax.random.split(jax.random.PRNGKey(3), 1)[0]
-    record = video.record_episode(env, policy, params, key, steps=6, program=program)
+    record = recording.record_episode(env, policy, params, key, steps=6, program=program)
     first = jax.jit(env.reset)(jax.random.split(key)[0])
     direct = np.asarray(jax.jit(env.geom_map)(first.data, first.info["distraction"]))
     assert np.mean(record["geoms"][0] == direct) > 0.99

@@ -2,7 +2,7 @@
 compiles; each run's strip is the course seen from the camera that follows the robot with its
 camera inset, scaled up with the high level's patches in red, named by its patch size and
 stride, and the section shows both. The episode itself is
-``viz.video.record_episode``'s (tested in test_video.py; the quadruped's compiles for minutes), so
+``viz.recording.record_episode``'s (tested in test_video.py; the quadruped's compiles for minutes), so
 here it is a hand-made record drawn by the real strip code."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from iap_mjx import cli, configs
 from iap_mjx.es import checkpoint
 from iap_mjx.paper import fig10, table2
 from iap_mjx.paper.evaluations import EVAL_SEED
-from iap_mjx.viz import video
+from iap_mjx.viz import drawing, recording, video
 
 STEPS = 1000  # quadruped-walls' episode
 SMALL = [(row, col) for row in (6, 16) for col in (2, 8, 14, 20, 26)]  # far enough apart that no rings overlap
@@ -35,13 +35,13 @@ def _run(out, preset, overrides=()):
 
 
 def scene_pose(env):
-    """The scene camera's poses (``video.state_camera``) of the course at its model's own
+    """The scene camera's poses (``recording.state_camera``) of the course at its model's own
     state, as a recorded episode keeps them at each step."""
     data = mujoco.MjData(env.mj_model)
     mujoco.mj_forward(env.mj_model, data)
     return {
         name: np.asarray(value)
-        for name, value in video.state_camera(env).poses(mjx.put_data(env.mj_model, data)).items()
+        for name, value in recording.state_camera(env).poses(mjx.put_data(env.mj_model, data)).items()
     }
 
 
@@ -73,7 +73,7 @@ def episodes(monkeypatch):
     from iap_mjx import es
 
     monkeypatch.setattr(es, "load_run", load_run)
-    monkeypatch.setattr(video, "record_episode", record_episode)
+    monkeypatch.setattr(recording, "record_episode", record_episode)
     return keys
 
 
@@ -108,7 +108,7 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
     markdown = fig10.reproduce_fig10(tmp_path, run_dirs=(small, large), frames=3, results=results)
     unseen = np.asarray(jax.random.PRNGKey(EVAL_SEED)).tolist()
     assert episodes == [unseen] * 2  # a course not seen in training, the same for both
-    (height, width), margin = video.SCENE_VIDEO_SIZE, video.INSET_MARGIN
+    (height, width), margin = recording.SCENE_VIDEO_SIZE, drawing.INSET_MARGIN
     view_h, view_w = (
         16 + 24 * video.STRIP_SCENE_SCALE,
         32 * video.STRIP_SCENE_SCALE,
@@ -116,9 +116,9 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
     top, left = margin, width - margin - view_w  # the view's corner in each tile: top right
     env = fig10.check((small,))[small][1]
     # the strip's three frames of one pose, rendered by the same program (a batch of 3)
-    scene = video.render_scene(env, {name: np.repeat(pose[None], 3, axis=0) for name, pose in scene_pose(env).items()})[
-        0
-    ]
+    scene = recording.render_scene(
+        env, {name: np.repeat(pose[None], 3, axis=0) for name, pose in scene_pose(env).items()}
+    )[0]
     assert scene.std() > 10  # a picture of the course, not a blank
     tiles = {}
     for name in ("fig10-p1-s1.png", "fig10-p4-s4.png"):
@@ -132,7 +132,7 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
         ring[2:-2, 2:-2] = 255
         assert (ring == 255).all()  # the inset's white frame
         tiles[name] = first[top + 16 : top + view_h, left : left + view_w]
-    red = np.array(video.RED)
+    red = np.array(drawing.RED)
     patch = 4 * video.STRIP_SCENE_SCALE
     large_tile = tiles["fig10-p4-s4.png"]
     assert (large_tile[patch, patch] == red).all() and (large_tile[2 * patch - 1, 2 * patch - 1] == red).all()
@@ -142,8 +142,8 @@ def test_strips_show_the_scene_with_the_camera_scaled_and_the_selected_patches_i
     for row, col in SMALL:  # each 1-pixel patch a scale-pixel square outlined, ringed red inside white
         top, left, centre = row * scale, col * scale, (row * scale + scale // 2, col * scale + scale // 2)
         assert (small_tile[top, left] == red).all() and (small_tile[centre] == 0).all()
-        assert (small_tile[centre[0], centre[1] + video.MARK_RADIUS - 1] == red).all()
-        assert (small_tile[centre[0], centre[1] + video.MARK_RADIUS + 1] == 255).all()
+        assert (small_tile[centre[0], centre[1] + drawing.MARK_RADIUS - 1] == red).all()
+        assert (small_tile[centre[0], centre[1] + drawing.MARK_RADIUS + 1] == 255).all()
     assert (small_tile[11 * scale : 14 * scale] == 0).all()  # between the two rows: nothing selected
     assert markdown.splitlines()[0] == (
         f"Patch size 1, stride 1 (L = 768 patches, top 10 selected): `{small}`, episode return 10.00."

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from iap_mjx import envs, policies
-from iap_mjx.viz import video
+from iap_mjx.viz import drawing, recording, video
 
 
 @pytest.mark.slow
@@ -18,8 +18,8 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
     policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=4, top_l=3)
     params = policy.init(jax.random.PRNGKey(0))
     # compiled ahead, before any params exist, as a run's video is (the only compile here)
-    program = video.compile_episode_program(env, policy, steps=4)
-    record = video.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=4, program=program)
+    program = recording.compile_episode_program(env, policy, steps=4)
+    record = recording.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=4, program=program)
     assert record["frames"].shape == (4, 24, 24, 3)
     assert record["indices"].shape == (4, 3)
     assert np.all(np.isfinite(record["rewards"]))
@@ -28,12 +28,12 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
     again = policy.select(params, record["frames"][2], projections).indices
     np.testing.assert_array_equal(again, record["indices"][2])
 
-    frame = video.annotate(record["frames"][0], record["indices"][0], policy.layer, 1.5, scale=3)
+    frame = drawing.annotate(record["frames"][0], record["indices"][0], policy.layer, 1.5, scale=3)
     assert frame.shape == (24 * 3 + 16, 24 * 3, 3)
     cols = policy.layer.grid[1]
     for index in record["indices"][0]:
         top, left = 16 + (index // cols) * 12, (index % cols) * 12
-        assert tuple(frame[top, left]) == video.RED  # the outline's corner
+        assert tuple(frame[top, left]) == drawing.RED  # the outline's corner
 
     # MP4, the run's artifact (a GIF merges identical frames: a still cartpole is one).
     path, episode_return = video.episode_video(
@@ -63,7 +63,7 @@ def test_episode_video_outlines_the_selected_patches(tmp_path):
     returns = np.cumsum(record["rewards"])
     for (row, col), t in zip([(0, 0), (0, 1), (1, 0)], [0, 2, 3]):
         tile = strip[row * (tile_h + 4) : row * (tile_h + 4) + tile_h, col * (tile_w + 4) : col * (tile_w + 4) + tile_w]
-        expected = video.annotate(
+        expected = drawing.annotate(
             record["frames"][t], record["indices"][t], policy.layer, float(returns[t]), scale=3, step=t
         )
         np.testing.assert_array_equal(tile, expected)
@@ -78,11 +78,11 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
     env = envs.make("cartpole-swingup", episode_length=4)
     policy = policies.make("linear", env.observation_shape, env.action_size)
     params = policy.init(jax.random.PRNGKey(0))
-    program = video.episode_program(env, policy, steps=3)  # the default path, compiled once here
-    record = video.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=3, program=program)
+    program = recording.episode_program(env, policy, steps=3)  # the default path, compiled once here
+    record = recording.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=3, program=program)
     assert "frames" not in record and "indices" not in record and record["scene"]["geom_pos"].shape[0] == 3
-    scenes = video.render_scene(env, record["scene"], video.STATE_VIDEO_SIZE)
-    camera = video.state_camera(env)
+    scenes = recording.render_scene(env, record["scene"], recording.STATE_VIDEO_SIZE)
+    camera = recording.state_camera(env)
     first = jax.jit(lambda key: camera.render(env.reset(key).data)[0])
     expected = np.clip(np.asarray(first(jax.random.split(jax.random.PRNGKey(1))[0])), 0, 1) * 255
     # the same picture: within the uint8 truncation but for a few edge pixels (a vmapped
@@ -94,7 +94,8 @@ def test_a_state_policy_video_renders_the_envs_camera(tmp_path):
         env, policy, params, tmp_path / "state.gif", key=jax.random.PRNGKey(1), steps=3, program=program
     )
     frames = imageio.mimread(path)
-    assert len(frames) == 3 and frames[0].shape[:2] == (video.STATE_VIDEO_SIZE[0] + 16, video.STATE_VIDEO_SIZE[1])
+    height, width = recording.STATE_VIDEO_SIZE
+    assert len(frames) == 3 and frames[0].shape[:2] == (height + 16, width)
     drawn = np.asarray(frames[2])[16:, :, :3].astype(float)
     assert np.abs(drawn - scenes[2]).mean() < 4  # the step's picture under its caption (a GIF's palette: nearly)
 
@@ -139,16 +140,19 @@ def test_cli_video_of_a_dcs_run_shows_the_distracted_frames_and_the_selection(tm
     result = es.in_condition(es.load_run(run_dir), condition)
     policy = result.policy
     assert result.config.env.name == "cartpole-swingup" and policy.layer.num_patches == 24 * 32
-    record = video.record_episode(
+    record = recording.record_episode(
         env, policy, result.params, jax.random.PRNGKey(3), steps=10, obs_stats=result.obs_stats
     )
     # the same picture (fused inside the episode's scan, a few pixels round differently)
     np.testing.assert_allclose(record["frames"][0], first.obs, atol=2e-3)
     returns = np.cumsum(record["rewards"])
     annotated = np.stack(
-        [video.annotate(f, i, policy.layer, float(r)) for f, i, r in zip(record["frames"], record["indices"], returns)]
+        [
+            drawing.annotate(f, i, policy.layer, float(r))
+            for f, i, r in zip(record["frames"], record["indices"], returns)
+        ]
     )
-    bare = np.stack([video.annotate(f, None, None, float(r)) for f, r in zip(record["frames"], returns)])
+    bare = np.stack([drawing.annotate(f, None, None, float(r)) for f, r in zip(record["frames"], returns)])
     decoded = iio.imread(out, plugin="pyav").astype(float)
     assert decoded.shape == annotated.shape == (10, 48 * 3 + 16, 64 * 3, 3)
     outline = np.any(annotated != bare, axis=-1)  # where the patch outlines and rings are drawn
@@ -178,14 +182,14 @@ def test_small_patches_get_a_ring_that_can_be_seen():
     for patch, ringed in ((2, True), (4, False)):
         layer = IAPAttention(AttentionConfig(patch_size=patch, top_l=1), image_shape=(24, 32, 3))
         index = layer.grid[1] + 2  # second patch row, third column
-        drawn = video.annotate(frame, np.array([index]), layer, 0.0, scale=3)
+        drawn = drawing.annotate(frame, np.array([index]), layer, 0.0, scale=3)
         centre_y, centre_x = 16 + (1 * patch + patch / 2) * 3, (2 * patch + patch / 2) * 3
-        red = np.all(drawn == video.RED, axis=-1)
+        red = np.all(drawn == drawing.RED, axis=-1)
         ys, xs = np.nonzero(red)
         half = patch * 3 / 2
         outside = (np.abs(ys + 0.5 - centre_y) > half) | (np.abs(xs + 0.5 - centre_x) > half)
         assert outside.any() == ringed, patch  # red beyond the patch's own square: the ring
-        white = np.all(drawn == video.WHITE, axis=-1)
+        white = np.all(drawn == drawing.WHITE, axis=-1)
         white[:16] = False  # the caption
         wy, wx = np.nonzero(white)
         beyond = np.maximum(np.abs(wy + 0.5 - centre_y), np.abs(wx + 0.5 - centre_x))  # from the centre, square
@@ -194,12 +198,12 @@ def test_small_patches_get_a_ring_that_can_be_seen():
             assert np.all(beyond == half - 1.5) and len(wy) == 4 * (patch * 3 - 3)  # pixel centres
         if ringed:  # red all round the centre at the ring's radius, white just outside it
             distance = np.hypot(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
-            assert np.all((distance > video.MARK_RADIUS - 2.5) & (distance < video.MARK_RADIUS + 1)), distance
+            assert np.all((distance > drawing.MARK_RADIUS - 2.5) & (distance < drawing.MARK_RADIUS + 1)), distance
             angles = np.arctan2(ys + 0.5 - centre_y, xs + 0.5 - centre_x)[outside]
             assert np.histogram(angles, bins=8, range=(-np.pi, np.pi))[0].min() > 0
             wy, wx = np.nonzero(white)
             halo = np.hypot(wy + 0.5 - centre_y, wx + 0.5 - centre_x)
-            assert np.all((halo > video.MARK_RADIUS - 0.5) & (halo < video.MARK_RADIUS + 3.5)), halo
+            assert np.all((halo > drawing.MARK_RADIUS - 0.5) & (halo < drawing.MARK_RADIUS + 3.5)), halo
 
 
 def test_a_condition_the_parameters_do_not_fit_is_refused_before_compiling():
@@ -250,7 +254,7 @@ def test_video_and_strip_end_with_the_episode_and_count_its_live_rewards(tmp_pat
     assert len(iio.imread(path, index=None)) == 4
     path, episode_return = video.episode_strip(env, policy, None, tmp_path / "s.png", frames=4, columns=4, **kwargs)
     strip = iio.imread(path)
-    tile = video.annotate(np.zeros((4, 4, 3)), np.zeros(1, np.int32), layer, 0.0, scale=2, step=0)
+    tile = drawing.annotate(np.zeros((4, 4, 3)), np.zeros(1, np.int32), layer, 0.0, scale=2, step=0)
     assert episode_return == 8.0 and strip.shape[1] == 4 * tile.shape[1] + 3 * 4  # four frames: steps 0-3
 
 
@@ -268,9 +272,9 @@ def test_a_pixel_env_with_a_scene_camera_shows_each_step_from_it_with_the_view_i
 
     model = envs.make("cartpole-swingup").mj_model
     env = types.SimpleNamespace(obs_mode="pixels", video_camera_id=0, mj_model=model)
-    assert video.has_scene(env) and not video.has_scene(types.SimpleNamespace(obs_mode="pixels"))
+    assert recording.has_scene(env) and not recording.has_scene(types.SimpleNamespace(obs_mode="pixels"))
     size, steps = (72, 96), 6
-    camera = video.state_camera(env, size)
+    camera = recording.state_camera(env, size)
     states = []
     for t in range(steps):
         data = mujoco.MjData(model)
@@ -295,7 +299,7 @@ def test_a_pixel_env_with_a_scene_camera_shows_each_step_from_it_with_the_view_i
 
     # the scene at each step is the camera's render of that step's state (a vmapped render
     # rounds a few edge pixels differently from a single one)
-    scenes = video.render_scene(env, poses, size)
+    scenes = recording.render_scene(env, poses, size)
     assert scenes.shape == (steps, *size, 3) and scenes.dtype == np.uint8
     for t in (0, 5):
         single = np.clip(np.asarray(jax.jit(camera.render)(states[t])[0]), 0, 1) * 255
@@ -311,32 +315,34 @@ def test_a_pixel_env_with_a_scene_camera_shows_each_step_from_it_with_the_view_i
     assert strip.shape == (size[0], 3 * size[1] + 2 * 4, 3)
     for column, t in enumerate((0, 2, 5)):
         tile = strip[:, column * (size[1] + 4) : column * (size[1] + 4) + size[1]]
-        view = video.annotate(record["frames"][t], record["indices"][t], layer, 0.5 * (t + 1), scale=2, step=t)
-        np.testing.assert_array_equal(tile, video.inset(scenes[t].copy(), view))
+        view = drawing.annotate(record["frames"][t], record["indices"][t], layer, 0.5 * (t + 1), scale=2, step=t)
+        np.testing.assert_array_equal(tile, drawing.inset(scenes[t].copy(), view))
     expected = scenes[2].copy()
-    top, left = video.INSET_MARGIN, size[1] - video.INSET_MARGIN - view.shape[1]
+    top, left = drawing.INSET_MARGIN, size[1] - drawing.INSET_MARGIN - view.shape[1]
     expected[top - 2 : top + view.shape[0] + 2, left - 2 : left + view.shape[1] + 2] = 255  # the white frame
     expected[top : top + view.shape[0], left : left + view.shape[1]] = view
-    np.testing.assert_array_equal(video.inset(scenes[2].copy(), view), expected)
+    np.testing.assert_array_equal(drawing.inset(scenes[2].copy(), view), expected)
     with pytest.raises(ValueError, match="does not fit"):
-        video.inset(scenes[0][:20].copy(), view)
+        drawing.inset(scenes[0][:20].copy(), view)
     # by default a strip's inset view is drawn at STRIP_SCENE_SCALE (a small camera, legible)
     path, _ = video.episode_strip(
         env, policy, None, tmp_path / "one.png", frames=1, columns=1, scene_size=size, **kwargs
     )
-    view = video.annotate(record["frames"][0], record["indices"][0], layer, 0.5, scale=video.STRIP_SCENE_SCALE, step=0)
-    np.testing.assert_array_equal(iio.imread(path), video.inset(scenes[0].copy(), view))
+    view = drawing.annotate(
+        record["frames"][0], record["indices"][0], layer, 0.5, scale=video.STRIP_SCENE_SCALE, step=0
+    )
+    np.testing.assert_array_equal(iio.imread(path), drawing.inset(scenes[0].copy(), view))
     # a view too large for the scene at the scale asked is drawn smaller; one too large at any
     # scale gets a larger scene
-    assert video.fit_inset((24, 32), 6, (360, 480)) == (6, (360, 480))  # 160 x 192 fits 344 x 464
-    assert video.fit_inset((48, 64), 6, (360, 480)) == (6, (360, 480))  # 304 x 384
-    assert video.fit_inset((96, 128), 6, (360, 480)) == (3, (360, 480))  # 304 x 384 at 3x
-    assert video.fit_inset((400, 320), 4, (360, 480)) == (1, (432, 480))  # 416 x 320 at 1x, plus margins
-    assert video.fit_inset((24, 600), 4, (360, 480)) == (1, (360, 616))
+    assert drawing.fit_inset((24, 32), 6, (360, 480)) == (6, (360, 480))  # 160 x 192 fits 344 x 464
+    assert drawing.fit_inset((48, 64), 6, (360, 480)) == (6, (360, 480))  # 304 x 384
+    assert drawing.fit_inset((96, 128), 6, (360, 480)) == (3, (360, 480))  # 304 x 384 at 3x
+    assert drawing.fit_inset((400, 320), 4, (360, 480)) == (1, (432, 480))  # 416 x 320 at 1x, plus margins
+    assert drawing.fit_inset((24, 600), 4, (360, 480)) == (1, (360, 616))
 
     # the video: every step, the scene at SCENE_VIDEO_SIZE
     path, _ = video.episode_video(env, policy, None, tmp_path / "e.gif", fps=10, **kwargs)
-    assert iio.imread(path, index=None).shape == (steps, *video.SCENE_VIDEO_SIZE, 3)
+    assert iio.imread(path, index=None).shape == (steps, *recording.SCENE_VIDEO_SIZE, 3)
 
 
 @pytest.mark.slow
@@ -352,10 +358,10 @@ def test_the_recorded_scene_is_the_state_each_frame_shows():
     policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=4, top_l=3)
     params = policy.init(jax.random.PRNGKey(0))
     params["controller"][0]["b"] = params["controller"][0]["b"] + 3.0
-    program = video.episode_program(env, policy, steps=5, extra=lambda state: {"qpos": state.data.qpos})
-    record = video.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=5, program=program)
+    program = recording.episode_program(env, policy, steps=5, extra=lambda state: {"qpos": state.data.qpos})
+    record = recording.record_episode(env, policy, params, jax.random.PRNGKey(1), steps=5, program=program)
     model = env.mj_model
-    cart = list(video.state_camera(env).geom_ids).index(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "cart"))
+    cart = list(recording.state_camera(env).geom_ids).index(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "cart"))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     offset = data.geom_xpos[cart, 0] - data.qpos[0]  # the cart geom's x less the slider's
@@ -363,10 +369,10 @@ def test_the_recorded_scene_is_the_state_each_frame_shows():
     np.testing.assert_allclose(cart_x, record["qpos"][:, 0] + offset, atol=1e-5)
     assert np.min(np.abs(np.diff(record["qpos"][:, 0]))) > 1e-4  # a step apart is told apart
     # and its camera 0 at the observation's size draws the observation itself
-    scenes = video.render_scene(env, record["scene"], (24, 24))
+    scenes = recording.render_scene(env, record["scene"], (24, 24))
     gap = np.abs(scenes - np.clip(record["frames"], 0, 1) * 255)
     assert np.mean(gap > 1) < 1e-3  # beyond the uint8 truncation: a few edge pixels at most
     # an attention program draws nothing: no scene recorded
     assert "scene" not in jax.eval_shape(
-        video.episode_program(env, policy, steps=2, scene=False), params, None, jax.random.PRNGKey(0)
+        recording.episode_program(env, policy, steps=2, scene=False), params, None, jax.random.PRNGKey(0)
     )

@@ -52,11 +52,11 @@ class Env(Protocol):
       (the quadruped course's ``walls_passed`` ...), logged as ``metrics.csv`` columns.
     - ``State.metrics["nan_terminations"]`` (the env ended a diverged state itself) and
       ``["contact_saturated"]`` (every MJX contact slot filled): counted per iteration.
-    - For videos (``iap_mjx.viz.video``): ``mj_model`` (a state env is rendered from it),
-      ``obs_mode`` and ``channels`` (a pixel env, :class:`iap_mjx.envs.pixels.PixelEnv`),
-      ``video_camera_id`` (a scene camera to draw the pixel view into), ``control_timestep`` and
-      ``config.action_repeat`` (the frame rate); ``camera_options`` (``CameraConfig`` fields
-      ``with_pixels`` gets from ``envs.make``).
+    - For videos (``iap_mjx.viz.recording``, ``iap_mjx.viz.video``): ``mj_model`` (a state
+      env is rendered from it), ``obs_mode`` and ``channels`` (a pixel env,
+      :class:`iap_mjx.envs.pixels.PixelEnv`), ``video_camera_id`` (a scene camera to draw the
+      pixel view into), ``control_timestep`` and ``config.action_repeat`` (the frame rate);
+      ``camera_options`` (``CameraConfig`` fields ``with_pixels`` gets from ``envs.make``).
     """
 
     @property

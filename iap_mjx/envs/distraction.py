@@ -44,6 +44,7 @@ from flax import struct
 from iap_mjx.configs.distraction import DistractionConfig, check_task
 from iap_mjx.envs import backgrounds as backgrounds_lib
 from iap_mjx.envs import camera_walk
+from iap_mjx.envs.base import Env
 from iap_mjx.render import sky as sky_lib
 
 # distracting_control/suite_utils.get_background_kwargs: ground_plane_alpha
@@ -58,7 +59,7 @@ _FIXED = int(mujoco.mjtCamLight.mjCAMLIGHT_FIXED)
 _TRACKCOM = int(mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)
 
 
-def domain_name(env: Any) -> str:
+def domain_name(env: Env) -> str:
     """The dm_control domain of a suite env (``cheetah``, ``ball_in_cup``, ...)."""
     check_task(getattr(env, "name", None))
     return env.name.split("-")[0]
@@ -69,7 +70,7 @@ def floor_alpha(domain: str) -> float:
     return FLOOR_ALPHA.get(domain, DEFAULT_FLOOR_ALPHA)
 
 
-def camera_model(env: Any, config: DistractionConfig) -> mujoco.MjModel:
+def camera_model(env: Env, config: DistractionConfig) -> mujoco.MjModel:
     """The model the camera is built from: ``env.mj_model``, with the floor material's alpha
     set as the reference's background wrapper sets it (a copy; the physics' model is
     untouched)."""
@@ -118,7 +119,7 @@ class Distraction:
     """
 
     def __init__(
-        self, env: Any, camera: Any, config: DistractionConfig, videos: backgrounds_lib.BackgroundVideos | None = None
+        self, env: Env, camera: Any, config: DistractionConfig, videos: backgrounds_lib.BackgroundVideos | None = None
     ):
         self.config = config
         self.domain = domain_name(env)

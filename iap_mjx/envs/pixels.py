@@ -33,7 +33,7 @@ from iap_mjx.checks import require_choice, require_int
 from iap_mjx.configs.distraction import DistractionConfig
 from iap_mjx.configs.env import DEPTH_MAX, PIXEL_MODES, check_depth_max
 from iap_mjx.envs import distraction as distraction_lib
-from iap_mjx.envs.base import State
+from iap_mjx.envs.base import Env, State
 from iap_mjx.render import Camera
 
 
@@ -65,7 +65,7 @@ class PixelEnv:
 
     def __init__(
         self,
-        env: Any,
+        env: Env,
         obs_mode: str = "pixels",
         camera_id: int = 0,
         height: int = 100,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +27,10 @@ from iap_mjx.es.normalizer import ObsStats, init_stats
 from iap_mjx.es.rollout import make_mesh, make_rollout, padded_share
 from iap_mjx.es.shaping import SHAPINGS
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, Strategy
+from iap_mjx.policies.base import Policy
+
+if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
+    from iap_mjx.envs.base import Env
 
 # Every random draw descends from ``run.seed`` through one of these streams (``fold_in``), so
 # the training and evaluation draws never share a key with each other or with initialisation
@@ -51,8 +55,8 @@ class Components:
     """The built pieces of a run (shared by ``train``, ``evaluate_run`` and benchmarks)."""
 
     config: TrainConfig
-    env: Any
-    policy: Any
+    env: Env
+    policy: Policy
     strategy: Strategy
     template_params: Any
     unravel: Callable[[jax.Array], Any]
@@ -130,7 +134,9 @@ def make_strategy(es: ESConfig, num_dims: int, iterations: int) -> Strategy:
     )
 
 
-def make_env_and_policy(config: TrainConfig, *, env: Any = None, policy: Any = None) -> tuple[Any, Any]:
+def make_env_and_policy(
+    config: TrainConfig, *, env: Env | None = None, policy: Policy | None = None
+) -> tuple[Env, Policy]:
     """The env and policy ``config`` names, built (nothing compiled): the policy sized to the
     env's observations and actions. A given ``env`` or ``policy`` is used instead (your own
     env: the config's policy kind is sized to it)."""
@@ -150,7 +156,9 @@ def make_env_and_policy(config: TrainConfig, *, env: Any = None, policy: Any = N
     return env, policy
 
 
-def build(config: TrainConfig, *, env: Any = None, policy: Any = None, devices: Any = None) -> Components:
+def build(
+    config: TrainConfig, *, env: Env | None = None, policy: Policy | None = None, devices: Any = None
+) -> Components:
     """Builds env, policy, strategy and the compiled-to-be evaluators for ``config``.
 
     ``env``/``policy`` override the ones the config names (:func:`make_env_and_policy`: your
@@ -184,7 +192,7 @@ def describe_parameters(parts: Components) -> str:
     return text
 
 
-def check_chunk_size(chunk_size: int, env: Any, num_devices: int) -> None:
+def check_chunk_size(chunk_size: int, env: Env, num_devices: int) -> None:
     """Refuses ``run.chunk_size`` above the env's ``max_chunk_size`` on two or more devices,
     where a larger vmapped batch deadlocks XLA:CPU (``iap_mjx.envs.dmc.serial_lapack_batch``)."""
     limit = getattr(env, "max_chunk_size", None)

@@ -14,7 +14,7 @@ Every episode runs its whole horizon (static shapes, no data-dependent control f
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +24,9 @@ from flax import struct
 from iap_mjx.es.normalizer import ObsStats, normalize
 from iap_mjx.loops import batched_like
 from iap_mjx.policies.base import Policy
+
+if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
+    from iap_mjx.envs.base import Env
 
 
 @struct.dataclass
@@ -125,7 +128,7 @@ class Tally:
         return Tally(ret, alive, bad, obs_sum, obs_sq_sum), was_live
 
 
-def episode_metric_names(env: Any) -> tuple[str, ...]:
+def episode_metric_names(env: Env) -> tuple[str, ...]:
     """The names of ``env``'s per-episode statistics in ``State.metrics`` (its
     ``episode_metrics``; none for most envs)."""
     return tuple(getattr(env, "episode_metrics", ()))
@@ -137,7 +140,7 @@ def observe(obs_stats: ObsStats | None, obs: Any) -> Any:
 
 
 def episode_step(
-    env: Any, policy: Policy, params: Any, obs_stats: ObsStats | None, state: Any, policy_state: Any
+    env: Env, policy: Policy, params: Any, obs_stats: ObsStats | None, state: Any, policy_state: Any
 ) -> tuple[Step, Any]:
     """One env step from env ``state``: the :class:`Step` taken and the policy's next state."""
     seen = observe(obs_stats, state.obs)
@@ -146,7 +149,7 @@ def episode_step(
 
 
 def run_episode(
-    env: Any,
+    env: Env,
     policy: Policy,
     params: Any,
     key: jax.Array,

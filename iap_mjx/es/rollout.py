@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import numpy as np
@@ -21,6 +21,9 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from iap_mjx.chunks import ceil_div, repeat_row
 from iap_mjx.es.episode import EpisodeResult, run_episode
 from iap_mjx.policies.base import Policy
+
+if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
+    from iap_mjx.envs.base import Env
 
 POP_AXIS = "pop"
 
@@ -36,7 +39,7 @@ def make_mesh(num_devices: int = 0, devices: Any = None) -> Mesh:
 
 
 def make_rollout(
-    env: Any,
+    env: Env,
     policy: Policy,
     unravel: Callable[[jax.Array], Any],
     mesh: Mesh,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +26,10 @@ from iap_mjx.es.episode import observe
 from iap_mjx.es.iteration import make_centre_evaluation
 from iap_mjx.es.metrics_log import read_history
 from iap_mjx.es.normalizer import ObsStats
+from iap_mjx.policies.base import Policy
+
+if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
+    from iap_mjx.envs.base import Env
 
 
 @dataclasses.dataclass
@@ -56,8 +60,8 @@ class TrainResult:
     config: TrainConfig
     run_dir: Path | None
     state: TrainState
-    env: Any
-    policy: Any
+    env: Env
+    policy: Policy
 
 
 def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
@@ -105,7 +109,7 @@ def without_initialisation(config: TrainConfig) -> TrainConfig:
     return dataclasses.replace(config, policy=dataclasses.replace(config.policy, options=options))
 
 
-def load_run(run_dir: str | Path, *, env: Any = None, policy: Any = None) -> TrainResult:
+def load_run(run_dir: str | Path, *, env: Env | None = None, policy: Policy | None = None) -> TrainResult:
     """A run's latest checkpoint as a :class:`TrainResult` (params, ``policy_fn``, config,
     history), without training. ``env``/``policy`` as in :func:`iap_mjx.es.train.train`."""
     config = trained_config(run_dir)
@@ -146,8 +150,8 @@ def evaluate_run(
     episodes: int = 8,
     seed: int = EVAL_SEED,
     overrides: Sequence[str] = (),
-    env: Any = None,
-    policy: Any = None,
+    env: Env | None = None,
+    policy: Policy | None = None,
 ) -> np.ndarray:
     """The ``(episodes,)`` returns of :func:`evaluate_run_episodes` (same arguments)."""
     return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides, env=env, policy=policy)[
@@ -161,8 +165,8 @@ def evaluate_run_episodes(
     episodes: int = 8,
     seed: int = EVAL_SEED,
     overrides: Sequence[str] = (),
-    env: Any = None,
-    policy: Any = None,
+    env: Env | None = None,
+    policy: Policy | None = None,
 ) -> dict[str, np.ndarray]:
     """A run's latest checkpointed centre params evaluated on fresh seeds, not the training
     seeds: ``{"return": (episodes,), name: (episodes,) ...}``, one entry for each of the env's

@@ -16,7 +16,7 @@ import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
@@ -32,6 +32,10 @@ from iap_mjx.es.bookkeeping import (
 )
 from iap_mjx.es.components import build, describe_parameters
 from iap_mjx.es.runs import TrainResult, result_from_state
+from iap_mjx.policies.base import Policy
+
+if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
+    from iap_mjx.envs.base import Env
 
 logger = logging.getLogger(__name__)
 
@@ -41,8 +45,8 @@ def train(
     *,
     run_dir: str | Path | None = None,
     progress: bool = True,
-    env: Any = None,
-    policy: Any = None,
+    env: Env | None = None,
+    policy: Policy | None = None,
     devices: Any = None,
     progress_fn: Callable[[dict[str, Any]], None] | None = None,
 ) -> TrainResult:

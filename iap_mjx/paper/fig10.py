@@ -16,19 +16,23 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.paper.evaluations import EVAL_SEED
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
+if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
+
 logger = logging.getLogger(__name__)
 
 DEFAULT_RUNS = ("table2-p1-s1-seed0", "quadruped-walls-iap-seed0")  # Table 2's smallest and the preset's patches
 
 
-def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Any, Any]]:
+def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Env, Policy]]:
     """``{run_dir: (config, env, policy)}`` for runs with a checkpoint whose hierarchical policy
     selects patches of the camera (an IAP high level, eyes open), built and nothing compiled;
     ``ValueError`` naming the run otherwise."""
@@ -53,7 +57,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, A
     return checked
 
 
-def strip_name(policy: Any) -> str:
+def strip_name(policy: Policy) -> str:
     """``fig10-p<patch size>-s<stride>.png`` of an attention policy."""
     attention = policy.layer.config
     return f"fig10-p{attention.patch_size}-s{attention.effective_stride}.png"

@@ -12,12 +12,16 @@ import concurrent.futures
 import logging
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
 from iap_mjx.checks import require_int
-from iap_mjx.viz import curves, video
+from iap_mjx.viz import curves, recording, video
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 logger = logging.getLogger(__name__)
 
@@ -48,7 +52,7 @@ def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6
     """A PNG strip of ``frames`` frames from one episode of ``result``'s centre params, the
     selected patches drawn (:func:`video.episode_strip`)."""
     env, policy = result.env, result.policy
-    if not video.has_pixels(env):
+    if not recording.has_pixels(env):
         raise ValueError(f"{result.config.env.name!r} observes the state: a strip shows a pixel agent's frames")
     return video.episode_strip(
         env,
@@ -62,7 +66,7 @@ def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6
     )
 
 
-def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Future | None:
+def compile_video_in_background(env: Env, policy: Policy) -> concurrent.futures.Future | None:
     """Starts compiling the episode video :func:`write_run_artifacts` will render of ``policy``
     on ``env`` (the ones the run trains), in a daemon thread, and returns its future (``None``
     for a state env: a run writes no video of one).
@@ -70,16 +74,16 @@ def compile_video_in_background(env: Any, policy: Any) -> concurrent.futures.Fut
     Called before training, the video's compile runs beside the ES iteration's (XLA compiles
     on one core, and a machine has more), so the video at the end of a run costs its
     rollout and encoding only (and, for an env with a scene, the scene renderer, compiled when
-    the episode's length is known: ``video.draw_steps``). A daemon thread: an interrupted run
+    the episode's length is known: ``drawing.draw_steps``). A daemon thread: an interrupted run
     does not wait for it.
     """
-    if not video.has_pixels(env):
+    if not recording.has_pixels(env):
         return None
     future: concurrent.futures.Future = concurrent.futures.Future()
 
     def work() -> None:
         try:
-            future.set_result(video.compile_episode_program(env, policy, steps=env.episode_length))
+            future.set_result(recording.compile_episode_program(env, policy, steps=env.episode_length))
         except Exception as error:  # handed to whoever waits for the program
             future.set_exception(error)
 
@@ -100,7 +104,7 @@ def write_run_artifacts(
             title=f"{result.config.env.name}: {result.config.policy.kind} policy",
         )
     ]
-    if video.has_pixels(result.env):
+    if recording.has_pixels(result.env):
         program = video_program.result() if video_program is not None else None
         path, episode_return = write_episode_video(result, run_dir / "episode.mp4", program=program)
         logger.info("episode video: return %.1f", episode_return)

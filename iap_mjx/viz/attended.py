@@ -4,13 +4,13 @@ distraction picture), over whole episodes.
 
 The geom seen at every pixel comes from the same ray trace as the frame
 (``PixelEnv.geom_map``, the camera's ``render_ids``), recorded beside the selected patches
-by the video's episode program (``video.episode_program``'s ``extra``), so the shares
+by the video's episode program (``recording.episode_program``'s ``extra``), so the shares
 describe exactly the frames the policy saw.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import mujoco
@@ -18,7 +18,11 @@ import numpy as np
 
 from iap_mjx.attention.patches import patch_corner
 from iap_mjx.checks import require_int
-from iap_mjx.viz import video
+from iap_mjx.viz import recording
+
+if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
+    from iap_mjx.envs.base import Env
+    from iap_mjx.policies.base import Policy
 
 BACKGROUND = "background"
 
@@ -55,19 +59,19 @@ def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int,
     return {int(i): int(c) for i, c in zip(ids, counts)}
 
 
-def episode_program(env: Any, policy: Any, *, steps: int) -> Any:
+def episode_program(env: Env, policy: Policy, *, steps: int) -> Any:
     """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
     each frame the policy sees."""
 
     def geom_map(state):
         return {"geoms": env.geom_map(state.data, state.info.get("distraction"))}
 
-    return video.episode_program(env, policy, steps=steps, extra=geom_map, scene=False)
+    return recording.episode_program(env, policy, steps=steps, extra=geom_map, scene=False)
 
 
 def episode_counts(
-    env: Any,
-    policy: Any,
+    env: Env,
+    policy: Policy,
     params: Any,
     *,
     episodes: int = 3,
@@ -82,14 +86,14 @@ def episode_counts(
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
     ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
     ``steps`` (default: built here)."""
-    if not (video.has_pixels(env) and hasattr(policy, "select")):
+    if not (recording.has_pixels(env) and hasattr(policy, "select")):
         raise ValueError("attended shares need an attention policy on a pixel env")
     require_int("episodes", episodes)
     steps = env.episode_length if steps is None else steps
     program = episode_program(env, policy, steps=steps) if program is None else program
     out = []
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
-        record = video.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
+        record = recording.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
         counts: dict[str, int] = {}
         alive = record["alive"]  # the frames the policy saw while its episode lived
         for geom, count in count_geoms(record["geoms"][alive], record["indices"][alive], policy.layer).items():
@@ -109,7 +113,7 @@ def shares(counts: list[dict[str, int]]) -> dict[str, float]:
     return {label: count / total for label, count in sorted(totals.items(), key=lambda item: -item[1])}
 
 
-def attended_shares(env: Any, policy: Any, params: Any, **kwargs: Any) -> dict[str, float]:
+def attended_shares(env: Env, policy: Policy, params: Any, **kwargs: Any) -> dict[str, float]:
     """:func:`shares` of :func:`episode_counts` (same arguments)."""
     return shares(episode_counts(env, policy, params, **kwargs))
 
