@@ -144,8 +144,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluates a run's latest checkpoint on fresh seeds, in the run's env or in the condition
     its overrides set (``env.*``, ``policy.blind``); prints mean and std return (and the mean of
     each per-episode statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
+    # here, not at import (EVAL_SEED too): importing iap_mjx.configs builds the presets, whose
+    # PolicySpec checks its kind against iap_mjx.policies, which loads jax before main's runtime.setup
     from iap_mjx import es
-    from iap_mjx.configs.training import EVAL_SEED  # here, not at import: it loads jax
+    from iap_mjx.configs.training import EVAL_SEED
 
     try:
         seed = EVAL_SEED if args.seed is None else args.seed
@@ -290,6 +292,8 @@ def add_commands(commands: Any) -> None:
         "--seed",
         type=int,
         default=None,
+        # 2021 is EVAL_SEED, written out: importing it here loads jax (see cmd_eval); tests/test_cli.py
+        # checks that the two agree
         help="evaluation seed (default 2021: the paper's tables', so their episodes; distinct from the training seeds)",
     )
     evaluate.set_defaults(func=cmd_eval, command_parser=evaluate)
