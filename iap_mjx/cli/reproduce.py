@@ -20,7 +20,7 @@ from iap_mjx.cli.arguments import usage_error
 def _fig1_or_fig6(args: argparse.Namespace) -> str:
     from iap_mjx.paper import fig1_fig6
 
-    return fig1_fig6.reproduce(
+    return fig1_fig6.reproduce_fig1_fig6(
         args.figure,
         args.out,
         seeds=args.seeds,
