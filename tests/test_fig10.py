@@ -19,9 +19,9 @@ from mujoco import mjx
 from PIL import Image
 
 from iap_mjx import cli, configs
+from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint
 from iap_mjx.paper import fig10, table2
-from iap_mjx.paper.evaluations import EVAL_SEED
 from iap_mjx.viz import drawing, recording, video
 
 STEPS = 1000  # quadruped-walls' episode

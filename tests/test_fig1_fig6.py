@@ -9,7 +9,7 @@ from iap_mjx.paper import fig1_fig6, runs
 
 def test_unknown_figure_and_bad_override_fail_fast(capsys):
     with pytest.raises(ValueError, match="valid: fig6, fig1"):
-        fig1_fig6.reproduce("fig9", "/tmp/unused")
+        fig1_fig6.reproduce_fig1_fig6("fig9", "/tmp/unused")
     assert cli.main(["reproduce", "fig6", "es.population_size=7"]) == 2
     assert "es.population_size" in capsys.readouterr().err
 
@@ -52,12 +52,12 @@ def test_figure_has_bars_crosses_and_one_curve_per_variant(tmp_path):
 
 def test_eval_episodes_zero_is_refused_before_training():
     with pytest.raises(ValueError, match="run.eval_episodes"):
-        fig1_fig6.reproduce("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))
+        fig1_fig6.reproduce_fig1_fig6("fig1", "/tmp/unused", overrides=("run.eval_episodes=0",))
 
 
 def test_misspelt_env_setting_is_refused_before_training(tmp_path):
     with pytest.raises(ValueError, match="heigth"):
-        fig1_fig6.reproduce("fig1", tmp_path, overrides=("env.heigth=64",))
+        fig1_fig6.reproduce_fig1_fig6("fig1", tmp_path, overrides=("env.heigth=64",))
     assert not list(tmp_path.iterdir())
 
 
@@ -76,4 +76,4 @@ def test_report_only_reads_rows_up_to_the_last_checkpoint_and_trains_nothing(tmp
     curve, seconds = runs.trained_curve(config, 0, run_dir, train=False)
     assert curve == [10.0, 20.0, 30.0] and seconds == 3 * 2.0 + 30.0
     with pytest.raises(ValueError, match="no runs of fig1"):
-        fig1_fig6.reproduce("fig1", tmp_path / "empty", train=False)
+        fig1_fig6.reproduce_fig1_fig6("fig1", tmp_path / "empty", train=False)

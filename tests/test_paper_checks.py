@@ -52,7 +52,7 @@ def test_fig1_and_fig6_refuse_a_seed_override_before_writing_anything(figure, tm
     monkeypatch.setattr(iap_mjx.es, "train", trains)  # nothing may start
     out = tmp_path / "out"
     with pytest.raises(ValueError, match=f"^{figure} sets each run's seed itself .*; remove seed=1$"):
-        fig1_fig6.reproduce(figure, out, overrides=("seed=1",))
+        fig1_fig6.reproduce_fig1_fig6(figure, out, overrides=("seed=1",))
     assert not out.exists()
 
 

@@ -1,11 +1,12 @@
 """The ``iap-mjx`` command line.
 
 One ``argparse`` tree: :mod:`~iap_mjx.cli.commands` adds the commands over presets and run
-directories (``presets``, ``show``, ``train``, ``eval``, ``video``, ``attended``, ``figures``),
-:mod:`~iap_mjx.cli.reproduce` adds ``reproduce`` with one subcommand per figure, each command a
-small function. A new command is an ``add_parser`` call (its defaults: ``func``, the function,
-and ``command_parser``, the parser itself, which refuses unknown options with its own usage)
-and a function in one of them. JAX is imported only inside the commands, after :func:`main`
+directories (``presets``, ``show``, ``train``, ``eval``, ``video``, ``attended``, ``figures``,
+``runs``), :mod:`~iap_mjx.cli.reproduce` adds ``reproduce`` with one subcommand per figure, each
+command a small function. A new command is a function in one of them and its parser builder,
+``_add_<command>``, called from that module's ``add_commands``: an ``add_parser`` call whose
+defaults are ``func``, the function, and ``command_parser``, the parser itself, which refuses
+unknown options with its own usage. JAX is imported only inside the commands, after :func:`main`
 has split the CPU into devices and turned on the compilation cache.
 """
 

@@ -1,5 +1,6 @@
 """The commands over presets and run directories: ``presets``, ``show``, ``train``, ``eval``,
-``video``, ``attended``, ``figures`` and ``runs``, one function each, and ``add_commands``, which wires
+``video``, ``attended``, ``figures`` and ``runs``, one function each (``cmd_<command>``) and one
+parser builder each (``_add_<command>``), and ``add_commands``, which calls the builders to wire
 them into the ``iap-mjx`` parser. JAX is imported inside the commands, after
 :func:`iap_mjx.cli.main` has split the CPU into devices and turned on the compilation cache.
 """
@@ -144,8 +145,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluates a run's latest checkpoint on fresh seeds, in the run's env or in the condition
     its overrides set (``env.*``, ``policy.blind``); prints mean and std return (and the mean of
     each per-episode statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
+    # here, not at import (EVAL_SEED too): importing iap_mjx.configs builds the presets, whose
+    # PolicySpec checks its kind against iap_mjx.policies, which loads jax before main's runtime.setup
     from iap_mjx import es
-    from iap_mjx.configs.training import EVAL_SEED  # here, not at import: it loads jax
+    from iap_mjx.configs.training import EVAL_SEED
 
     try:
         seed = EVAL_SEED if args.seed is None else args.seed
@@ -240,12 +243,12 @@ def cmd_runs(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_commands(commands: Any) -> None:
-    """Adds this module's commands to the ``iap-mjx`` subparsers ``commands``; each sets
-    ``func`` to its command function and ``command_parser`` to its parser."""
+def _add_presets(commands: Any) -> None:
     presets = commands.add_parser("presets", help="list the named presets")
     presets.set_defaults(func=cmd_presets, command_parser=presets)
 
+
+def _add_show(commands: Any) -> None:
     show = commands.add_parser(
         "show",
         help="print a preset's resolved config",
@@ -257,6 +260,8 @@ def add_commands(commands: Any) -> None:
     show.add_argument("overrides", nargs="*", metavar="key=value")
     show.set_defaults(func=cmd_show, command_parser=show)
 
+
+def _add_train(commands: Any) -> None:
     train = commands.add_parser(
         "train",
         help="train a preset",
@@ -275,6 +280,8 @@ def add_commands(commands: Any) -> None:
     train.add_argument("--process-id", type=arguments.index, default=0, help="multi-host: this process")
     train.set_defaults(func=cmd_train, command_parser=train)
 
+
+def _add_eval(commands: Any) -> None:
     evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
     evaluate.add_argument("run_dir")
     evaluate.add_argument(
@@ -290,10 +297,14 @@ def add_commands(commands: Any) -> None:
         "--seed",
         type=int,
         default=None,
+        # 2021 is EVAL_SEED, written out: importing it here loads jax (see cmd_eval); tests/test_cli.py
+        # checks that the two agree
         help="evaluation seed (default 2021: the paper's tables', so their episodes; distinct from the training seeds)",
     )
     evaluate.set_defaults(func=cmd_eval, command_parser=evaluate)
 
+
+def _add_video(commands: Any) -> None:
     video = commands.add_parser(
         "video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)"
     )
@@ -319,6 +330,8 @@ def add_commands(commands: Any) -> None:
     video.add_argument("--frames", type=arguments.count, default=6, help="frames in a --strip (default 6)")
     video.set_defaults(func=cmd_video, command_parser=video)
 
+
+def _add_attended(commands: Any) -> None:
     look = commands.add_parser(
         "attended",
         help="what an attention policy's selected patches show, share per geom",
@@ -337,6 +350,8 @@ def add_commands(commands: Any) -> None:
     look.add_argument("--seed", type=int, default=0, help="episode seed")
     look.set_defaults(func=cmd_attended, command_parser=look)
 
+
+def _add_figures(commands: Any) -> None:
     figures = commands.add_parser(
         "figures",
         help="write the paper's figures as PNGs",
@@ -348,6 +363,8 @@ def add_commands(commands: Any) -> None:
     figures.add_argument("--draws", type=arguments.count, default=100_000, help="Monte Carlo draws per point")
     figures.set_defaults(func=cmd_figures, command_parser=figures)
 
+
+def _add_runs(commands: Any) -> None:
     runs = commands.add_parser(
         "runs",
         help="list the run directories in a folder",
@@ -361,3 +378,17 @@ def add_commands(commands: Any) -> None:
         "--results", default=None, metavar="FILE.md", help="also write the table as this file's runs section"
     )
     runs.set_defaults(func=cmd_runs, command_parser=runs)
+
+
+def add_commands(commands: Any) -> None:
+    """Adds this module's commands to the ``iap-mjx`` subparsers ``commands``, in the order
+    ``iap-mjx --help`` lists them; each ``_add_<command>`` sets ``func`` to its command function
+    and ``command_parser`` to its parser."""
+    _add_presets(commands)
+    _add_show(commands)
+    _add_train(commands)
+    _add_eval(commands)
+    _add_video(commands)
+    _add_attended(commands)
+    _add_figures(commands)
+    _add_runs(commands)

@@ -5,6 +5,9 @@ Each figure's subcommand takes only its own options: another figure's (``reprodu
 abbreviation of another (``--seed`` is table2's, never ``--seeds``). Its function hands them to
 the module that trains, evaluates and reports the figure. Every figure is resumable: finished
 runs are skipped, the others continue from their last checkpoint.
+
+Per figure, ``_add_<figure>`` builds its parser and sits next to ``_<figure>``, which hands the
+parsed options to the figure's module; :func:`add_commands` calls the builders in turn.
 """
 
 from __future__ import annotations
@@ -15,92 +18,6 @@ from typing import Any
 
 from iap_mjx.cli import arguments
 from iap_mjx.cli.arguments import usage_error
-
-
-def _fig1_or_fig6(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import fig1_fig6
-
-    return fig1_fig6.reproduce(
-        args.figure,
-        args.out,
-        seeds=args.seeds,
-        overrides=tuple(args.overrides),
-        passes=args.passes,
-        train=not args.report_only,
-    )
-
-
-def _fig7(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import fig7
-
-    return fig7.reproduce_fig7(
-        args.out,
-        seed=args.seed,
-        overrides=tuple(args.overrides),
-        episodes=args.episodes,
-        train=not args.report_only,
-        results=args.results,
-    )
-
-
-def _fig8(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import fig8
-
-    return fig8.reproduce_fig8(
-        args.out, overrides=tuple(args.overrides), train=not args.report_only, results=args.results
-    )
-
-
-def _table1(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import table1
-
-    return table1.reproduce_table1(
-        args.out,
-        seeds=args.seeds,
-        overrides=tuple(args.overrides),
-        episodes=args.episodes,
-        train=not args.report_only,
-        tasks=args.tasks or table1.TASKS,
-        results=args.results,
-        export=args.export,
-        policy=args.policy,
-    )
-
-
-def _fig11(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import fig11
-
-    return fig11.reproduce_fig11(
-        args.out,
-        seeds=args.seeds,
-        overrides=tuple(args.overrides),
-        episodes=args.episodes,
-        train=not args.report_only,
-        results=args.results,
-        export=args.export,
-        section=args.section,
-    )
-
-
-def _table2(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import table2
-
-    return table2.reproduce_table2(
-        args.out,
-        settings=args.settings or table2.SETTINGS,
-        seed=args.seed,
-        overrides=tuple(args.overrides),
-        episodes=args.episodes,
-        train=not args.report_only,
-        results=args.results,
-        export=args.export,
-    )
-
-
-def _fig10(args: argparse.Namespace) -> str:
-    from iap_mjx.paper import fig10
-
-    return fig10.reproduce_fig10(args.out, run_dirs=args.run_dirs, frames=args.frames, results=args.results)
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -120,6 +37,22 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return 130
     print(markdown)
     return 0
+
+
+def _figure(
+    figures: Any, name: str, summary: str, description: str, function: Any, *, overrides: bool = True
+) -> argparse.ArgumentParser:
+    """Adds figure ``name``'s parser to ``figures`` (the ``reproduce`` subparsers), with the
+    options every figure takes (``key=value`` overrides unless ``overrides=False``, ``--out``);
+    running it calls ``function(args)``."""
+    parser = figures.add_parser(name, help=summary, description=f"{summary}: {description}", allow_abbrev=False)
+    if overrides:
+        parser.add_argument(
+            "overrides", nargs="*", metavar="key=value", help="applied to every preset, e.g. run.iterations=100"
+        )
+    parser.add_argument("--out", default="results", help="output directory (default: results)")
+    parser.set_defaults(func=cmd_reproduce, run_figure=function, command_parser=parser)
+    return parser
 
 
 # the options that several figures share
@@ -152,30 +85,23 @@ def _add_export(parser: argparse.ArgumentParser, example: str) -> None:
     )
 
 
-def add_commands(commands: Any) -> None:
-    """Adds ``reproduce`` and its one subcommand per figure to the ``iap-mjx`` subparsers."""
-    repro = commands.add_parser(
-        "reproduce",
-        help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
-        "Table 1, or the quadruped's Figures 10, 11 and Table 2",
-        description="Trains, evaluates and reports one of the paper's figures or tables; "
-        "`iap-mjx reproduce FIGURE -h` lists that figure's options. Rerunning a command resumes "
-        "it: finished runs are skipped, the others continue from their last checkpoint.",
+def _fig1_or_fig6(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import fig1_fig6
+
+    return fig1_fig6.reproduce_fig1_fig6(
+        args.figure,
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        passes=args.passes,
+        train=not args.report_only,
     )
-    figures = repro.add_subparsers(dest="figure", required=True, metavar="FIGURE")
 
-    def figure(name: str, summary: str, description: str, function: Any, *, overrides: bool = True):
-        parser = figures.add_parser(name, help=summary, description=f"{summary}: {description}", allow_abbrev=False)
-        if overrides:
-            parser.add_argument(
-                "overrides", nargs="*", metavar="key=value", help="applied to every preset, e.g. run.iterations=100"
-            )
-        parser.add_argument("--out", default="results", help="output directory (default: results)")
-        parser.set_defaults(func=cmd_reproduce, run_figure=function, command_parser=parser)
-        return parser
 
+def _add_fig1_fig6(figures: Any) -> None:
     for name in ("fig1", "fig6"):
-        parser = figure(
+        parser = _figure(
+            figures,
             name,
             "inference time per pass next to return",
             "times one forward pass of every attention variant and trains each preset on --seeds seeds",
@@ -185,7 +111,23 @@ def add_commands(commands: Any) -> None:
         parser.add_argument("--passes", type=arguments.count, default=100, help="timed forward passes (default 100)")
         _add_report_only(parser)
 
-    parser = figure(
+
+def _fig7(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import fig7
+
+    return fig7.reproduce_fig7(
+        args.out,
+        seed=args.seed,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        results=args.results,
+    )
+
+
+def _add_fig7(figures: Any) -> None:
+    parser = _figure(
+        figures,
         "fig7",
         "the patch sweep",
         "on dcs-cartpole-swingup, one seed per cell of patch size {2, 4, 8} x selected patches "
@@ -197,7 +139,18 @@ def add_commands(commands: Any) -> None:
     _add_results(parser)
     _add_report_only(parser)
 
-    parser = figure(
+
+def _fig8(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import fig8
+
+    return fig8.reproduce_fig8(
+        args.out, overrides=tuple(args.overrides), train=not args.report_only, results=args.results
+    )
+
+
+def _add_fig8(figures: Any) -> None:
+    parser = _figure(
+        figures,
         "fig8",
         "return against wall-clock",
         "brute force, IAP ReLU and hybrid on dcs-cartpole-swingup, each method's seconds per "
@@ -207,7 +160,26 @@ def add_commands(commands: Any) -> None:
     _add_results(parser)
     _add_report_only(parser)
 
-    parser = figure(
+
+def _table1(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import table1
+
+    return table1.reproduce_table1(
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        tasks=args.tasks or table1.TASKS,
+        results=args.results,
+        export=args.export,
+        policy=args.policy,
+    )
+
+
+def _add_table1(figures: Any) -> None:
+    parser = _figure(
+        figures,
         "table1",
         "the Distracting Control Suite, static medium",
         "trains dcs-<task> for every task and seed, then evaluates each finished run in four "
@@ -231,7 +203,25 @@ def add_commands(commands: Any) -> None:
     _add_export(parser, "DIR/<task>-seed<k>, with --policy cnn DIR/<task>-cnn-seed<k> (e.g. pretrained/dcs)")
     _add_report_only(parser)
 
-    parser = figure(
+
+def _fig11(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import fig11
+
+    return fig11.reproduce_fig11(
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        results=args.results,
+        export=args.export,
+        section=args.section,
+    )
+
+
+def _add_fig11(figures: Any) -> None:
+    parser = _figure(
+        figures,
         "fig11",
         "the quadruped's high levels on the walls course",
         "trains quadruped-walls-iap, -cnn and -blind on --seeds seeds, then evaluates each finished "
@@ -250,7 +240,25 @@ def add_commands(commands: Any) -> None:
     )
     _add_report_only(parser)
 
-    parser = figure(
+
+def _table2(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import table2
+
+    return table2.reproduce_table2(
+        args.out,
+        settings=args.settings or table2.SETTINGS,
+        seed=args.seed,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        train=not args.report_only,
+        results=args.results,
+        export=args.export,
+    )
+
+
+def _add_table2(figures: Any) -> None:
+    parser = _figure(
+        figures,
         "table2",
         "the quadruped's patch sizes and strides",
         "quadruped-walls-iap at each --settings patch size and stride, one --seed, reporting the "
@@ -273,7 +281,16 @@ def add_commands(commands: Any) -> None:
     )
     _add_report_only(parser)
 
-    parser = figure(
+
+def _fig10(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import fig10
+
+    return fig10.reproduce_fig10(args.out, run_dirs=args.run_dirs, frames=args.frames, results=args.results)
+
+
+def _add_fig10(figures: Any) -> None:
+    parser = _figure(
+        figures,
         "fig10",
         "the quadruped's camera with the selected patches",
         "a PNG strip along one episode of each of --run-dirs, drawn from the trained runs as they are",
@@ -290,3 +307,23 @@ def add_commands(commands: Any) -> None:
     )
     parser.add_argument("--frames", type=arguments.count, default=6, help="frames per strip (default 6)")
     _add_results(parser)
+
+
+def add_commands(commands: Any) -> None:
+    """Adds ``reproduce`` and its one subcommand per figure to the ``iap-mjx`` subparsers."""
+    repro = commands.add_parser(
+        "reproduce",
+        help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
+        "Table 1, or the quadruped's Figures 10, 11 and Table 2",
+        description="Trains, evaluates and reports one of the paper's figures or tables; "
+        "`iap-mjx reproduce FIGURE -h` lists that figure's options. Rerunning a command resumes "
+        "it: finished runs are skipped, the others continue from their last checkpoint.",
+    )
+    figures = repro.add_subparsers(dest="figure", required=True, metavar="FIGURE")
+    _add_fig1_fig6(figures)
+    _add_fig7(figures)
+    _add_fig8(figures)
+    _add_table1(figures)
+    _add_fig11(figures)
+    _add_table2(figures)
+    _add_fig10(figures)

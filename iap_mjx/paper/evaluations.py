@@ -24,6 +24,10 @@ from iap_mjx.files import write_json
 
 logger = logging.getLogger(__name__)
 
+COURSE = "course"  # the eval.json entry of a quadruped run on its training env's course, unseen draws
+EYES_CLOSED = ("policy.blind=true",)  # the condition: the trained high level given a zeroed image
+CLOSED = "course-eyes-closed"  # its eval.json entry
+
 
 def evaluation_key(name: str, step: int, episodes: int) -> str:
     """The ``eval.json`` key of evaluation ``name`` of checkpoint ``step`` on ``episodes``
@@ -71,6 +75,23 @@ def evaluate_conditions(
         )
         for name, condition in conditions.items()
     }
+
+
+def evaluate_course(run_dir: Path, step: int, *, episodes: int, eyes_closed: bool = False) -> dict[str, list[float]]:
+    """``{"return": (episodes,), statistic: (episodes,) ...}`` (lists) of the quadruped run's
+    checkpoint ``step`` on fresh courses (with ``eyes_closed``, the same courses, its high level
+    given a zeroed image), ``episodes`` episodes drawn from :data:`EVAL_SEED`; read from
+    ``eval.json`` where stored, evaluated (and stored) otherwise. Figure 11's and Table 2's."""
+    from iap_mjx import es
+
+    condition = EYES_CLOSED if eyes_closed else ()
+
+    def evaluate() -> dict[str, list[float]]:
+        results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
+        return {name: [float(value) for value in values] for name, values in results.items()}
+
+    key = evaluation_key(CLOSED if eyes_closed else COURSE, step, episodes)
+    return stored_evaluation(run_dir, key, episodes, evaluate)
 
 
 def seed_means(rows: list[dict[str, Any]], entry: str, names: Iterable[str]) -> dict[str, list[float]]:

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
-from iap_mjx.paper.evaluations import EVAL_SEED
+from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily

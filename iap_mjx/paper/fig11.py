@@ -14,8 +14,9 @@ sides and gaps) are drawn per episode from the episode's reset key
 (``QuadrupedWalls._place_world``), and the evaluation's keys derive from
 :data:`iap_mjx.configs.training.EVAL_SEED`, which no training run uses; a course is a draw of
 continuous positions, so none of them is, but for probability zero, a course trained on.
-Evaluations are stored in the run directory (``eval.json``, :mod:`iap_mjx.paper.evaluations`), so a
-report reads them instead of evaluating again.
+Evaluations are stored in the run directory (``eval.json``,
+:func:`iap_mjx.paper.evaluations.evaluate_course`), so a report reads them instead of evaluating
+again.
 
 The seeing policies (IAP, CNN) are also evaluated with their eyes closed: the same checkpoint on
 the same courses, its high level given a zeroed image (``policy.blind=true``, as the blind
@@ -39,9 +40,10 @@ import numpy as np
 
 from iap_mjx import configs
 from iap_mjx.checks import require_int
+from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.files import write_json
-from iap_mjx.paper.evaluations import EVAL_SEED, evaluation_key, seed_means, stored_evaluation
+from iap_mjx.paper.evaluations import evaluate_course, seed_means
 from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
@@ -49,9 +51,6 @@ logger = logging.getLogger(__name__)
 
 POLICIES = {"IAP": "quadruped-walls-iap", "CNN": "quadruped-walls-cnn", "blind": "quadruped-walls-blind"}
 """Figure 11's policies (labels) and their presets."""
-COURSE = "course"  # the eval.json entry of the training env's own course, unseen draws
-EYES_CLOSED = ("policy.blind=true",)  # the condition: the trained high level given a zeroed image
-CLOSED = "course-eyes-closed"  # its eval.json entry
 SEEING = ("IAP", "CNN")  # the policies evaluated with their eyes closed
 STATISTICS = QuadrupedWalls.episode_metrics  # walls_passed, fell_off, wall_contacts, distance
 MIN_PARAMETER_RATIO = 5.0  # the bar: the CNN has at least 5x IAP's parameters
@@ -70,22 +69,6 @@ def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
         checked[label] = config
     check_evaluated("fig11", checked.values())
     return checked
-
-
-def evaluate_course(run_dir: Path, step: int, *, episodes: int, eyes_closed: bool = False) -> dict[str, list[float]]:
-    """``{"return": (episodes,), statistic: (episodes,) ...}`` (lists) of the run's checkpoint
-    ``step`` on fresh courses (with ``eyes_closed``, the same courses, its high level given a
-    zeroed image), read from ``eval.json`` where stored, evaluated otherwise."""
-    from iap_mjx import es
-
-    condition = EYES_CLOSED if eyes_closed else ()
-
-    def evaluate() -> dict[str, list[float]]:
-        results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
-        return {name: [float(value) for value in values] for name, values in results.items()}
-
-    key = evaluation_key(CLOSED if eyes_closed else COURSE, step, episodes)
-    return stored_evaluation(run_dir, key, episodes, evaluate)
 
 
 def run_row(

@@ -56,7 +56,7 @@ def check(figure: str, overrides: tuple[str, ...]) -> list[tuple[str, configs.Tr
     return variants
 
 
-def reproduce(
+def reproduce_fig1_fig6(
     figure: str,
     out_dir: str | Path,
     *,

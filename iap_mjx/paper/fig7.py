@@ -27,7 +27,14 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.files import write_json
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, reported_run
+from iap_mjx.paper.runs import (
+    built_policies,
+    check_evaluated,
+    check_not_swept,
+    check_seed_not_set,
+    reported_run,
+    train_command,
+)
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -141,7 +148,7 @@ def reproduce_fig7(
 def command(overrides: tuple[str, ...], row: dict[str, Any], seed: int) -> str:
     """The ``iap-mjx train`` command of one cell."""
     cell = cell_overrides(row["patch_size"], row["top_l"], row["d_qk"])
-    return " ".join(["iap-mjx train", PRESET, *overrides, *cell, f"run.seed={seed}"])
+    return train_command(PRESET, (*overrides, *cell), seed)
 
 
 def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides: tuple[str, ...], seed: int) -> str:

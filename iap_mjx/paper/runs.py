@@ -39,6 +39,16 @@ def check_seed_not_set(report: str, overrides: Iterable[str]) -> None:
     check_not_swept(report, overrides, ("run.seed",), what)
 
 
+def train_command(preset: str, overrides: Iterable[str], seed: int, run_dir: Path | None = None) -> str:
+    """The ``iap-mjx train`` command line of one run, as a report's table shows it: ``preset``,
+    ``overrides`` (the caller's, then the run's own), ``run.seed=<seed>`` and, given, ``--run-dir``;
+    joined with spaces, unquoted."""
+    words = ["iap-mjx train", preset, *overrides, f"run.seed={seed}"]
+    if run_dir is not None:
+        words.append(f"--run-dir {run_dir}")
+    return " ".join(words)
+
+
 def trained_curve(
     config: configs.TrainConfig, seed: int, run_dir: Path, *, train: bool = True
 ) -> tuple[list[float], float] | None:

@@ -16,7 +16,7 @@ maximised over the iterations; beside it the largest ``eval_return`` (the centre
 course scores its length, so the maximum saturates there and settings tie (compared at the
 table's precision, 0.1 m). So each finished run's final centre is also evaluated on
 ``episodes`` courses never seen in training (Figure 11's courses,
-:func:`iap_mjx.paper.fig11.evaluate_course`): walls passed and return per course, which tell
+:func:`iap_mjx.paper.evaluations.evaluate_course`): walls passed and return per course, which tell
 the settings apart where the maximum cannot. ``L`` is the number of patches on the course's
 24x32 camera. Writes ``<out>/table2.json`` and ``<out>/table2.png`` and returns the markdown
 table.
@@ -33,7 +33,15 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.checks import is_int, require_int
 from iap_mjx.files import write_json
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_not_swept, check_seed_not_set, reported_run
+from iap_mjx.paper.evaluations import evaluate_course
+from iap_mjx.paper.runs import (
+    built_policies,
+    check_evaluated,
+    check_not_swept,
+    check_seed_not_set,
+    reported_run,
+    train_command,
+)
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -142,7 +150,6 @@ def reproduce_table2(
     ``pretrained/quadruped``, tracked by git) that receives each run's newest checkpoint, config
     and metrics under its run directory's name, finished or not."""
     from iap_mjx import policies
-    from iap_mjx.paper.fig11 import evaluate_course
 
     checked = check(tuple(settings), tuple(overrides), seed, episodes)
     built = built_policies({setting: config for setting, (config, _, _) in checked.items()})
@@ -170,9 +177,7 @@ def reproduce_table2(
                 "patches": built[setting].layer.num_patches,
                 "parameters": policies.init_param_count(built[setting]),
                 "run": name,
-                "command": " ".join(
-                    ["iap-mjx train", PRESET, *overrides, *extra, f"run.seed={seed}", f"--run-dir {out_dir / name}"]
-                ),
+                "command": train_command(PRESET, (*overrides, *extra), seed, out_dir / name),
                 "population_max": best,
                 "max_return": max(best),
                 "max_eval_return": max(row["curve"]),
