@@ -8,8 +8,8 @@ quadruped's MJCF) -> ``envs`` (MJX ports of dm_control tasks, the quadruped's co
 ``policies`` -> ``es`` (training) -> ``viz`` (videos, strips, curves) -> ``paper`` (one module
 per figure or table) -> ``cli``. ``runtime`` is process set-up that entry points (the CLI, the
 tests, benchmarks, the notebook) call before JAX starts; library code calls none of it but
-the scoped ``persistent_cache_off``.
-(``PolicySpec`` looks up the policy kinds when it is validated: its one upward lookup.)
+the scoped ``persistent_cache_off``. ``configs`` load no JAX, so a config can be built before
+``runtime`` sets the process up.
 """
 
 __version__ = "0.1.0"

@@ -249,7 +249,7 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
 
 def test_importing_the_command_line_imports_no_jax():
     """``main`` splits the CPU into devices and turns on constant hoisting before jax starts;
-    a command module that imports jax (e.g. through ``iap_mjx.configs``) at import time would
+    a command module that imports jax (e.g. through ``iap_mjx.es``) at import time would
     leave one device, and a chaotic evaluation then ends otherwise than the tables'."""
     code = "import sys, iap_mjx.cli; print('jax' in sys.modules)"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -139,6 +139,25 @@ def test_quadruped_solver_defaults_are_the_robot_models():
     )
 
 
+def test_the_strategy_and_policy_names_are_evosaxs_and_the_policy_tables():
+    """Configs list evosax's strategies and the policy kinds as literals (importing evosax or
+    the policies loads JAX): they must stay equal, or a valid name would be refused."""
+    from evosax.algorithms import distribution_based_algorithms
+
+    from iap_mjx import policies
+    from iap_mjx.configs.training import EVOSAX_STRATEGIES, POLICY_KINDS
+
+    assert sorted(EVOSAX_STRATEGIES) == sorted(distribution_based_algorithms)
+    assert sorted(POLICY_KINDS) == policies.names()
+
+
+def test_importing_the_configs_and_building_the_presets_loads_no_jax():
+    """A notebook may build a config before ``runtime.setup()``, which must run before JAX starts."""
+    code = "import sys; from iap_mjx import configs; configs.get('dcs-cartpole-swingup'); print('jax' in sys.modules)"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert loaded.strip() == "False"
+
+
 def test_configs_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         configs.get("cheetah-run-state").run.iterations = 3

@@ -16,14 +16,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from iap_mjx import configs
 from iap_mjx.cli import arguments
 from iap_mjx.cli.arguments import usage_error
+from iap_mjx.configs.training import EVAL_SEED
 
 
 def cmd_presets(args: argparse.Namespace) -> int:
     """Lists the presets with their descriptions."""
-    from iap_mjx import configs
-
     width = max(len(name) for name in configs.names())
     for name in configs.names():
         print(f"{name:<{width}}  {configs.describe(name)}")
@@ -33,7 +33,6 @@ def cmd_presets(args: argparse.Namespace) -> int:
 def resolve_target(target: str, overrides: list[str]):
     """The ``TrainConfig`` of a preset name or of a run directory's ``config.json``, with
     ``overrides`` applied (``ValueError`` naming the problem otherwise)."""
-    from iap_mjx import configs
     from iap_mjx.es import metrics_log
 
     if Path(target).is_dir():
@@ -90,8 +89,6 @@ def default_run_dir(preset: str) -> Path:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Trains a preset with overrides; resumes if ``--run-dir`` holds a checkpoint."""
-    from iap_mjx import configs
-
     try:
         config = configs.apply_overrides(configs.get(args.preset), args.overrides)
     except ValueError as error:
@@ -145,15 +142,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluates a run's latest checkpoint on fresh seeds, in the run's env or in the condition
     its overrides set (``env.*``, ``policy.blind``); prints mean and std return (and the mean of
     each per-episode statistic the env keeps, e.g. the quadruped course's ``walls_passed_mean``)."""
-    # here, not at import (EVAL_SEED too): importing iap_mjx.configs builds the presets, whose
-    # PolicySpec checks its kind against iap_mjx.policies, which loads jax before main's runtime.setup
-    from iap_mjx import es
-    from iap_mjx.configs.training import EVAL_SEED
+    from iap_mjx import es  # here, not at import: it loads jax, which main's runtime.setup precedes
 
     try:
-        seed = EVAL_SEED if args.seed is None else args.seed
         results = es.evaluate_run_episodes(
-            args.run_dir, episodes=args.episodes, seed=seed, overrides=tuple(args.overrides)
+            args.run_dir, episodes=args.episodes, seed=args.seed, overrides=tuple(args.overrides)
         )
     except (FileNotFoundError, ValueError) as error:
         return usage_error(error)
@@ -296,10 +289,9 @@ def _add_eval(commands: Any) -> None:
     evaluate.add_argument(
         "--seed",
         type=int,
-        default=None,
-        # 2021 is EVAL_SEED, written out: importing it here loads jax (see cmd_eval); tests/test_cli.py
-        # checks that the two agree
-        help="evaluation seed (default 2021: the paper's tables', so their episodes; distinct from the training seeds)",
+        default=EVAL_SEED,
+        help=f"evaluation seed (default {EVAL_SEED}: the paper's tables', so their episodes; distinct from the "
+        "training seeds)",
     )
     evaluate.set_defaults(func=cmd_eval, command_parser=evaluate)
 

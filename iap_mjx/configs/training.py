@@ -20,13 +20,25 @@ SHAPINGS = ("centred_rank", "z_score", "identity")
 these (configs import nothing of ``es``, whose ``__init__`` loads orbax)."""
 SIGMA_SCHEDULES = ("constant", "linear", "exponential")
 OPEN_ES = "open_es"
+EVOSAX_STRATEGIES = (
+    "ARS", "ASEBO", "CMAAnchoredLES", "CMA_ES", "CR_FM_NES", "DES", "ESMC", "EvoTF_ES", "GradientlessDescent",
+    "GuidedES", "HillClimbing", "LES", "LM_MA_ES", "MA_ES", "NoiseReuseES", "Open_ES", "PGPE", "PersistentES",
+    "RandomSearch", "Rm_ES", "SNES", "SV_CMA_ES", "SV_Open_ES", "Sep_CMA_ES", "SimpleES", "SimulatedAnnealing",
+    "iAMaLGaM_Full", "iAMaLGaM_Univariate", "xNES",
+)  # fmt: skip
+"""evosax's distribution-based strategies (``evosax.algorithms.distribution_based_algorithms``
+of the pinned evosax; a test holds them equal), the other names ``es.strategy`` takes: listed
+here, since importing evosax loads JAX."""
+POLICY_KINDS = ("cnn", "convnet", "hierarchical", "iap", "linear", "mlp", "pmtg")
+"""The names ``policy.kind`` takes; ``iap_mjx.policies`` builds its factory table from these
+(so that configs, and the presets built at their import, load no JAX)."""
 EVAL_SEED = 2021
 """The seed of a finished run's evaluations (``iap-mjx eval``, ``es.evaluate_run``, the paper's
 tables): its episodes are fresh draws, none of them a training episode."""
 
 
 def one_per_name(names: tuple[str, ...], table: dict[str, Any]) -> dict[str, Any]:
-    """``table`` (name -> what ``iap_mjx.es`` builds for it), checked to hold exactly
+    """``table`` (name -> what ``iap_mjx.es`` or ``iap_mjx.policies`` builds for it), checked to hold exactly
     ``names``: a name added here without its entry there fails at import, not in a run."""
     if set(table) != set(names):
         raise ImportError(f"a table for the names {names} holds {tuple(table)}")
@@ -64,7 +76,7 @@ class EnvSpec:
 
 @dataclasses.dataclass(frozen=True)
 class PolicySpec:
-    """Which policy: a kind from ``iap_mjx.policies.names()`` and its keyword options.
+    """Which policy: a kind from :data:`POLICY_KINDS` and its keyword options.
 
     On the command line ``policy.hidden_sizes=64,64`` sets an option (any name that is not a
     field of this class goes into ``options``).
@@ -74,9 +86,7 @@ class PolicySpec:
     options: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self):
-        from iap_mjx import policies
-
-        require_choice("policy.kind", self.kind, policies.names())
+        require_choice("policy.kind", self.kind, POLICY_KINDS)
         _pairs("policy", "options", self.options)
 
 
@@ -122,10 +132,7 @@ class ESConfig:
     evosax_options: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self):
-        if self.strategy != OPEN_ES:
-            from evosax.algorithms import distribution_based_algorithms
-
-            require_choice("es.strategy", self.strategy, [OPEN_ES, *distribution_based_algorithms])
+        require_choice("es.strategy", self.strategy, (OPEN_ES, *EVOSAX_STRATEGIES))
         require_int("es.population_size", self.population_size)
         if self.population_size < 2:
             _fail("es", "population_size", self.population_size, "must be >= 2")

@@ -17,6 +17,7 @@ from types import MappingProxyType
 from typing import Any
 
 from iap_mjx.checks import require_choice
+from iap_mjx.configs.training import POLICY_KINDS, one_per_name
 from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
 from iap_mjx.policies.base import Policy, check_options, constructor_options, init_param_count, param_count
 from iap_mjx.policies.convnet import (
@@ -50,17 +51,20 @@ def _flat_factory(kind: str, cls: type) -> Callable[..., Policy]:
 
 
 FACTORIES: Mapping[str, Callable[..., Policy]] = MappingProxyType(
-    {
-        "linear": _flat_factory("linear", LinearPolicy),
-        "mlp": _flat_factory("mlp", MLPPolicy),
-        "iap": make_iap_policy,
-        "cnn": make_cnn_policy,
-        "convnet": make_convnet_policy,
-        "pmtg": make_pmtg_policy,
-        "hierarchical": make_hierarchical_policy,
-    }
+    one_per_name(
+        POLICY_KINDS,
+        {
+            "linear": _flat_factory("linear", LinearPolicy),
+            "mlp": _flat_factory("mlp", MLPPolicy),
+            "iap": make_iap_policy,
+            "cnn": make_cnn_policy,
+            "convnet": make_convnet_policy,
+            "pmtg": make_pmtg_policy,
+            "hierarchical": make_hierarchical_policy,
+        },
+    )
 )
-"""Each policy kind's factory, by name."""
+"""Each policy kind's factory, by name (the kinds are ``configs.POLICY_KINDS``)."""
 
 
 def names() -> list[str]:
