@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from iap_mjx.configs import background_sets
 from iap_mjx.configs import distraction as dcs
 from iap_mjx.envs import backgrounds
 
-EASY = dcs.DAVIS17_TRAINING_VIDEOS[:4]
+EASY = background_sets.DAVIS17_TRAINING_VIDEOS[:4]
 FRAME_COUNTS = (3, 5, 2, 4)  # of the four easy videos: padding to 5 is exercised
 
 
@@ -93,12 +94,12 @@ def test_davis_loader_reads_both_layouts(tmp_path, layout):
 
 
 def test_davis_levels_take_the_first_videos_of_the_training_list(tmp_path):
-    medium = dcs.DAVIS17_TRAINING_VIDEOS[:8]
+    medium = background_sets.DAVIS17_TRAINING_VIDEOS[:8]
     _write_davis(tmp_path, medium, (1,) * 8, shape=(6, 6))
     assert backgrounds.load("medium", tmp_path, size=4).names == medium
     assert backgrounds.load("easy", tmp_path, size=4).names == medium[:4]
-    assert len(dcs.DAVIS17_TRAINING_VIDEOS) == 60
-    assert len(set(dcs.DAVIS17_TRAINING_VIDEOS)) == 60
+    assert len(background_sets.DAVIS17_TRAINING_VIDEOS) == 60
+    assert len(set(background_sets.DAVIS17_TRAINING_VIDEOS)) == 60
     with pytest.raises(ValueError, match="lacks 52 of the 60") as error:
         dcs.check_backgrounds("hard", tmp_path)
     assert "'walking'" in str(error.value) and "'bear'" not in str(error.value).split("missing")[1].split("]")[0]
@@ -108,8 +109,8 @@ def test_davis_validation_videos_are_the_references_held_out_list(tmp_path):
     """``videos="val"`` reads the reference's DAVIS17_VALIDATION_VIDEOS (its 30 names as
     distracting_control/background.py lists them; a level takes the first N), none of them a
     training video, and names the validation videos it misses."""
-    val = dcs.DAVIS17_VALIDATION_VIDEOS
-    assert len(val) == 30 and len(set(val)) == 30 and not set(val) & set(dcs.DAVIS17_TRAINING_VIDEOS)
+    val = background_sets.DAVIS17_VALIDATION_VIDEOS
+    assert len(val) == 30 and len(set(val)) == 30 and not set(val) & set(background_sets.DAVIS17_TRAINING_VIDEOS)
     assert (val[0], val[9], val[-1]) == ("bike-packing", "dog", "soapbox")
     _write_davis(tmp_path, val[:8], (1,) * 8, shape=(6, 6))
     held_out = backgrounds.load("medium", tmp_path, size=4, videos="val")
@@ -202,10 +203,10 @@ def test_videos_validate_their_arrays():
 def test_photographs_ship_inside_their_wheels():
     """Every photograph, training and held out, is a file of an installed wheel (its RECORD),
     not one that a package fetches on demand."""
-    for photo in dcs.PHOTOGRAPHS + dcs.VALIDATION_PHOTOGRAPHS:
+    for photo in background_sets.PHOTOGRAPHS + background_sets.VALIDATION_PHOTOGRAPHS:
         distribution = {"skimage": "scikit-image", "matplotlib": "matplotlib"}[photo.package]
         shipped = {str(path) for path in importlib.metadata.files(distribution)}
-        folder = "/".join((photo.package,) + dcs.PACKAGE_DATA[photo.package])
+        folder = "/".join((photo.package,) + background_sets.PACKAGE_DATA[photo.package])
         assert f"{folder}/{photo.filename}" in shipped, photo.filename
 
 
@@ -213,7 +214,7 @@ def test_held_out_photographs_are_other_pictures():
     """The held-out set shares no file and no picture with the training set: names, files and
     pixels all differ (the pan/zoom videos' first frames are compared too), and each level has
     as many held-out videos as training ones, so a compiled program takes either."""
-    train, val = dcs.PHOTOGRAPHS, dcs.VALIDATION_PHOTOGRAPHS
+    train, val = background_sets.PHOTOGRAPHS, background_sets.VALIDATION_PHOTOGRAPHS
     assert not {p.name for p in train} & {p.name for p in val}
     assert not {p.filename for p in train} & {p.filename for p in val}
     for difficulty in dcs.DIFFICULTIES:
@@ -231,7 +232,7 @@ def test_builtin_videos_load_without_network(monkeypatch):
 
     monkeypatch.setattr(socket.socket, "connect", refuse)
     monkeypatch.setattr(socket, "create_connection", refuse)
-    names = tuple(photo.name for photo in dcs.PHOTOGRAPHS)
+    names = tuple(photo.name for photo in background_sets.PHOTOGRAPHS)
     for difficulty, count in (("easy", 4), ("medium", 8), ("hard", 10)):
         videos = backgrounds.load(difficulty, size=16, num_frames=4)
         assert videos.names == names[:count] and videos.source == "builtin"
@@ -261,6 +262,6 @@ def test_pan_zoom_stays_inside_the_photo_and_moves_smoothly():
 def test_every_photograph_is_documented_with_its_licence():
     doc = (Path(__file__).resolve().parent.parent / "docs" / "backgrounds.md").read_text()
     rows = {line.split("|")[2].strip(): line for line in doc.splitlines() if line.startswith("| ") and "`" in line}
-    for photo in dcs.PHOTOGRAPHS + dcs.VALIDATION_PHOTOGRAPHS:
+    for photo in background_sets.PHOTOGRAPHS + background_sets.VALIDATION_PHOTOGRAPHS:
         assert photo.name in rows, photo.name
         assert f"`{photo.filename}`" in rows[photo.name] and photo.licence in rows[photo.name]

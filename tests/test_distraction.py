@@ -17,6 +17,7 @@ import pytest
 from mujoco import mjx
 
 from iap_mjx import envs
+from iap_mjx.configs import background_sets
 from iap_mjx.configs import distraction as dcs
 from iap_mjx.envs import backgrounds, camera_walk
 from iap_mjx.envs.pixels import with_pixels
@@ -94,7 +95,7 @@ def test_bad_settings_fail_before_compiling_naming_the_setting(tmp_path):
     assert config.distraction_config().kinds == ("camera", "colour")
     assert check("cartpole-swingup", **px, distraction="none").distraction is None
     root = tmp_path / "davis"  # listed, not decoded, before anything compiles
-    for video in dcs.DAVIS17_TRAINING_VIDEOS[:4]:
+    for video in background_sets.DAVIS17_TRAINING_VIDEOS[:4]:
         (root / video).mkdir(parents=True)
         (root / video / "00000.jpg").write_bytes(b"not decoded by check")
     config = check("cartpole-swingup", **px, distraction="easy", background_dir=root)
@@ -103,7 +104,7 @@ def test_bad_settings_fail_before_compiling_naming_the_setting(tmp_path):
 
 def test_undecodable_frame_fails_when_the_env_is_made(tmp_path):
     root = tmp_path / "davis"
-    for video in dcs.DAVIS17_TRAINING_VIDEOS[:4]:
+    for video in background_sets.DAVIS17_TRAINING_VIDEOS[:4]:
         (root / video).mkdir(parents=True)
         (root / video / "00000.jpg").write_bytes(b"not a jpeg")
     with pytest.raises(ValueError, match="background_dir"):

@@ -47,6 +47,7 @@ with warnings.catch_warnings():
 from dm_control import suite
 
 from iap_mjx import envs
+from iap_mjx.configs import background_sets
 from iap_mjx.configs import distraction as dcs
 from iap_mjx.envs import backgrounds, camera_walk, distraction
 from iap_mjx.envs.pixels import with_pixels
@@ -93,7 +94,7 @@ def test_levels_and_settings_are_the_reference_modules():
     assert dcs.DIFFICULTY_SCALE == ref_suite.DIFFICULTY_SCALE
     for level in dcs.DIFFICULTY_SCALE:
         assert dcs.num_videos(level) == ref_suite.DIFFICULTY_NUM_VIDEOS[level]
-    assert list(dcs.DAVIS17_TRAINING_VIDEOS) == _reference_constant("DAVIS17_TRAINING_VIDEOS")
+    assert list(background_sets.DAVIS17_TRAINING_VIDEOS) == _reference_constant("DAVIS17_TRAINING_VIDEOS")
     # the reference's six domains (its get_camera_kwargs asserts them), one task each
     assert sorted(t.split("-")[0] for t in dcs.TASKS) == sorted(
         ["reacher", "cartpole", "finger", "cheetah", "ball_in_cup", "walker"]

@@ -259,9 +259,10 @@ class QuadrupedTurnConfig(QuadrupedConfig):
 
     Attributes:
       max_turn_rate: the yaw rate (rad/s) a command of +-1 asks for. 0.5 by default: at the
-        full command a quarter turn takes about 3 s, and a robot walking 0.8 m/s (the trot's
-        speed) moves about 1 m sideways over the 1.9 m that at least separate two of the
-        course's walls, more than a wall's 0.6-1.0 m gap needs.
+        full command a quarter turn takes about 3 s, and a robot walking 0.8 m/s (the PMTG
+        trot's speed, RESULTS.md section ``quadruped-walking``) moves about 1 m sideways over
+        the 1.9 m that at least separate two of the course's walls, more than a wall's
+        0.6-1.0 m gap needs.
     """
 
     max_turn_rate: float = 0.5

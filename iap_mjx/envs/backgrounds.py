@@ -56,11 +56,10 @@ from pathlib import Path
 
 import numpy as np
 
+from iap_mjx.configs.background_sets import PACKAGE_DATA, Photograph
 from iap_mjx.configs.distraction import (
     DEFAULT_NUM_FRAMES,
     DEFAULT_SIZE,
-    PACKAGE_DATA,
-    Photograph,
     check_backgrounds,
     davis_frame_paths,
     level_photographs,
