@@ -16,8 +16,9 @@ from fake_runs import fake_run
 from iap_mjx import cli, configs
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint
+from iap_mjx.es.metrics_log import EVAL_FILE
 from iap_mjx.paper import fig11
-from iap_mjx.paper.evaluations import EVAL_FILE, EYES_CLOSED
+from iap_mjx.paper.evaluations import EYES_CLOSED
 
 ITERATIONS = ("run.iterations=3",)
 POLICIES_RUN = ("iap", "cnn", "blind")

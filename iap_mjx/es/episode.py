@@ -26,7 +26,7 @@ from iap_mjx.loops import batched_like
 from iap_mjx.policies.base import Policy
 
 if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
-    from iap_mjx.envs.base import Env
+    from iap_mjx.envs.base import Env, State
 
 
 @struct.dataclass
@@ -76,10 +76,10 @@ class Step:
       next_state: the env's state after the action.
     """
 
-    state: Any
+    state: State
     seen: Any
     policy_state: Any
-    next_state: Any
+    next_state: State
 
 
 @struct.dataclass
@@ -140,7 +140,7 @@ def observe(obs_stats: ObsStats | None, obs: Any) -> Any:
 
 
 def episode_step(
-    env: Env, policy: Policy, params: Any, obs_stats: ObsStats | None, state: Any, policy_state: Any
+    env: Env, policy: Policy, params: Any, obs_stats: ObsStats | None, state: State, policy_state: Any
 ) -> tuple[Step, Any]:
     """One env step from env ``state``: the :class:`Step` taken and the policy's next state."""
     seen = observe(obs_stats, state.obs)

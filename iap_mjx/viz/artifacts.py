@@ -21,13 +21,14 @@ from iap_mjx.viz import curves, recording, video
 
 if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
     from iap_mjx.envs.base import Env
+    from iap_mjx.es.runs import TrainResult
     from iap_mjx.policies.base import Policy
 
 logger = logging.getLogger(__name__)
 
 
 def write_episode_video(
-    result: Any, path: str | Path, *, seed: int = 0, steps: int | None = None, program: Any = None
+    result: TrainResult, path: str | Path, *, seed: int = 0, steps: int | None = None, program: Any = None
 ) -> tuple[Path, float]:
     """An episode of ``result``'s centre params on its env: a pixel env's frames with the
     patches outlined, or a state env rendered from its video camera. ``program``: the episode
@@ -48,7 +49,7 @@ def write_episode_video(
     )
 
 
-def write_strip(result: Any, path: str | Path, *, seed: int = 0, frames: int = 6) -> tuple[Path, float]:
+def write_strip(result: TrainResult, path: str | Path, *, seed: int = 0, frames: int = 6) -> tuple[Path, float]:
     """A PNG strip of ``frames`` frames from one episode of ``result``'s centre params, the
     selected patches drawn (:func:`video.episode_strip`)."""
     env, policy = result.env, result.policy
@@ -92,7 +93,7 @@ def compile_video_in_background(env: Env, policy: Policy) -> concurrent.futures.
 
 
 def write_run_artifacts(
-    result: Any, run_dir: str | Path, video_program: concurrent.futures.Future | None = None
+    result: TrainResult, run_dir: str | Path, video_program: concurrent.futures.Future | None = None
 ) -> list[Path]:
     """Writes ``reward_curve.png`` and, for pixel envs, ``episode.mp4`` into ``run_dir``;
     ``video_program`` is :func:`compile_video_in_background`'s future for this config."""
