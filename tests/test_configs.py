@@ -184,8 +184,7 @@ def test_env_config_distraction_fields_are_distraction_configs():
 
 def test_distraction_settings_are_validated_without_the_envs():
     """Configs sit below the envs: importing them and validating a distraction (its background
-    set included) in a fresh interpreter loads no ``iap_mjx.envs``, ``iap_mjx.es`` or MuJoCo.
-    (jax is loaded: validating ``PolicySpec``'s default looks up the policy kinds.)"""
+    set included) in a fresh interpreter loads no ``iap_mjx.envs``, ``iap_mjx.es`` or MuJoCo."""
     code = (
         "import sys; from iap_mjx.configs import EnvConfig; "
         "EnvConfig(obs_mode='pixels', distraction='medium').distraction_config(); "

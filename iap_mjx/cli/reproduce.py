@@ -85,7 +85,7 @@ def _add_export(parser: argparse.ArgumentParser, example: str) -> None:
     )
 
 
-def _fig1_or_fig6(args: argparse.Namespace) -> str:
+def _fig1_fig6(args: argparse.Namespace) -> str:
     from iap_mjx.paper import fig1_fig6
 
     return fig1_fig6.reproduce_fig1_fig6(
@@ -105,7 +105,7 @@ def _add_fig1_fig6(figures: Any) -> None:
             name,
             "inference time per pass next to return",
             "times one forward pass of every attention variant and trains each preset on --seeds seeds",
-            _fig1_or_fig6,
+            _fig1_fig6,
         )
         _add_seeds(parser)
         parser.add_argument("--passes", type=arguments.count, default=100, help="timed forward passes (default 100)")

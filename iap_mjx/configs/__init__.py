@@ -6,8 +6,8 @@
 - :class:`EnvConfig` (``env.py``): an env's own settings (action repeat, solver, observation
   mode, camera size, ...): the names ``env.<field>=...`` overrides may set.
 - the Distracting Control Suite's settings (``distraction.py``): its tasks, difficulties,
-  kinds, background sets and ``DistractionConfig``, which validates ``EnvConfig``'s
-  distraction fields.
+  kinds and ``DistractionConfig``, which validates ``EnvConfig``'s distraction fields; its
+  background sets as data (``background_sets.py``).
 - the presets: rows in ``presets.py`` (with :class:`Preset`), ``dcs_presets.py`` and
   ``quadruped_presets.py``, one table of them in ``catalog.py``; ``get(name)`` gives a row's
   ``TrainConfig``.

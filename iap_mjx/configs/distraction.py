@@ -1,4 +1,5 @@
-"""The Distracting Control Suite's settings: its tasks, difficulties, kinds and background sets.
+"""The Distracting Control Suite's settings: its tasks, difficulties and kinds, and the checks of
+a background setting.
 
 This is the one home of the suite's settings, and it lives in ``configs`` because a config is
 validated when it is built, without MuJoCo and before any model is built: ``EnvConfig`` turns

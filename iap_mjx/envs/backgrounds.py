@@ -9,8 +9,8 @@ that a compiled step only indexes it (the distraction layer draws the video and 
 episode and samples the sky by ray direction).
 
 Which videos a level shows, and the checks of a setting that need no decoding, are the
-suite's settings (``iap_mjx.configs.distraction``: the DAVIS-2017 lists, the photographs,
-``check_backgrounds``); this module makes their pixels. Two sources:
+suite's settings (``iap_mjx.configs.background_sets``: the DAVIS-2017 lists, the photographs;
+``iap_mjx.configs.distraction.check_backgrounds``); this module makes their pixels. Two sources:
 
 - ``load_davis(root, difficulty)``: a DAVIS-2017 directory, either the dataset's own layout
   ``<root>/JPEGImages/480p/<video>/<frame>.jpg`` or ``<root>/<video>/<frame>.jpg``; frames
@@ -18,15 +18,16 @@ suite's settings (``iap_mjx.configs.distraction``: the DAVIS-2017 lists, the pho
   DAVIS-2017 training list (easy 4, medium 8, hard all 60).
 - ``builtin_videos(difficulty)``: works on a fresh machine with nothing downloaded. Natural
   photographs that ship inside the scikit-image wheel (``skimage/data``: public domain or
-  CC0, see ``PHOTOGRAPHS`` and ``docs/backgrounds.md``), each made into a short "video" by
-  a smooth, periodic pan and zoom through the photo (deterministic): ten videos, easy the
-  first 4, medium the first 8, hard all 10.
+  CC0, see ``background_sets.PHOTOGRAPHS`` and ``docs/backgrounds.md``), each made into a
+  short "video" by a smooth, periodic pan and zoom through the photo (deterministic): ten
+  videos, easy the first 4, medium the first 8, hard all 10.
 
 Each source has two disjoint sets, named as the reference names them (its
 ``background_dataset_videos``): ``"train"``, what training draws from, and ``"val"``, held out
 for evaluating generalisation to backgrounds never seen in training: the reference's 30
-DAVIS-2017 validation videos, or ten other photographs (``VALIDATION_PHOTOGRAPHS``, shipped in
-scikit-image and matplotlib), with the same counts per difficulty.
+DAVIS-2017 validation videos, or ten other photographs
+(``background_sets.VALIDATION_PHOTOGRAPHS``, shipped in scikit-image and matplotlib), with the
+same counts per difficulty.
 
 ``load(difficulty, background_dir=None)`` picks one (``None``: the photographs);
 ``configs.distraction.check_backgrounds(difficulty, background_dir)`` runs the same validation

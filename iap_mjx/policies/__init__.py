@@ -64,7 +64,7 @@ FACTORIES: Mapping[str, Callable[..., Policy]] = MappingProxyType(
         },
     )
 )
-"""Each policy kind's factory, by name (the kinds are ``configs.POLICY_KINDS``)."""
+"""Each policy kind's factory, by name (the kinds are ``configs.training.POLICY_KINDS``)."""
 
 
 def names() -> list[str]:
