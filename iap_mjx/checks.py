@@ -9,14 +9,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from typing import TypeGuard
 
 
-def is_int(value: object) -> bool:
+def is_int(value: object) -> TypeGuard[int]:
     """An ``int`` that is not a ``bool``."""
     return isinstance(value, int) and not isinstance(value, bool)
 
 
-def is_number(value: object) -> bool:
+def is_number(value: object) -> TypeGuard[int | float]:
     """An ``int`` or a ``float`` that is not a ``bool``."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -44,8 +45,11 @@ def require_number(
     """Raises ``ValueError`` naming ``setting`` unless ``value`` is a number in the interval
     from ``low`` to ``high`` (each end excluded when ``*_open``; ``high_open`` with the default
     ``high`` asks for a finite number). NaN is never in range."""
-    in_range = is_number(value) and (low < value if low_open else low <= value)
-    in_range = in_range and (value < high if high_open else value <= high)
+    in_range = (
+        is_number(value)
+        and (low < value if low_open else low <= value)
+        and (value < high if high_open else value <= high)
+    )
     if not in_range:
         if high == math.inf and not high_open:
             valid = f"a number {'>' if low_open else '>='} {low:g}"

@@ -88,7 +88,7 @@ def write_entries_atomically() -> bool:
             write_atomically(Path(self.path) / f"{key}{lru_cache._CACHE_SUFFIX}", value)
 
     compilation_cache.reset_cache()  # a cache built before this call is rebuilt with the writer
-    compilation_cache.LRUCache = AtomicLRUCache
+    compilation_cache.LRUCache = AtomicLRUCache  # type: ignore[misc]  # JAX's class replaced on purpose
     return True
 
 
@@ -111,7 +111,7 @@ def hoist_large_constants(max_embedded_bytes: int = LARGE_CONSTANT_BYTES) -> boo
     if "jax" in sys.modules:
         import jax
 
-        return bool(jax.config.jax_use_simplified_jaxpr_constants)
+        return bool(jax.config.values["jax_use_simplified_jaxpr_constants"])
     os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "1")
     os.environ.setdefault("JAX_EMBEDDED_CONSTANTS_MAX_BYTES", str(int(max_embedded_bytes)))
     return os.environ["JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS"].lower() in ("1", "true")
@@ -188,7 +188,7 @@ def persistent_cache_off() -> Iterator[None]:
     import jax
     from jax.experimental.compilation_cache import compilation_cache
 
-    enabled = jax.config.jax_enable_compilation_cache
+    enabled = jax.config.values["jax_enable_compilation_cache"]
     jax.config.update("jax_enable_compilation_cache", False)
     compilation_cache.reset_cache()  # JAX decides once per process whether the cache is used
     try:

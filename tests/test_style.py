@@ -1,6 +1,8 @@
-"""The repository is formatted and linted by ruff with the settings in ``pyproject.toml``.
+"""The repository is formatted and linted by ruff, and the package's annotations checked by
+mypy, with the settings in ``pyproject.toml``.
 
-Run ``ruff format . && ruff check --fix .`` from the repository root to fix what these report.
+Run ``ruff format . && ruff check --fix .`` from the repository root to fix what ruff reports,
+and ``mypy`` there to see what mypy does.
 """
 
 import subprocess
@@ -18,6 +20,26 @@ def test_ruff(command):
         [sys.executable, "-m", "ruff", *command, "."], cwd=ROOT, capture_output=True, text=True, check=False
     )
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def mypy(root: Path, cache: Path) -> subprocess.CompletedProcess:
+    """``mypy`` run in ``root`` with its ``pyproject.toml``, the cache in ``cache``."""
+    return subprocess.run(
+        [sys.executable, "-m", "mypy", "--cache-dir", str(cache)], cwd=root, capture_output=True, text=True, check=False
+    )
+
+
+def test_mypy(tmp_path):
+    done = mypy(ROOT, tmp_path)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_mypy_sees_a_wrong_annotation(tmp_path):
+    (tmp_path / "iap_mjx").mkdir()
+    (tmp_path / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+    (tmp_path / "iap_mjx" / "__init__.py").write_text("def size(shape: tuple[int, int]) -> int:\n    return shape\n")
+    done = mypy(tmp_path, tmp_path / "cache")
+    assert done.returncode == 1 and "Incompatible return value type" in done.stdout, done.stdout + done.stderr
 
 
 # The package's layers as iap_mjx/__init__.py lists them, lowest first; a module may import its

@@ -46,8 +46,7 @@ MSE_KINDS = ("exp", "trig", "hybrid")
 RELU_EPSILON = 1e-3
 
 
-@struct.dataclass
-class Projections:
+class Projections(struct.PyTreeNode):
     """Random projections for one feature map (``None`` where a kind needs none).
 
     Attributes:
@@ -71,7 +70,18 @@ def check_role(role: str) -> None:
 
 def _check_count(name: str, value: int | None) -> int:
     require_int(name, value)
+    assert value is not None  # require_int refuses None
     return value
+
+
+def drawn(matrix: jax.Array | None, name: str, needed_by: str) -> jax.Array:
+    """``matrix``, the projections' ``name``, or a ``ValueError`` saying how to draw it."""
+    if matrix is None:
+        raise ValueError(
+            f"projections lack the matrices that {needed_by} needs ({name} is None); "
+            "draw them with draw_projections(key, kind, ...) for that kind"
+        )
+    return matrix
 
 
 def feature_count(kind: str, *, m: int | None = None, d: int | None = None, r: int | None = None) -> int:
@@ -115,7 +125,7 @@ def _orthonormal_rows(gaussian: jax.Array) -> jax.Array:
     call can deadlock XLA's CPU runtime in jaxlib 0.10 (as MJX's batched Cholesky does:
     ``iap_mjx.envs.dmc.serial_lapack_batch``), and ``d`` is small here.
     """
-    rows = []
+    rows: list[jax.Array] = []
     for vector in gaussian:
         for previous in rows:
             vector = vector - jnp.dot(vector, previous) * previous
@@ -156,8 +166,7 @@ def draw_projections(
     return Projections(omega=omega)
 
 
-@struct.dataclass
-class FeatureFactors:
+class FeatureFactors(struct.PyTreeNode):
     """The factors every softmax-estimating map is built from, for tokens ``(..., d)``.
 
     A feature is ``exp(log_magnitude - shift) * unit``; ``m`` features share one ``omega``.
@@ -220,7 +229,7 @@ def signs_of(x: jax.Array, xi: jax.Array) -> jax.Array:
 
 def feature_factors(x: jax.Array, projections: Projections) -> FeatureFactors:
     """Computes :class:`FeatureFactors` of ``x (..., d)`` for ``projections.omega`` ``(m, d)``."""
-    projected = x @ projections.omega.T
+    projected = x @ drawn(projections.omega, "omega", "feature_factors").T
     half_sq_norm = 0.5 * jnp.sum(x * x, axis=-1, keepdims=True)
     sin, cos = sincos(projected)
     return FeatureFactors(
@@ -272,15 +281,11 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
     if kind == "relu":
         return jax.nn.relu(x) + RELU_EPSILON
     if kind == "angular":
-        if projections.xi is None:
-            raise ValueError("the angular feature map needs projections.xi (draw them with kind='angular')")
-        signs = signs_of(x, projections.xi)
+        signs = signs_of(x, drawn(projections.xi, "xi", "kind 'angular'"))
         return signs / math.sqrt(signs.shape[-1])
-    if projections.omega is None or (kind == "hybrid" and projections.xi is None):
-        raise ValueError(
-            f"projections lack the matrices that kind {kind!r} needs; "
-            f"draw them with draw_projections(key, {kind!r}, ...)"
-        )
+    drawn(projections.omega, "omega", f"kind {kind!r}")
+    if kind == "hybrid":
+        drawn(projections.xi, "xi", f"kind {kind!r}")
     factors = feature_factors(x, projections)
     shift = stabilizing_shift(factors, kind, stabilize)
     m = factors.exp_log.shape[-1]
@@ -290,7 +295,7 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
         return trig / math.sqrt(m)
     if kind == "exp":
         return positive / math.sqrt(m)
-    signs = factors.signs
+    signs = drawn(factors.signs, "xi", f"kind {kind!r}")
     r = signs.shape[-1]
     beta_sign = 1.0 if role == "query" else -1.0
     # alpha: (..., 2m, r) -> (..., 2mr); beta: (..., m, r) -> (..., mr).

@@ -89,8 +89,7 @@ class AttentionConfig:
         return self.patch_size if self.stride is None else self.stride
 
 
-@struct.dataclass
-class AttentionParams:
+class AttentionParams(struct.PyTreeNode):
     """Trainable parameters: ``w_q``, ``w_k`` ``(c, d)``; ``b_q``, ``b_k`` ``(d,)`` or ``None``."""
 
     w_q: jax.Array
@@ -99,8 +98,7 @@ class AttentionParams:
     b_k: jax.Array | None = None
 
 
-@struct.dataclass
-class Selection:
+class Selection(struct.PyTreeNode):
     """The layer's output for one image.
 
     Attributes:
@@ -209,7 +207,7 @@ class IAPAttention:
             )
             projected = projected.reshape(self.num_patches, 2 * cfg.d_qk)
         queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk :]
-        if params.b_q is not None:
+        if params.b_q is not None and params.b_k is not None:
             queries, keys = queries + params.b_q, keys + params.b_k
         return self.scale_inputs(queries, axis=-1), self.scale_inputs(keys, axis=-1)
 
@@ -241,7 +239,7 @@ class IAPAttention:
                 dimension_numbers=("NHWC", "HWIO", "NCHW"),
             )[0]
         projected = projected.reshape(2 * d, self.num_patches)
-        if params.b_q is not None:
+        if params.b_q is not None and params.b_k is not None:
             projected = projected + jnp.concatenate([params.b_q, params.b_k])[:, None]
         return jnp.concatenate([self.scale_inputs(projected[:d], axis=0), self.scale_inputs(projected[d:], axis=0)])
 

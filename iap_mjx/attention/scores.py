@@ -105,6 +105,13 @@ def _hybrid_shift(half_sq_norm: jax.Array, projected: jax.Array, stabilize: bool
     return jax.lax.stop_gradient(jnp.max(per_token, axis=-1, keepdims=True))
 
 
+def _hybrid_projections(projections: ft.Projections) -> tuple[jax.Array, jax.Array]:
+    """``(omega (m, d), xi (r, d))``, both of which the hybrid kernel needs."""
+    return ft.drawn(projections.omega, "omega", "the hybrid kernel"), ft.drawn(
+        projections.xi, "xi", "the hybrid kernel"
+    )
+
+
 def _sign_rows(x: jax.Array, xi: jax.Array) -> list[jax.Array]:
     """``sgn(xi_s x)`` of token rows ``x (..., d, L)``: ``r`` rows ``(..., 1, L)`` in ``{-1, +1}`` (0 maps to +1)."""
     return [jnp.where(_rows(xi[s : s + 1], x) >= 0, 1.0, -1.0).astype(x.dtype) for s in range(xi.shape[0])]
@@ -114,7 +121,7 @@ def _query_moments(queries: jax.Array, projections: ft.Projections, stabilize: b
     """``F_Q^T [1, S_Q]`` ``(..., 3m, 1 + r)``: the features ``F = [e sin(omega q); e cos(omega q);
     exp(omega q - |q|^2/2 - shift)]`` (``e = exp(|q|^2/2 - shift)``, ``(..., 3m, L)``) summed over
     the queries against ``[1; signs]``, one product with inner dimension ``L``."""
-    omega, xi = projections.omega, projections.xi
+    omega, xi = _hybrid_projections(projections)
     half_sq_norm = _half_sq_norm(queries)
     projected = _rows(omega, queries)
     shift = _hybrid_shift(half_sq_norm, projected, stabilize)
@@ -135,7 +142,7 @@ def _key_scores(keys: jax.Array, weights: jax.Array, projections: ft.Projections
     projection ``omega_j``: XLA's CPU backend makes them one loop over the keys, in which
     ``sin``, ``cos`` and ``exp`` of ``omega_j k`` share their argument and nothing of size
     ``3m x L`` is written to memory."""
-    omega, xi = projections.omega, projections.xi
+    omega, xi = _hybrid_projections(projections)
     m = omega.shape[0]
     half_sq_norm = _half_sq_norm(keys)
     shift = _hybrid_shift(half_sq_norm, _rows(omega, keys), stabilize)
@@ -172,7 +179,8 @@ def hybrid_scores_rows(
     Layout, for XLA's CPU backend: tokens are the minor axis, so every elementwise stage is a
     loop over ``L``; ``sin`` and ``cos`` are :func:`features.sincos` (multiply-adds).
     """
-    m, r = projections.omega.shape[0], projections.xi.shape[0]
+    omega, xi = _hybrid_projections(projections)
+    m, r = omega.shape[0], xi.shape[0]
     moments = _query_moments(queries, projections, stabilize)
     sign_weights = jnp.concatenate([jnp.ones(1), jnp.full(r, 1.0 / r)]).astype(moments.dtype)
     positive_sign = jnp.concatenate([jnp.ones(1), -jnp.ones(r)]).astype(moments.dtype)

@@ -29,7 +29,7 @@ def top_l(scores: jax.Array, l: int) -> jax.Array:
     blocks = scores.reshape(n_blocks, block)
     block_max = jnp.max(blocks, axis=1)
     positions = jnp.arange(block)
-    picked = []
+    picked: list[jax.Array] = []
     for _ in range(l):
         b = jnp.argmax(block_max)
         row = blocks[b]

@@ -52,7 +52,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     low level started from need not exist here), and its stored config is printed as it is."""
     try:
         config = resolve_target(args.target, args.overrides)
-        from iap_mjx import es
+        from iap_mjx import envs, es
         from iap_mjx.es.runs import without_initialisation
 
         parts = es.build(without_initialisation(config) if Path(args.target).is_dir() else config)
@@ -62,7 +62,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     view = {
         "config": config.to_dict(),
         "env": {
-            "settings": dataclasses.asdict(env.config),
+            "settings": dataclasses.asdict(envs.check(config.env.name, **dict(config.env.overrides))),
             "observation_shape": env.observation_shape,
             "action_size": env.action_size,
             "env_steps_per_episode": env.episode_length,

@@ -57,7 +57,7 @@ _LAYOUTS = "<root>/JPEGImages/480p/<video>/<frame>.jpg or <root>/<video>/<frame>
 # ---- names -------------------------------------------------------------------------------
 
 
-def check_task(name: str) -> None:
+def check_task(name: object) -> None:
     """Raises ``ValueError`` unless ``name`` is one of the suite's :data:`TASKS`."""
     if name not in TASKS:
         raise ValueError(f"distraction: {name!r} is not a Distracting Control Suite task; valid: {', '.join(TASKS)}.")

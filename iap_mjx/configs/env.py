@@ -157,6 +157,7 @@ class EnvConfig:
                 f"(one of {PIXEL_MODES}), got obs_mode='state'."
             )
         config = self.distraction_config()
+        assert config is not None  # a distraction is set
         for name in ("distraction_kinds", "background_dir"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, getattr(config, DISTRACTION_FIELDS[name]))

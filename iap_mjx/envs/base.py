@@ -10,12 +10,12 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 import jax
+import mujoco
 from flax import struct
 from mujoco import mjx
 
 
-@struct.dataclass
-class State:
+class State(struct.PyTreeNode):
     """One env's state between env steps (add a leading batch axis under ``vmap``).
 
     Attributes:
@@ -52,8 +52,8 @@ class Env(Protocol):
       (the quadruped course's ``walls_passed`` ...), logged as ``metrics.csv`` columns.
     - ``State.metrics["nan_terminations"]`` (the env ended a diverged state itself) and
       ``["contact_saturated"]`` (every MJX contact slot filled): counted per iteration.
-    - For videos (``iap_mjx.viz.recording``, ``iap_mjx.viz.video``): ``mj_model`` (a state
-      env is rendered from it), ``obs_mode`` and ``channels`` (a pixel env,
+    - For videos (``iap_mjx.viz.recording``, ``iap_mjx.viz.video``): ``mj_model``
+      (:class:`ModelEnv`: a state env is rendered from it), ``obs_mode`` and ``channels`` (a pixel env,
       :class:`iap_mjx.envs.pixels.PixelEnv`), ``video_camera_id`` (a scene camera to draw the
       pixel view into), ``control_timestep`` and ``config.action_repeat`` (the frame rate);
       ``camera_options`` (``CameraConfig`` fields ``with_pixels`` gets from ``envs.make``).
@@ -84,4 +84,15 @@ class Env(Protocol):
         """The state after one ``(action_size,)`` action, ``done`` 1.0 once the episode has
         ended (the rollout counts nothing after it; the MJX tasks also hold a done state still,
         so that a batch runs to a fixed horizon)."""
+        ...
+
+
+class ModelEnv(Env, Protocol):
+    """An env simulated from a MuJoCo model, as every env of this package is: what a camera
+    (:class:`iap_mjx.envs.pixels.PixelEnv`), a state env's video and the attended-geom tallies
+    read besides :class:`Env`."""
+
+    @property
+    def mj_model(self) -> mujoco.MjModel:
+        """The MuJoCo model the physics steps (the MJX model is built from it)."""
         ...

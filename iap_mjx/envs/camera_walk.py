@@ -24,8 +24,7 @@ import jax.numpy as jnp
 from flax import struct
 
 
-@struct.dataclass
-class CameraWalk:
+class CameraWalk(struct.PyTreeNode):
     """One episode's camera perturbation (add a leading axis under ``vmap``).
 
     Attributes:

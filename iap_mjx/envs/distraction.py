@@ -44,7 +44,7 @@ from flax import struct
 from iap_mjx.configs.distraction import DistractionConfig, check_task
 from iap_mjx.envs import backgrounds as backgrounds_lib
 from iap_mjx.envs import camera_walk
-from iap_mjx.envs.base import Env
+from iap_mjx.envs.base import Env, ModelEnv
 from iap_mjx.render import sky as sky_lib
 
 # distracting_control/suite_utils.get_background_kwargs: ground_plane_alpha
@@ -61,8 +61,9 @@ _TRACKCOM = int(mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)
 
 def domain_name(env: Env) -> str:
     """The dm_control domain of a suite env (``cheetah``, ``ball_in_cup``, ...)."""
-    check_task(getattr(env, "name", None))
-    return env.name.split("-")[0]
+    name = getattr(env, "name", None)
+    check_task(name)
+    return str(name).split("-")[0]
 
 
 def floor_alpha(domain: str) -> float:
@@ -70,7 +71,7 @@ def floor_alpha(domain: str) -> float:
     return FLOOR_ALPHA.get(domain, DEFAULT_FLOOR_ALPHA)
 
 
-def camera_model(env: Env, config: DistractionConfig) -> mujoco.MjModel:
+def camera_model(env: ModelEnv, config: DistractionConfig) -> mujoco.MjModel:
     """The model the camera is built from: ``env.mj_model``, with the floor material's alpha
     set as the reference's background wrapper sets it (a copy; the physics' model is
     untouched)."""
@@ -85,8 +86,7 @@ def camera_model(env: Env, config: DistractionConfig) -> mujoco.MjModel:
     return model
 
 
-@struct.dataclass
-class Perturbation:
+class Perturbation(struct.PyTreeNode):
     """One episode's distraction state (``State.info["distraction"]``; a leading axis under
     ``vmap``). Fields of kinds that are off are ``None``.
 
@@ -119,13 +119,17 @@ class Distraction:
     """
 
     def __init__(
-        self, env: Env, camera: Any, config: DistractionConfig, videos: backgrounds_lib.BackgroundVideos | None = None
+        self,
+        env: ModelEnv,
+        camera: Any,
+        config: DistractionConfig,
+        videos: backgrounds_lib.BackgroundVideos | None = None,
     ):
         self.config = config
         self.domain = domain_name(env)
         model = env.mj_model
         self.camera_id = camera.config.camera_id
-        self.control_steps = int(getattr(env.config, "action_repeat", 1))
+        self.control_steps = int(getattr(getattr(env, "config", None), "action_repeat", 1))
         self.kinds = config.kinds
         if "camera" in self.kinds:
             mode = int(model.cam_mode[self.camera_id])
@@ -153,7 +157,7 @@ class Distraction:
         if "background" in self.kinds:
             if videos is None:
                 raise ValueError("the background distraction needs its videos (backgrounds.load).")
-            if videos.nbytes > (1 << 24) and not jax.config.jax_use_simplified_jaxpr_constants:
+            if videos.nbytes > (1 << 24) and not jax.config.values["jax_use_simplified_jaxpr_constants"]:
                 logger.warning(
                     "the background videos (%.0f MB) will be embedded in every compiled program "
                     "(slow to compile); call iap_mjx.runtime.setup() (or hoist_large_constants()) "
@@ -172,7 +176,7 @@ class Distraction:
         after kinematics): the reference's resets, with the camera's first walk."""
         key = jax.random.fold_in(key, _FOLD)
         key, k_camera, k_colour, k_video, k_frame, k_direction, k_walk = jax.random.split(key, 7)
-        fields = {}
+        fields: dict[str, Any] = {}
         if "camera" in self.kinds:
             cam_pos, cam_mat, com = self._camera_now(data)
             start = camera_walk.start(k_camera, self.walk_settings, cam_pos, cam_mat, com, self.tracking)
@@ -220,11 +224,11 @@ class Distraction:
 
         return jax.lax.scan(one, perturbation, length=count)[0]
 
-    def scene(self, data: Any, perturbation: Perturbation) -> tuple[Any, dict[str, jax.Array]]:
+    def scene(self, data: Any, perturbation: Perturbation) -> tuple[Any, dict[str, Any]]:
         """What the camera draws: ``data`` with the perturbed camera pose written into
         ``cam_xpos``/``cam_xmat`` (a copy for rendering only), and the keyword arguments of
         ``Camera.render`` (``geom_rgb``, ``sky_texture``)."""
-        inputs = {}
+        inputs: dict[str, Any] = {}
         if "camera" in self.kinds:
             cam_pos, cam_mat, com = self._camera_now(data)
             position, rotation = camera_walk.pose(

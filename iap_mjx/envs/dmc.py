@@ -144,7 +144,7 @@ class DmControlEnv:
     n_sub_steps: ClassVar[int] = 1
     default_max_contacts: ClassVar[int | None] = None  # None: keep every candidate contact
     default_episode_steps: ClassVar[int] = DM_CONTROL_EPISODE_STEPS  # control steps
-    config_class: ClassVar[type] = EnvConfig  # the registry validates settings against it
+    config_class: ClassVar[type[EnvConfig]] = EnvConfig  # the registry validates settings against it
 
     def __init__(self, config: EnvConfig | None = None, **overrides: Any):
         if config is not None and type(config) is not self.config_class:
@@ -361,7 +361,7 @@ class DmControlEnv:
         setting = self.config.max_contacts
         if setting == "all":
             return None
-        limit = self.default_max_contacts if setting == "task" else setting
+        limit = setting if isinstance(setting, int) else self.default_max_contacts  # "task"
         if limit is None or limit >= len(all_condims):
             return None
         return int(limit)

@@ -33,7 +33,7 @@ from iap_mjx.checks import require_choice, require_int
 from iap_mjx.configs.distraction import DistractionConfig
 from iap_mjx.configs.env import DEPTH_MAX, PIXEL_MODES, check_depth_max
 from iap_mjx.envs import distraction as distraction_lib
-from iap_mjx.envs.base import Env, State
+from iap_mjx.envs.base import ModelEnv, State
 from iap_mjx.render import Camera
 
 
@@ -44,7 +44,7 @@ class PixelEnv:
     ``action_size``, ``episode_length``, ``state_observation``, ...) is the wrapped env's.
 
     Args:
-      env: an env following ``iap_mjx.envs.base.Env`` with ``mj_model`` (``mujoco.MjModel``).
+      env: an env with ``mj_model`` (``mujoco.MjModel``): :class:`iap_mjx.envs.base.ModelEnv`.
       obs_mode: ``"pixels"``, ``"pixels_depth"``, ``"pixels+state"`` or ``"depth+state"``.
       camera_id, height, width: the model camera and image size (default 100x100, camera 0,
         as the IAP paper's Cheetah-Run experiment).
@@ -65,7 +65,7 @@ class PixelEnv:
 
     def __init__(
         self,
-        env: Env,
+        env: ModelEnv,
         obs_mode: str = "pixels",
         camera_id: int = 0,
         height: int = 100,
@@ -129,8 +129,10 @@ class PixelEnv:
         ``perturbation`` (``state.info["distraction"]``)."""
         data, inputs = self._scene(data, perturbation)
         if self.obs_mode == "depth+state":
+            depth_max = self.depth_max
+            assert depth_max is not None  # set for "depth+state"
             depth, _ = self.camera.trace(data)  # the geometry pass alone: no colour is shown
-            return (jnp.minimum(depth, self.depth_max) / self.depth_max)[..., None]
+            return (jnp.minimum(depth, depth_max) / depth_max)[..., None]
         rgb, depth = self.camera.render(data, **inputs)
         if self.obs_mode == "pixels_depth":
             return jnp.concatenate([rgb, depth[..., None]], axis=-1)
@@ -154,7 +156,10 @@ class PixelEnv:
             if self.distraction is not None:
                 raise ValueError("a distracted env's reset_to needs key= (the episode's distraction draw).")
             key = jax.random.PRNGKey(0)
-        return self._first(self.env.reset_to(*args, **kwargs), key)
+        reset_to = getattr(self.env, "reset_to", None)
+        if reset_to is None:
+            raise AttributeError(f"{type(self.env).__name__} has no reset_to to wrap")
+        return self._first(reset_to(*args, **kwargs), key)
 
     def step(self, state: State, action: jax.Array) -> State:
         """The wrapped env's step, observed through the camera: the new frame is rendered from

@@ -32,7 +32,7 @@ deadlock XLA:CPU on two or more devices (:func:`iap_mjx.envs.dmc.serial_lapack_b
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -42,6 +42,7 @@ from mujoco import mjx
 from mujoco.mjx._src import collision_driver
 
 from iap_mjx.configs.env import QuadrupedConfig, QuadrupedWallsConfig
+from iap_mjx.envs.base import State
 from iap_mjx.envs.dmc import DmControlEnv
 from iap_mjx.robots import a1
 from iap_mjx.robots.a1 import action_to_targets
@@ -61,10 +62,11 @@ class QuadrupedFlat(DmControlEnv):
     name = "quadruped-flat"
     domain = None
     n_sub_steps = round(a1.CONTROL_DT / a1.PHYSICS_DT)
-    default_max_contacts = None  # four foot-floor contacts, every one kept
+    default_max_contacts: ClassVar[int | None] = None  # four foot-floor contacts, every one kept
     default_max_geom_pairs: int | None = None  # None: run every candidate pair
     default_episode_steps = 500
     config_class = QuadrupedConfig
+    config: QuadrupedConfig
     #: ``CameraConfig`` settings of the first-person camera (``camera_id`` 0): the world only.
     camera_options: dict[str, Any] = {"geom_groups": (a1.WORLD_GROUP,)}
 
@@ -79,13 +81,14 @@ class QuadrupedFlat(DmControlEnv):
         corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
         self._trunk_corners = (corners * np.asarray(a1.TRUNK_HALF_SIZE)).astype(np.float32)  # (8, 3)
         # The geom pairs of each collision-function group that MJX culls to max_geom_pairs.
-        self._culled_pairs = ()
-        if self.max_geom_pairs is not None:
+        self._culled_pairs: tuple[np.ndarray, ...] = ()
+        limit = self.max_geom_pairs
+        if limit is not None:
             groups = collision_driver._geom_groups(model)
             self._culled_pairs = tuple(
                 np.asarray([(g1, g2) for g1, g2, _ in pairs], np.int32)
                 for key, pairs in groups.items()
-                if not set(key.types) & collision_driver._GEOM_NO_BROADPHASE and len(pairs) > self.max_geom_pairs
+                if not set(key.types) & collision_driver._GEOM_NO_BROADPHASE and len(pairs) > limit
             )
 
     @property
@@ -94,7 +97,7 @@ class QuadrupedFlat(DmControlEnv):
         setting = self.config.max_geom_pairs
         if setting == "all":
             return None
-        return self.default_max_geom_pairs if setting == "task" else setting
+        return setting if isinstance(setting, int) else self.default_max_geom_pairs  # "task"
 
     def _world_xml(self) -> str:
         return a1.world_xml()
@@ -116,13 +119,16 @@ class QuadrupedFlat(DmControlEnv):
         overlap than MJX kept (so a touching pair may have been skipped)."""
         saturated = super()._contacts_saturated(data)
         rbound = jnp.asarray(self.mj_model.geom_rbound, jnp.float32)
+        limit = self.max_geom_pairs
+        if limit is None:  # nothing culled
+            return saturated
         for pairs in self._culled_pairs:
             gap = (
                 jnp.linalg.norm(data.geom_xpos[pairs[:, 1]] - data.geom_xpos[pairs[:, 0]], axis=1)
                 - rbound[pairs[:, 0]]
                 - rbound[pairs[:, 1]]
             )
-            saturated = saturated | (jnp.sum(gap <= 0.0) > self.max_geom_pairs)
+            saturated = saturated | (jnp.sum(gap <= 0.0) > limit)
         return saturated
 
     # ---- task hooks ----------------------------------------------------------------------
@@ -187,18 +193,22 @@ class QuadrupedFlat(DmControlEnv):
         return self.trunk_lowest(data) <= 0.0
 
 
-class CourseStatistics:
-    """Keeps a course's per-episode statistics in ``State.metrics``: zeros at reset, then
-    ``course_metrics(before, after)`` (the course's own, ``()`` float32 each, named by
-    ``episode_metrics``) after every control step. Mixed in ahead of :class:`QuadrupedFlat`."""
+class QuadrupedCourse(QuadrupedFlat):
+    """A course with obstacles: keeps its per-episode statistics in ``State.metrics``, zeros
+    at reset, then ``course_metrics(before, after)`` (``()`` float32 each, named by
+    ``episode_metrics``) after every control step."""
 
     episode_metrics: tuple[str, ...] = ()
 
-    def step(self, state, action):
+    def course_metrics(self, before: State, after: State) -> dict[str, jax.Array]:
+        """The statistics ``episode_metrics`` names after the control step ``before -> after``."""
+        raise NotImplementedError
+
+    def step(self, state: State, action: jax.Array) -> State:
         after = super().step(state, action)
         return after.replace(metrics={**after.metrics, **self.course_metrics(state, after)})
 
-    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]):
+    def _first_state(self, data: mjx.Data, task_info: dict[str, jax.Array]) -> State:
         state = super()._first_state(data, task_info)
         zeros = {name: jnp.zeros((), jnp.float32) for name in self.episode_metrics}
         return state.replace(metrics={**state.metrics, **zeros})
@@ -212,7 +222,7 @@ class CourseStatistics:
         return jnp.sum(data.qpos[0] > beyond).astype(jnp.float32)
 
 
-class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
+class QuadrupedWalls(QuadrupedCourse):
     """The course: a raised platform with drop-offs, ``n_walls`` walls across the path.
 
     The platform spans x in ``[-1, 10]`` m and ``|y| <= 1`` m, its top the ground at z = 0,
@@ -229,6 +239,7 @@ class QuadrupedWalls(CourseStatistics, QuadrupedFlat):
     default_max_contacts = 8  # wall contacts (condim 1); the four foot contacts are their own group
     default_episode_steps = 1000
     config_class = QuadrupedWallsConfig
+    config: QuadrupedWallsConfig
     PLATFORM = (-1.0, 10.0, 1.0, 0.5)  # x_min, x_max, half-width, drop
     WALL_HALF_SIZE = (0.05, 0.6, 0.25)
     WALL_START, WALL_SPACING, WALL_JITTER = 1.5, 2.5, 0.3

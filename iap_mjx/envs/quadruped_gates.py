@@ -59,11 +59,11 @@ import numpy as np
 from mujoco import mjx
 
 from iap_mjx.configs.env import QuadrupedGatesConfig
-from iap_mjx.envs.quadruped import CourseStatistics, QuadrupedFlat
+from iap_mjx.envs.quadruped import QuadrupedCourse
 from iap_mjx.robots import a1
 
 
-class QuadrupedGates(CourseStatistics, QuadrupedFlat):
+class QuadrupedGates(QuadrupedCourse):
     """The gates corridor (module docstring): ``n_gates`` gates, each followed by a clutter box."""
 
     name = "quadruped-gates"
@@ -72,6 +72,7 @@ class QuadrupedGates(CourseStatistics, QuadrupedFlat):
     default_max_contacts = 12
     default_episode_steps = 1000
     config_class = QuadrupedGatesConfig
+    config: QuadrupedGatesConfig
     X_START, HALF_WIDTH = -1.0, 0.8
     SIDE_WALL_HALF_SIZE = (0.5, 0.3)  # half-thickness, half-height
     GATE_START, GATE_SPACING, GATE_JITTER = 1.5, 2.5, 0.3

@@ -41,6 +41,7 @@ class QuadrupedTurn(QuadrupedFlat):
 
     name = "quadruped-turn"
     config_class = QuadrupedTurnConfig
+    config: QuadrupedTurnConfig
 
     def __init__(self, config: QuadrupedTurnConfig | None = None, **overrides: Any):
         super().__init__(config, **overrides)

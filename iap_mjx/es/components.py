@@ -38,8 +38,7 @@ if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
 TRAIN_STREAM, EVAL_STREAM, INIT_STREAM = 0, 1, 2
 
 
-@struct.dataclass
-class TrainState:
+class TrainState(struct.PyTreeNode):
     """Everything a run needs to continue: strategy state, observation statistics, the base
     key (constant) and the number of iterations done (``()`` int32; OpenES's state counts its
     own, equal to it, for the sigma schedule)."""

@@ -29,8 +29,7 @@ if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
     from iap_mjx.envs.base import Env, State
 
 
-@struct.dataclass
-class EpisodeResult:
+class EpisodeResult(struct.PyTreeNode):
     """What one episode reports (a leading batch axis when batched).
 
     Attributes:
@@ -65,8 +64,7 @@ class EpisodeResult:
     records: dict[str, jax.Array] = struct.field(default_factory=dict)
 
 
-@struct.dataclass
-class Step:
+class Step(struct.PyTreeNode):
     """One env step (one action) as the policy took it.
 
     Attributes:
@@ -82,8 +80,7 @@ class Step:
     next_state: State
 
 
-@struct.dataclass
-class Tally:
+class Tally(struct.PyTreeNode):
     """An episode's running sums, each ``()`` unless said.
 
     Attributes:

@@ -9,8 +9,7 @@ from flax import struct
 CLIP = 5.0
 
 
-@struct.dataclass
-class ObsStats:
+class ObsStats(struct.PyTreeNode):
     """Observation statistics: ``count`` ``()``, ``mean`` and ``var`` ``(obs_size,)`` float32."""
 
     count: jax.Array

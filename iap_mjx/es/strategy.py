@@ -27,7 +27,8 @@ from iap_mjx.es.shaping import ShapingFn, centred_ranks
 class Strategy(Protocol):
     """See the module docstring."""
 
-    population_size: int
+    @property
+    def population_size(self) -> int: ...
 
     def init(self, key: jax.Array, mean: jax.Array) -> Any: ...
 
@@ -38,8 +39,7 @@ class Strategy(Protocol):
     def mean(self, state: Any) -> jax.Array: ...
 
 
-@struct.dataclass
-class OpenESState:
+class OpenESState(struct.PyTreeNode):
     """OpenAI-ES state: centre ``mean`` ``(D,)``, optax state, and the iteration count."""
 
     mean: jax.Array
@@ -146,6 +146,9 @@ class EvosaxStrategy:
     num_dims: int
     sigma: float = 0.02
     options: tuple[tuple[str, Any], ...] = ()
+    # the evosax algorithm and its parameters, built from the fields above in __post_init__
+    _algo: Any = dataclasses.field(init=False, repr=False)
+    _params: Any = dataclasses.field(init=False, repr=False)
 
     def _algorithm(self):
         from evosax.algorithms import algorithms

@@ -25,19 +25,20 @@ from iap_mjx.viz.sections import image_link, reproduce_command, write_results_se
 
 if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
     from iap_mjx.envs.base import Env
-    from iap_mjx.policies.base import Policy
+    from iap_mjx.policies.base import AttendingPolicy
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_RUNS = ("table2-p1-s1-seed0", "quadruped-walls-iap-seed0")  # Table 2's smallest and the preset's patches
 
 
-def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Env, Policy]]:
+def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Env, AttendingPolicy]]:
     """``{run_dir: (config, env, policy)}`` for runs with a checkpoint whose hierarchical policy
     selects patches of the camera (an IAP high level, eyes open), built and nothing compiled;
     ``ValueError`` naming the run otherwise."""
     from iap_mjx.es import checkpoint, make_env_and_policy
     from iap_mjx.es.runs import trained_config
+    from iap_mjx.policies.base import AttendingPolicy
 
     if not run_dirs or len(set(run_dirs)) != len(run_dirs):
         raise ValueError(f"fig10 needs distinct run directories, got {[str(run_dir) for run_dir in run_dirs]}")
@@ -47,7 +48,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, E
             raise ValueError(f"{run_dir}: no checkpoint (train it first: iap-mjx reproduce table2)")
         config = trained_config(run_dir)  # as es.load_run reads it below
         env, policy = make_env_and_policy(config)
-        if config.policy.kind != "hierarchical" or not hasattr(policy, "select"):
+        if config.policy.kind != "hierarchical" or not isinstance(policy, AttendingPolicy):
             raise ValueError(
                 f"{run_dir}: its {config.policy.kind!r} policy selects no patches of the camera "
                 "(fig10 shows a hierarchical policy's IAP high level with its eyes open, e.g. "
@@ -57,7 +58,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, E
     return checked
 
 
-def strip_name(policy: Policy) -> str:
+def strip_name(policy: AttendingPolicy) -> str:
     """``fig10-p<patch size>-s<stride>.png`` of an attention policy."""
     attention = policy.layer.config
     return f"fig10-p{attention.patch_size}-s{attention.effective_stride}.png"

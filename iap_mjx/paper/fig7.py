@@ -44,7 +44,7 @@ PATCH_SIZES = (2, 4, 8)
 TOP_LS = (5, 10, 20)
 D_QKS = (2, 4, 8)
 GRID_D_QK = 4
-TRAIN_CONDITION = {"train": ()}
+TRAIN_CONDITION: dict[str, tuple[str, ...]] = {"train": ()}
 
 
 def cell_overrides(patch_size: int, top_l: int, d_qk: int) -> tuple[str, ...]:

@@ -124,7 +124,9 @@ def reported_run(
         return None
     row, history = summary
     if row["finished"] and evaluate is not None:
-        row.update(evaluate(run_dir, checkpoint.latest_step(run_dir)))
+        step = checkpoint.latest_step(run_dir)
+        assert step is not None  # a finished run has its final checkpoint
+        row.update(evaluate(run_dir, step))
     if export is not None:
         checkpoint.export_latest(run_dir, export)
     return row, history

@@ -267,7 +267,7 @@ def table(rows: list[dict[str, Any]], *, seeds: int) -> str:
         sac, qt = BASELINES.get(task, (None, None))
         if len(done) == seeds:
             means[task] = float(np.mean(per["train"]))
-            met += task in BASELINES and means[task] >= max(sac, qt)
+            met += task in BASELINES and means[task] >= max(BASELINES[task])
         lines.append(
             f"| {task} | {sac if sac is not None else '-'} | {qt if qt is not None else '-'} | "
             f"{mean_std(per['train'])} | {', '.join(f'{v:.1f}' for v in per['train']) or '-'} | "

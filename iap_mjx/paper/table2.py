@@ -93,13 +93,14 @@ def check(
     require_int("episodes", episodes)
     check_seed_not_set("table2", overrides)
     check_not_swept("table2", overrides, SWEPT, "the patch size and stride per setting")
-    settings = tuple(tuple(setting) for setting in settings)
+    given = tuple(tuple(setting) for setting in settings)  # lists from JSON or a command line
     if (
-        not settings
-        or len(set(settings)) != len(settings)
-        or not all(len(setting) == 2 and all(is_int(v) for v in setting) for setting in settings)
+        not given
+        or len(set(given)) != len(given)
+        or not all(len(setting) == 2 and all(is_int(v) for v in setting) for setting in given)
     ):
-        raise ValueError(f"settings = {settings!r} must be distinct (patch size, stride) pairs of ints")
+        raise ValueError(f"settings = {given!r} must be distinct (patch size, stride) pairs of ints")
+    settings = tuple((patch_size, stride) for patch_size, stride in given)
     base = configs.apply_overrides(configs.get(PRESET), overrides)
     camera = envs.check(base.env.name, **dict(base.env.overrides))
     check_evaluated("table2", [base])
@@ -118,7 +119,7 @@ def check(
                 f"size, stride) on the {camera.height}x{camera.width} camera with top_l = {top_l}, "
                 f"stride <= patch size <= {LARGEST_LISTED_PATCH}: " + ", ".join(f"({p}, {s})" for p, s in valid)
             )
-    checked = {}
+    checked: dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]] = {}
     for setting in settings:
         if setting == own_setting(base):
             checked[setting] = (base, f"{PRESET}-seed{seed}", ())
@@ -214,14 +215,14 @@ def table(rows: list[dict[str, Any]], *, settings: int) -> str:
     ]
     for row in rows:
         course = row.get("course")
-        walls, ret = (
+        walls_passed, ret = (
             ("", "")
             if course is None
             else (f"{np.mean(course['walls_passed']):.2f}", f"{np.mean(course['return']):.2f}")
         )
         lines.append(
             f"| {row['patch_size']} | {row['stride']} | {row['patches']:,} | {row['parameters']:,} | "
-            f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {walls} | {ret} | {row['iterations']}"
+            f"{row['max_return']:.1f} | {row['max_eval_return']:.1f} | {walls_passed} | {ret} | {row['iterations']}"
             f"{'' if row['finished'] else ' (running)'} | {row['seconds']:.0f} | `{row['command']}` |"
         )
     lines.append("")

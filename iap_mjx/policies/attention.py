@@ -63,13 +63,13 @@ class IAPPolicy:
         require_int("IAPPolicy.projection_seed", self.projection_seed, 0)
         require_bool("IAPPolicy.with_patches", self.with_patches)
         require_bool("IAPPolicy.redraw_projections", self.redraw_projections)
-        IAPAttention(self.attention, tuple(self.image_shape))  # raises before anything compiles
+        IAPAttention(self.attention, self.image_shape)  # raises before anything compiles
         _ = self.head  # builds the controller, which checks its settings
 
     @property
     def layer(self) -> IAPAttention:
         """The attention layer for this image shape."""
-        return IAPAttention(self.attention, tuple(self.image_shape))
+        return IAPAttention(self.attention, self.image_shape)
 
     @property
     def feature_size(self) -> int:
@@ -103,9 +103,9 @@ class IAPPolicy:
         pixels, state = split_observation(obs)
         selection = self.layer(params["attention"], projections, pixels, with_patches=self.with_patches)
         parts = [selection.centres.reshape(-1)]
-        if self.with_patches:
+        if selection.patches is not None:  # with_patches
             parts.append(selection.patches.reshape(-1))
-        if self.state_size:
+        if state is not None:
             parts.append(state)
         return jnp.concatenate(parts), selection
 

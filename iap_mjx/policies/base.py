@@ -17,12 +17,15 @@ import dataclasses
 import inspect
 from collections.abc import Iterable, Mapping
 from types import MappingProxyType
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
 
 from iap_mjx.checks import require_int
+
+if TYPE_CHECKING:
+    from iap_mjx.attention import IAPAttention, Selection
 
 Params = Any
 PolicyState = Any
@@ -31,10 +34,10 @@ PolicyState = Any
 class Policy(Protocol):
     """What the ES engine relies on (see the module docstring).
 
-    Optional members, read with ``getattr`` where present: ``select(params, obs, policy_state)
-    -> Selection`` and ``layer`` (the ``IAPAttention`` it selects with) make videos, strips and
-    ``iap-mjx attended`` draw the selected patches; ``level_param_counts(params)`` (a hierarchy's
-    parameters per level) is logged beside the total.
+    Optional members, read where present: ``select`` and ``layer``
+    (:class:`AttendingPolicy`) make videos, strips and ``iap-mjx attended`` draw the selected
+    patches; ``level_param_counts(params)`` (a hierarchy's parameters per level) is logged
+    beside the total.
     """
 
     @property
@@ -45,6 +48,22 @@ class Policy(Protocol):
     def initial_state(self, key: jax.Array) -> PolicyState: ...
 
     def apply(self, params: Params, obs: Any, policy_state: PolicyState) -> tuple[jax.Array, PolicyState]: ...
+
+
+@runtime_checkable
+class AttendingPolicy(Policy, Protocol):
+    """A policy that selects patches of its camera image with an IAP layer: what videos,
+    strips and ``iap-mjx attended`` draw the selected patches from (``isinstance`` tells,
+    checking that the members exist)."""
+
+    @property
+    def layer(self) -> IAPAttention:
+        """The attention layer the policy selects with."""
+        ...
+
+    def select(self, params: Params, obs: Any, policy_state: PolicyState) -> Selection:
+        """The layer's selection for ``obs`` (one step, no batch axis)."""
+        ...
 
 
 def param_count(params: Params) -> int:

@@ -109,7 +109,7 @@ class ConvFeatures:
         window = (1, self.pool, self.pool, 1)
         x = jax.lax.reduce_window(x, -jnp.inf, jax.lax.max, window, window, "VALID")
         features = jnp.ravel(x)
-        if self.state_size:
+        if state is not None:
             features = jnp.concatenate([features, state])
         return features
 
@@ -315,7 +315,7 @@ class CNNPolicy:
         pixels, state = split_observation(obs)
         x = apply_convolutions(params["conv"], pixels[None], (2,) * len(self.channels), jnp.tanh)
         features = jnp.mean(x, axis=(0, 1, 2))
-        if self.state_size:
+        if state is not None:
             features = jnp.concatenate([features, state])
         return jnp.tanh(apply_dense_layers(params["dense"], features, jnp.tanh)), policy_state
 

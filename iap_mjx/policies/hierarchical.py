@@ -63,8 +63,7 @@ HIGH_LEVELS = ("iap", "cnn")
 IMU_SIZE = 5  # roll, pitch and the 3 angular velocities: the quadruped state's first entries
 
 
-@struct.dataclass
-class HierarchyState:
+class HierarchyState(struct.PyTreeNode):
     """One episode's policy state (a leading batch axis under ``vmap``).
 
     Attributes:
@@ -167,6 +166,8 @@ class HierarchicalPolicy:
 
     def low_level_params(self) -> dict[str, jax.Array]:
         """The low level's ``{"w", "b"}`` read from ``low_level_init``, checked against its shapes."""
+        if self.low_level_init is None:
+            raise ValueError("policy.low_level_init is not set: no low level to load")
         return _load_low_level(self.low_level_init, self.low.input_size, self.low.output_size)
 
     def level_param_counts(self, params: dict[str, Any]) -> dict[str, int]:
@@ -338,6 +339,7 @@ def make_hierarchical_policy(
     pick = lambda names: {k: v for k, v in options.items() if k in names}  # noqa: E731
     imu = IMU_SIZE if options.get("high_level_imu") else 0
     outputs = 1 + latent_size
+    high: IAPPolicy | ConvNet
     if high_level == "iap":
         attention = AttentionConfig(**pick(attention_fields))
         high = IAPPolicy(image_shape, outputs, attention, state_size=imu, **pick(_IAP_FIELDS))

@@ -30,4 +30,5 @@ def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
             "make the env with a pixel obs_mode: 'pixels', 'pixels_depth', 'pixels+state' or "
             "'depth+state' (iap_mjx.configs.env.PIXEL_MODES)"
         )
-    return pixels, state_size
+    height, width, channels = pixels
+    return (int(height), int(width), int(channels)), state_size

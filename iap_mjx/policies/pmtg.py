@@ -232,8 +232,7 @@ def tg_step(config: TGConfig, phase: jax.Array, u: jax.Array) -> TGStep:
     return TGStep(phase, targets)
 
 
-@struct.dataclass
-class PMTGState:
+class PMTGState(struct.PyTreeNode):
     """One episode's low-level state (a leading batch axis under ``vmap``).
 
     Attributes:

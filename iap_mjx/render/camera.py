@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -159,7 +159,7 @@ class Camera:
         self.tracer = tracing.Tracer(self.scene, self.config, self.fovy)
         self.shader = shading.Shader(self.scene, self.config, self.tracer.x, self.tracer.y, self.tracer.pixel_pitch)
         self._identity = (self.config, self.scene.digest(), self.fovy)
-        self._programs = {}
+        self._programs: dict[Any, Any] = {}
 
     def __hash__(self) -> int:
         return hash(self._identity)

@@ -104,7 +104,7 @@ def cylinder(o: Vec, d: Vec, size) -> jnp.ndarray:
 def box(o: Vec, d: Vec, size) -> jnp.ndarray:
     """An axis-aligned box with half-sizes ``size``: the nearest hit among the (at most
     three) faces that face the ray origin."""
-    t = None
+    t: jnp.ndarray | None = None
     for i in range(3):
         j, k = (i + 1) % 3, (i + 2) % 3
         face = jnp.where(o[i] > 0.0, size[i], -size[i])
@@ -116,6 +116,7 @@ def box(o: Vec, d: Vec, size) -> jnp.ndarray:
         safe_di = jnp.where(abs_di > _TINY, d[i], _TINY)
         t_face = jnp.where(ok, rise / safe_di, _INF)
         t = t_face if t is None else jnp.minimum(t, t_face)
+    assert t is not None  # three faces
     return t
 
 

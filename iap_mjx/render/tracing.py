@@ -66,7 +66,7 @@ class Tracer:
         self.x, self.y = self.grid_x[0, :width][None, :], self.grid_y[:height, 0][:, None]
         n_tiles = self.tile_x.shape[0]
         self.pair_budget = int(np.ceil(config.cull_pairs_per_tile * n_tiles))
-        groups = {}
+        groups: dict[int, list[int]] = {}
         for k, gtype in enumerate(scene.geom_type):
             groups.setdefault(int(gtype), []).append(k)
         self.culled_groups = tuple(

@@ -109,7 +109,7 @@ def targets_to_action(targets: jax.Array) -> jax.Array:
 def action_to_targets(action: jax.Array) -> jax.Array:
     """The envs' action ``(..., 12)`` (clipped to ``[-1, 1]``) -> joint position targets in rad."""
     lo, hi = JOINT_RANGES[:, 0], JOINT_RANGES[:, 1]
-    return lo + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo)
+    return jnp.add(lo, (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo))
 
 
 def _rod_inertia(mass: float, length: float, radius: float) -> str:

@@ -22,6 +22,7 @@ from iap_mjx.viz import recording
 
 if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
     from iap_mjx.envs.base import Env
+    from iap_mjx.envs.pixels import PixelEnv
     from iap_mjx.policies.base import Policy
 
 BACKGROUND = "background"
@@ -59,7 +60,7 @@ def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int,
     return {int(i): int(c) for i, c in zip(ids, counts)}
 
 
-def episode_program(env: Env, policy: Policy, *, steps: int) -> Any:
+def episode_program(env: PixelEnv, policy: Policy, *, steps: int) -> Any:
     """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
     each frame the policy sees."""
 
@@ -86,7 +87,10 @@ def episode_counts(
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
     ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
     ``steps`` (default: built here)."""
-    if not (recording.has_pixels(env) and hasattr(policy, "select")):
+    from iap_mjx.envs.pixels import PixelEnv
+    from iap_mjx.policies.base import AttendingPolicy
+
+    if not (isinstance(env, PixelEnv) and isinstance(policy, AttendingPolicy)):
         raise ValueError("attended shares need an attention policy on a pixel env")
     require_int("episodes", episodes)
     steps = env.episode_length if steps is None else steps
@@ -121,7 +125,7 @@ def attended_shares(env: Env, policy: Policy, params: Any, **kwargs: Any) -> dic
 def markdown(counts: list[dict[str, int]]) -> str:
     """A markdown table of the shares over all episodes, and per label the episodes in which
     it has the largest share."""
-    first = [max(episode, key=episode.get) for episode in counts]
+    first = [max(episode, key=lambda label: episode[label]) for episode in counts]
     lines = ["| what the selected pixels show | share | episodes where it is the largest share |", "|---|---:|---:|"]
     lines += [
         f"| {label} | {100 * share:.1f}% | {first.count(label)} of {len(counts)} |"

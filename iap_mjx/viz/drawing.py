@@ -89,6 +89,7 @@ def draw_steps(
         for i, t in enumerate(chunk):
             step = int(t) if numbered else None
             if views is None:
+                assert scenes is not None  # a state env's record has its scene
                 yield annotate(scenes[i], None, None, float(returns[t]), scale=1, step=step)
                 continue
             view = annotate(
@@ -119,7 +120,7 @@ def annotate(
 
     pixels = frame if frame.dtype == np.uint8 else (np.clip(frame, 0, 1) * 255).astype(np.uint8)
     image = Image.fromarray(pixels)
-    image = image.resize((frame.shape[1] * scale, frame.shape[0] * scale), Image.NEAREST)
+    image = image.resize((frame.shape[1] * scale, frame.shape[0] * scale), Image.Resampling.NEAREST)
     canvas = Image.new("RGB", (image.width, image.height + CAPTION_HEIGHT), (0, 0, 0))
     canvas.paste(image, (0, CAPTION_HEIGHT))
     draw = ImageDraw.Draw(canvas)

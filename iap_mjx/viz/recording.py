@@ -53,14 +53,16 @@ def has_scene(env: Env) -> bool:
 
 def state_camera(env: Env, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
     """The ray-cast camera a video of a state env is rendered with: the model camera
-    ``env.video_camera_id`` (default 0), every geom group drawn."""
+    ``env.video_camera_id`` (default 0) of ``env.mj_model`` (:class:`~iap_mjx.envs.base.ModelEnv`),
+    every geom group drawn."""
     from iap_mjx.render import Camera
 
-    if env.mj_model.ncam == 0:
+    model = getattr(env, "mj_model", None)
+    if model is None or model.ncam == 0:
         raise ValueError(
-            f"{getattr(env, 'name', env)!r} observes the state and its model has no camera to render a video from"
+            f"{getattr(env, 'name', env)!r} observes the state and has no model camera to render a video from"
         )
-    return Camera(env.mj_model, camera_id=int(getattr(env, "video_camera_id", 0)), height=size[0], width=size[1])
+    return Camera(model, camera_id=int(getattr(env, "video_camera_id", 0)), height=size[0], width=size[1])
 
 
 def episode_program(
@@ -98,7 +100,9 @@ def episode_program(
 
     channels = getattr(env, "channels", 3)
     pixels = has_pixels(env)
-    selects = pixels and hasattr(policy, "select")
+    from iap_mjx.policies.base import AttendingPolicy
+
+    selector = policy if pixels and isinstance(policy, AttendingPolicy) else None
     # a state env's only picture is its scene; the poses do not depend on the size drawn
     scene_camera = state_camera(env) if not pixels or (scene and has_scene(env)) else None
 
@@ -108,8 +112,8 @@ def episode_program(
             kept = dict(extra(step.state)) if extra is not None else {}
             if pixels:
                 kept["frames"] = newest_rgb(step.state.obs, channels)
-            if selects:
-                kept["indices"] = policy.select(params, step.seen, step.policy_state).indices
+            if selector is not None:
+                kept["indices"] = selector.select(params, step.seen, step.policy_state).indices
             if scene_camera is not None:
                 kept["scene"] = scene_camera.poses(step.state.data)
             kept["rewards"] = step.next_state.reward

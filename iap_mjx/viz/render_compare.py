@@ -20,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -70,7 +71,7 @@ def _render_reference(request: dict) -> dict:
     height, width = int(request["height"]), int(request["width"])
     renderer = mujoco.Renderer(model, height, width)
     data = mujoco.MjData(model)
-    out = {"rgb": [], "depth": [], "segmentation": []}
+    out: dict[str, list[list[np.ndarray]]] = {"rgb": [], "depth": [], "segmentation": []}  # [state][camera]
     for i, (qpos, geom_pos, geom_size, site_rgba) in enumerate(
         zip(request["qpos"], request["geom_pos"], request["geom_size"], request["site_rgba"])
     ):
@@ -127,8 +128,7 @@ def reference_frames(
     with tempfile.TemporaryDirectory() as tmp:
         request = Path(tmp) / "request.npz"
         result = Path(tmp) / "result.npz"
-        np.savez(
-            request,
+        arrays: dict[str, Any] = dict(
             domain=domain,
             geom_pos=np.stack([np.asarray(m.geom_pos) for m, _ in states]),
             geom_size=np.stack([np.asarray(m.geom_size) for m, _ in states]),
@@ -140,6 +140,7 @@ def reference_frames(
             **({} if xml is None else {"xml": xml}),
             **{k: np.asarray(v) for k, v in (distractions or {}).items()},
         )
+        np.savez(request, **arrays)
         backend = os.environ.get("IAP_MJX_REFERENCE_GL", "osmesa")  # read per call, not at import
         env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
         proc = subprocess.run(
