@@ -104,8 +104,13 @@ def test_shares_count_only_the_steps_taken_while_the_episode_lived():
     import mujoco
 
     model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom name='robot' size='1'/></worldbody></mujoco>")
-    env = types.SimpleNamespace(obs_mode="pixels", mj_model=model)
-    policy = types.SimpleNamespace(select=None, layer=_layer(4, 4, 2, 2))
+    # the members of envs.base.ModelEnv and policies.base.AttendingPolicy, which episode_counts
+    # checks (a method must not be None for isinstance; the program below stands in for them all)
+    unused = lambda *args: None  # noqa: E731
+    env = types.SimpleNamespace(obs_mode="pixels", mj_model=model, action_size=1, observation_shape=(4, 4, 3))
+    env.episode_length, env.reset, env.step = 3, unused, unused
+    policy = types.SimpleNamespace(layer=_layer(4, 4, 2, 2), action_size=1)
+    policy.select = policy.init = policy.initial_state = policy.apply = unused
     geoms = np.zeros((3, 4, 4), np.int32)  # the robot fills steps 0 and 2, the background step 1
     geoms[1] = -1
 

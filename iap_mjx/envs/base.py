@@ -7,7 +7,7 @@ the task's static settings), so they can be ``jit``-ed, ``vmap``-ed and ``scan``
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import jax
 import mujoco
@@ -87,10 +87,11 @@ class Env(Protocol):
         ...
 
 
+@runtime_checkable
 class ModelEnv(Env, Protocol):
     """An env simulated from a MuJoCo model, as every env of this package is: what a camera
     (:class:`iap_mjx.envs.pixels.PixelEnv`), a state env's video and the attended-geom tallies
-    read besides :class:`Env`."""
+    read besides :class:`Env` (``isinstance`` tells, checking that the members exist)."""
 
     @property
     def mj_model(self) -> mujoco.MjModel:
