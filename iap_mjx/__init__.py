@@ -10,6 +10,26 @@ per figure or table) -> ``cli``. ``runtime`` is process set-up that entry points
 tests, benchmarks, the notebook) call before JAX starts; library code calls none of it but
 the scoped ``persistent_cache_off``. ``configs`` load no JAX, so a config can be built before
 ``runtime`` sets the process up.
+
+The one-call entry points are here too: ``iap_mjx.train(config)``, ``iap_mjx.load_run(run_dir)``
+and ``iap_mjx.evaluate_run(run_dir, ...)`` are :mod:`iap_mjx.es`'s, imported on first use, so
+that ``import iap_mjx`` (and ``from iap_mjx import runtime``) loads no JAX.
 """
 
+from typing import Any
+
 __version__ = "0.1.0"
+
+_FROM_ES = ("train", "load_run", "evaluate_run")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FROM_ES:
+        from iap_mjx import es
+
+        return getattr(es, name)
+    raise AttributeError(f"module 'iap_mjx' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_FROM_ES])

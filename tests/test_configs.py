@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+import iap_mjx
 from iap_mjx import configs
 from iap_mjx.configs import EnvConfig, ESConfig, PolicySpec, RunConfig, TrainConfig, apply_overrides
 from iap_mjx.configs.distraction import DistractionConfig
@@ -152,10 +153,17 @@ def test_the_strategy_and_policy_names_are_evosaxs_and_the_policy_tables():
 
 
 def test_importing_the_configs_and_building_the_presets_loads_no_jax():
-    """A notebook may build a config before ``runtime.setup()``, which must run before JAX starts."""
-    code = "import sys; from iap_mjx import configs; configs.get('dcs-cartpole-swingup'); print('jax' in sys.modules)"
+    """A notebook may build a config before ``runtime.setup()``, which must run before JAX starts;
+    the package's one-call entry points load it on first use."""
+    code = (
+        "import sys, iap_mjx; from iap_mjx import configs; configs.get('dcs-cartpole-swingup'); "
+        "print('jax' in sys.modules); from iap_mjx import es; "
+        "print(iap_mjx.train is es.train, iap_mjx.load_run is es.load_run, iap_mjx.evaluate_run is es.evaluate_run)"
+    )
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert loaded.strip() == "False"
+    assert loaded.split() == ["False", "True", "True", "True"]
+    with pytest.raises(AttributeError, match="no attribute 'trian'"):
+        iap_mjx.trian
 
 
 def test_configs_are_frozen():
