@@ -29,7 +29,3 @@ def __getattr__(name: str) -> Any:
 
         return getattr(es, name)
     raise AttributeError(f"module 'iap_mjx' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_FROM_ES])

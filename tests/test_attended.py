@@ -80,6 +80,19 @@ def test_shares_over_a_distracted_episode_describe_the_frames_the_policy_saw():
     assert shares == pytest.approx(expected, abs=1e-12)
 
 
+def test_the_checks_see_pixel_envs_and_attention_policies():
+    """``PixelEnv`` forwards ``mj_model`` with ``__getattr__``: ``maps_geoms`` sees it (an
+    ``isinstance`` on a runtime-checkable protocol does not, from Python 3.12)."""
+    from iap_mjx.envs.pixels import maps_geoms
+    from iap_mjx.policies.base import attends
+
+    pixels, state = envs.make("cartpole-swingup", obs_mode="pixels", height=24, width=32), envs.make("cartpole-swingup")
+    assert maps_geoms(pixels) and not maps_geoms(state)
+    shape, actions = pixels.observation_shape, pixels.action_size
+    assert attends(policies.make("iap", shape, actions, patch_size=4, top_l=4))
+    assert not attends(policies.make("cnn", shape, actions)) and not attends(policies.make("linear", (5,), actions))
+
+
 def test_attended_refuses_a_state_policy():
     env = envs.make("cartpole-swingup")
     policy = policies.make("linear", env.observation_shape, env.action_size)
@@ -104,13 +117,8 @@ def test_shares_count_only_the_steps_taken_while_the_episode_lived():
     import mujoco
 
     model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom name='robot' size='1'/></worldbody></mujoco>")
-    # the members of envs.base.ModelEnv and policies.base.AttendingPolicy, which episode_counts
-    # checks (a method must not be None for isinstance; the program below stands in for them all)
-    unused = lambda *args: None  # noqa: E731
-    env = types.SimpleNamespace(obs_mode="pixels", mj_model=model, action_size=1, observation_shape=(4, 4, 3))
-    env.episode_length, env.reset, env.step = 3, unused, unused
-    policy = types.SimpleNamespace(layer=_layer(4, 4, 2, 2), action_size=1)
-    policy.select = policy.init = policy.initial_state = policy.apply = unused
+    env = types.SimpleNamespace(obs_mode="pixels", mj_model=model, geom_map=None)  # the program stands in for both
+    policy = types.SimpleNamespace(select=None, layer=_layer(4, 4, 2, 2))
     geoms = np.zeros((3, 4, 4), np.int32)  # the robot fills steps 0 and 2, the background step 1
     geoms[1] = -1
 

@@ -74,12 +74,13 @@ def _check_count(name: str, value: int | None) -> int:
     return value
 
 
-def drawn(matrix: jax.Array | None, name: str, needed_by: str) -> jax.Array:
-    """``matrix``, the projections' ``name``, or a ``ValueError`` saying how to draw it."""
+def drawn(matrix: jax.Array | None, name: str, kind: str) -> jax.Array:
+    """``matrix``, the projections' ``name`` that feature map ``kind`` needs, or a
+    ``ValueError`` saying how to draw it."""
     if matrix is None:
         raise ValueError(
-            f"projections lack the matrices that {needed_by} needs ({name} is None); "
-            "draw them with draw_projections(key, kind, ...) for that kind"
+            f"projections lack the matrices that kind {kind!r} needs ({name} is None); "
+            f"draw them with draw_projections(key, {kind!r}, ...)"
         )
     return matrix
 
@@ -229,7 +230,7 @@ def signs_of(x: jax.Array, xi: jax.Array) -> jax.Array:
 
 def feature_factors(x: jax.Array, projections: Projections) -> FeatureFactors:
     """Computes :class:`FeatureFactors` of ``x (..., d)`` for ``projections.omega`` ``(m, d)``."""
-    projected = x @ drawn(projections.omega, "omega", "feature_factors").T
+    projected = x @ drawn(projections.omega, "omega", "exp").T
     half_sq_norm = 0.5 * jnp.sum(x * x, axis=-1, keepdims=True)
     sin, cos = sincos(projected)
     return FeatureFactors(
@@ -281,11 +282,11 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
     if kind == "relu":
         return jax.nn.relu(x) + RELU_EPSILON
     if kind == "angular":
-        signs = signs_of(x, drawn(projections.xi, "xi", "kind 'angular'"))
+        signs = signs_of(x, drawn(projections.xi, "xi", "angular"))
         return signs / math.sqrt(signs.shape[-1])
-    drawn(projections.omega, "omega", f"kind {kind!r}")
+    drawn(projections.omega, "omega", kind)
     if kind == "hybrid":
-        drawn(projections.xi, "xi", f"kind {kind!r}")
+        drawn(projections.xi, "xi", kind)
     factors = feature_factors(x, projections)
     shift = stabilizing_shift(factors, kind, stabilize)
     m = factors.exp_log.shape[-1]
@@ -295,7 +296,7 @@ def feature_map(kind: str, x: jax.Array, projections: Projections, *, role: str,
         return trig / math.sqrt(m)
     if kind == "exp":
         return positive / math.sqrt(m)
-    signs = drawn(factors.signs, "xi", f"kind {kind!r}")
+    signs = drawn(factors.signs, "xi", kind)
     r = signs.shape[-1]
     beta_sign = 1.0 if role == "query" else -1.0
     # alpha: (..., 2m, r) -> (..., 2mr); beta: (..., m, r) -> (..., mr).

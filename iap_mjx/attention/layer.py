@@ -97,6 +97,15 @@ class AttentionParams(struct.PyTreeNode):
     b_q: jax.Array | None = None
     b_k: jax.Array | None = None
 
+    @property
+    def biases(self) -> tuple[jax.Array, jax.Array] | None:
+        """``(b_q, b_k)``, or ``None`` without biases; ``ValueError`` if only one is set."""
+        if self.b_q is None and self.b_k is None:
+            return None
+        if self.b_q is None or self.b_k is None:
+            raise ValueError("AttentionParams: b_q and b_k are set together or not at all")
+        return self.b_q, self.b_k
+
 
 class Selection(struct.PyTreeNode):
     """The layer's output for one image.
@@ -207,8 +216,8 @@ class IAPAttention:
             )
             projected = projected.reshape(self.num_patches, 2 * cfg.d_qk)
         queries, keys = projected[:, : cfg.d_qk], projected[:, cfg.d_qk :]
-        if params.b_q is not None and params.b_k is not None:
-            queries, keys = queries + params.b_q, keys + params.b_k
+        if (biases := params.biases) is not None:
+            queries, keys = queries + biases[0], keys + biases[1]
         return self.scale_inputs(queries, axis=-1), self.scale_inputs(keys, axis=-1)
 
     def query_key_rows(self, params: AttentionParams, image: jax.Array) -> jax.Array:
@@ -239,8 +248,8 @@ class IAPAttention:
                 dimension_numbers=("NHWC", "HWIO", "NCHW"),
             )[0]
         projected = projected.reshape(2 * d, self.num_patches)
-        if params.b_q is not None and params.b_k is not None:
-            projected = projected + jnp.concatenate([params.b_q, params.b_k])[:, None]
+        if (biases := params.biases) is not None:
+            projected = projected + jnp.concatenate(biases)[:, None]
         return jnp.concatenate([self.scale_inputs(projected[:d], axis=0), self.scale_inputs(projected[d:], axis=0)])
 
     def scale_inputs(self, u: jax.Array, *, axis: int) -> jax.Array:

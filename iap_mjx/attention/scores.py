@@ -107,9 +107,7 @@ def _hybrid_shift(half_sq_norm: jax.Array, projected: jax.Array, stabilize: bool
 
 def _hybrid_projections(projections: ft.Projections) -> tuple[jax.Array, jax.Array]:
     """``(omega (m, d), xi (r, d))``, both of which the hybrid kernel needs."""
-    return ft.drawn(projections.omega, "omega", "the hybrid kernel"), ft.drawn(
-        projections.xi, "xi", "the hybrid kernel"
-    )
+    return ft.drawn(projections.omega, "omega", "hybrid"), ft.drawn(projections.xi, "xi", "hybrid")
 
 
 def _sign_rows(x: jax.Array, xi: jax.Array) -> list[jax.Array]:

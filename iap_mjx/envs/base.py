@@ -7,7 +7,7 @@ the task's static settings), so they can be ``jit``-ed, ``vmap``-ed and ``scan``
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol
 
 import jax
 import mujoco
@@ -43,7 +43,7 @@ class Env(Protocol):
     One ``step`` is one action: a dm_control task with action repeat ``k`` simulates ``k`` of its
     control steps in it (``episode_length`` and ``metrics.csv``'s ``env_steps`` count actions).
 
-    Optional members, read with ``getattr`` where present (an env without them still trains):
+    Optional members, read where present (an env without them still trains):
 
     - ``max_chunk_size``: the most episodes one device may ``vmap`` at once (``train`` refuses a
       larger ``run.chunk_size`` on two or more devices; the MJX tasks set it:
@@ -57,6 +57,7 @@ class Env(Protocol):
       :class:`iap_mjx.envs.pixels.PixelEnv`), ``video_camera_id`` (a scene camera to draw the
       pixel view into), ``control_timestep`` and ``config.action_repeat`` (the frame rate);
       ``camera_options`` (``CameraConfig`` fields ``with_pixels`` gets from ``envs.make``).
+    - ``geom_map`` (:class:`iap_mjx.envs.pixels.GeomMapping`): ``iap-mjx attended``'s tallies.
     """
 
     @property
@@ -87,11 +88,10 @@ class Env(Protocol):
         ...
 
 
-@runtime_checkable
 class ModelEnv(Env, Protocol):
     """An env simulated from a MuJoCo model, as every env of this package is: what a camera
-    (:class:`iap_mjx.envs.pixels.PixelEnv`), a state env's video and the attended-geom tallies
-    read besides :class:`Env` (``isinstance`` tells, checking that the members exist)."""
+    (:class:`iap_mjx.envs.pixels.PixelEnv`) and the distractions are built on besides
+    :class:`Env`."""
 
     @property
     def mj_model(self) -> mujoco.MjModel:

@@ -24,7 +24,7 @@ Distracting Control Suite's: the episode's perturbation is drawn at reset, kept 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Protocol, TypeGuard
 
 import jax
 import jax.numpy as jnp
@@ -35,6 +35,19 @@ from iap_mjx.configs.env import DEPTH_MAX, PIXEL_MODES, check_depth_max
 from iap_mjx.envs import distraction as distraction_lib
 from iap_mjx.envs.base import ModelEnv, State
 from iap_mjx.render import Camera
+
+
+class GeomMapping(ModelEnv, Protocol):
+    """An env whose frames come with the geom each pixel shows (:meth:`PixelEnv.geom_map`):
+    what ``iap-mjx attended`` tallies the selected patches by."""
+
+    def geom_map(self, data: Any, perturbation: Any = None) -> jax.Array: ...
+
+
+def maps_geoms(env: object) -> TypeGuard[GeomMapping]:
+    """Whether ``env`` has :class:`GeomMapping`'s ``geom_map`` and ``mj_model`` (``hasattr``,
+    so that a wrapper forwarding attributes with ``__getattr__``, as :class:`PixelEnv`, counts)."""
+    return hasattr(env, "geom_map") and hasattr(env, "mj_model")
 
 
 class PixelEnv:

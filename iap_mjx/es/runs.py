@@ -133,6 +133,7 @@ def in_condition(result: TrainResult, overrides: Sequence[str]) -> TrainResult:
     config = apply_condition(result.config, overrides)
     env, policy = make_env_and_policy(config)
     wanted = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
+    # jaxlib's PyTreeDef has no type information here: mypy cannot see its ==
     same_tree = jax.tree.structure(wanted) == jax.tree.structure(result.params)  # type: ignore[operator]
     fits = same_tree and all(
         a.shape == b.shape for a, b in zip(jax.tree.leaves(wanted), jax.tree.leaves(result.params))

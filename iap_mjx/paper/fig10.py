@@ -38,7 +38,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, E
     ``ValueError`` naming the run otherwise."""
     from iap_mjx.es import checkpoint, make_env_and_policy
     from iap_mjx.es.runs import trained_config
-    from iap_mjx.policies.base import AttendingPolicy
+    from iap_mjx.policies.base import attends
 
     if not run_dirs or len(set(run_dirs)) != len(run_dirs):
         raise ValueError(f"fig10 needs distinct run directories, got {[str(run_dir) for run_dir in run_dirs]}")
@@ -48,7 +48,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, E
             raise ValueError(f"{run_dir}: no checkpoint (train it first: iap-mjx reproduce table2)")
         config = trained_config(run_dir)  # as es.load_run reads it below
         env, policy = make_env_and_policy(config)
-        if config.policy.kind != "hierarchical" or not isinstance(policy, AttendingPolicy):
+        if config.policy.kind != "hierarchical" or not attends(policy):
             raise ValueError(
                 f"{run_dir}: its {config.policy.kind!r} policy selects no patches of the camera "
                 "(fig10 shows a hierarchical policy's IAP high level with its eyes open, e.g. "

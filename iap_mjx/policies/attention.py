@@ -24,7 +24,7 @@ from iap_mjx.attention import AttentionConfig, IAPAttention
 from iap_mjx.checks import require_bool, require_int
 from iap_mjx.policies.base import check_options, constructor_options, field_names, lists_as_tuples, split_options
 from iap_mjx.policies.controller import Controller
-from iap_mjx.policies.observations import pixel_shape, split_observation
+from iap_mjx.policies.observations import pixel_shape, required_state, split_observation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,10 +103,11 @@ class IAPPolicy:
         pixels, state = split_observation(obs)
         selection = self.layer(params["attention"], projections, pixels, with_patches=self.with_patches)
         parts = [selection.centres.reshape(-1)]
-        if selection.patches is not None:  # with_patches
+        if self.with_patches:
+            assert selection.patches is not None  # the layer was asked for them
             parts.append(selection.patches.reshape(-1))
-        if state is not None:
-            parts.append(state)
+        if self.state_size:
+            parts.append(required_state(state))
         return jnp.concatenate(parts), selection
 
     def apply(self, params: dict[str, Any], obs: Any, policy_state):

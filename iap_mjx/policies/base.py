@@ -17,7 +17,7 @@ import dataclasses
 import inspect
 from collections.abc import Iterable, Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeGuard
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +35,7 @@ class Policy(Protocol):
     """What the ES engine relies on (see the module docstring).
 
     Optional members, read where present: ``select`` and ``layer``
-    (:class:`AttendingPolicy`) make videos, strips and ``iap-mjx attended`` draw the selected
+    (:class:`AttendingPolicy`, :func:`attends`) make videos, strips and ``iap-mjx attended`` draw the selected
     patches; ``level_param_counts(params)`` (a hierarchy's parameters per level) is logged
     beside the total.
     """
@@ -50,11 +50,9 @@ class Policy(Protocol):
     def apply(self, params: Params, obs: Any, policy_state: PolicyState) -> tuple[jax.Array, PolicyState]: ...
 
 
-@runtime_checkable
 class AttendingPolicy(Policy, Protocol):
     """A policy that selects patches of its camera image with an IAP layer: what videos,
-    strips and ``iap-mjx attended`` draw the selected patches from (``isinstance`` tells,
-    checking that the members exist)."""
+    strips and ``iap-mjx attended`` draw the selected patches from (:func:`attends` tells)."""
 
     @property
     def layer(self) -> IAPAttention:
@@ -64,6 +62,11 @@ class AttendingPolicy(Policy, Protocol):
     def select(self, params: Params, obs: Any, policy_state: PolicyState) -> Selection:
         """The layer's selection for ``obs`` (one step, no batch axis)."""
         ...
+
+
+def attends(policy: object) -> TypeGuard[AttendingPolicy]:
+    """Whether ``policy`` has :class:`AttendingPolicy`'s ``select`` and ``layer``."""
+    return hasattr(policy, "select") and hasattr(policy, "layer")
 
 
 def param_count(params: Params) -> int:

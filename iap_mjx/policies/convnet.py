@@ -32,7 +32,7 @@ from iap_mjx.chunks import ceil_div
 from iap_mjx.policies.base import check_options, check_sizes, constructor_options, lists_as_tuples
 from iap_mjx.policies.controller import Controller
 from iap_mjx.policies.mlp import apply_dense_layers, init_dense_layers
-from iap_mjx.policies.observations import pixel_shape, split_observation
+from iap_mjx.policies.observations import pixel_shape, required_state, split_observation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,8 +109,8 @@ class ConvFeatures:
         window = (1, self.pool, self.pool, 1)
         x = jax.lax.reduce_window(x, -jnp.inf, jax.lax.max, window, window, "VALID")
         features = jnp.ravel(x)
-        if state is not None:
-            features = jnp.concatenate([features, state])
+        if self.state_size:
+            features = jnp.concatenate([features, required_state(state)])
         return features
 
 
@@ -315,8 +315,8 @@ class CNNPolicy:
         pixels, state = split_observation(obs)
         x = apply_convolutions(params["conv"], pixels[None], (2,) * len(self.channels), jnp.tanh)
         features = jnp.mean(x, axis=(0, 1, 2))
-        if state is not None:
-            features = jnp.concatenate([features, state])
+        if self.state_size:
+            features = jnp.concatenate([features, required_state(state)])
         return jnp.tanh(apply_dense_layers(params["dense"], features, jnp.tanh)), policy_state
 
 

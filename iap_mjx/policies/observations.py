@@ -17,6 +17,17 @@ def split_observation(obs: Any) -> tuple[jax.Array, jax.Array | None]:
     return obs, None
 
 
+def required_state(state: jax.Array | None) -> jax.Array:
+    """``state`` of :func:`split_observation`, which a policy with ``state_size > 0`` needs;
+    ``ValueError`` without one."""
+    if state is None:
+        raise ValueError(
+            "this policy has state_size > 0 and needs {'pixels': ..., 'state': ...} observations "
+            "(obs_mode 'pixels+state' or 'depth+state')"
+        )
+    return state
+
+
 def pixel_shape(observation_shape: Any) -> tuple[tuple[int, int, int], int]:
     """``((H, W, C), state_size)`` of an env's observation shape (array or pixels+state dict)."""
     if isinstance(observation_shape, dict):

@@ -327,14 +327,16 @@ class Camera:
             # an unbatched sky stack is shared by every chunk as it is (not broadcast per image)
             shared_sky = not in_batched[3]
             per_image = _PerImage(poses, background, geom_rgb, sky_frame, None if shared_sky else sky_texture)
-            flags = _PerImage(*in_batched[:3], in_batched[4], None if shared_sky else True)
+            flags = _PerImage._make((*in_batched[:3], in_batched[4], None if shared_sky else True))  # batched?
             args = jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape), per_image, flags)
 
             def one_chunk(a: _PerImage):
                 sky = sky_texture if shared_sky else a.sky_texture
                 return self._trace_and_shade(a.poses, a.background, a.geom_rgb, sky, a.sky_frame, colour, batched=True)
 
-            out = chunks.map_chunks(one_chunk, args, self.config.batch_chunk, axis_size)
+            chunk = self.config.batch_chunk
+            assert chunk is not None  # CameraConfig sets it
+            out = chunks.map_chunks(one_chunk, args, chunk, axis_size)
             return out, jax.tree.map(lambda _: True, out)
 
         self._programs[colour] = batched

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from iap_mjx.render import scene as scene_lib
 
-Vec = tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]
+Vec = tuple[jnp.ndarray, ...]  # (x, y, z)
 
 _TINY = 1e-30
 _INF = jnp.inf

@@ -94,9 +94,9 @@ class Shader:
         depth, best = depth_p[1:-1, 1:-1], best_p[1:-1, 1:-1]
         x, y = jnp.asarray(self.x), jnp.asarray(self.y)
         colour = [jnp.zeros_like(depth) for _ in range(3)]
-        for k in range(len(sc.geom_ids)):
-            mine = best == k
-            colour = [jnp.where(mine, rgb_table[k, c], colour[c]) for c in range(3)]
+        for geom in range(len(sc.geom_ids)):
+            mine = best == geom
+            colour = [jnp.where(mine, rgb_table[geom, c], colour[c]) for c in range(3)]
         if self.config.checker_floor:
             r_cam, origin = frames["r_cam"], frames["origin"]
             for k in np.flatnonzero(sc.checker):

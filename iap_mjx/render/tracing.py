@@ -198,21 +198,21 @@ class Tracer:
         idx = jnp.asarray(members)
         centre = frames["centre"][idx]
         axis = frames["r_cam"][idx, :, 2]
-        radius, half = [], []
+        radii, halves = [], []
         for k in members:
             size = sc.geom_size[k]
             gtype = int(sc.geom_type[k])
             if gtype in (scene_lib.CAPSULE, scene_lib.CYLINDER):
-                radius.append(size[0])
-                half.append(size[1])
+                radii.append(size[0])
+                halves.append(size[1])
             elif gtype == scene_lib.BOX:
-                radius.append(float(np.linalg.norm(size)))
-                half.append(0.0)
+                radii.append(float(np.linalg.norm(size)))
+                halves.append(0.0)
             else:
-                radius.append(float(np.max(size)) if gtype == scene_lib.ELLIPSOID else size[0])
-                half.append(0.0)
-        radius = jnp.asarray(np.asarray(radius, np.float32))[:, None]
-        half = jnp.asarray(np.asarray(half, np.float32))[:, None, None]
+                radii.append(float(np.max(size)) if gtype == scene_lib.ELLIPSOID else size[0])
+                halves.append(0.0)
+        radius = jnp.asarray(np.asarray(radii, np.float32))[:, None]
+        half = jnp.asarray(np.asarray(halves, np.float32))[:, None, None]
         ends = centre[:, None, :] + jnp.asarray([1.0, -1.0])[None, :, None] * half * axis[:, None, :]
         near = -ends[..., 2] - radius
         far = -ends[..., 2] + radius

@@ -21,7 +21,8 @@ from iap_mjx.checks import require_int
 from iap_mjx.viz import recording
 
 if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
-    from iap_mjx.envs.base import Env, ModelEnv
+    from iap_mjx.envs.base import Env
+    from iap_mjx.envs.pixels import GeomMapping
     from iap_mjx.policies.base import Policy
 
 BACKGROUND = "background"
@@ -59,7 +60,7 @@ def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int,
     return {int(i): int(c) for i, c in zip(ids, counts)}
 
 
-def episode_program(env: ModelEnv, policy: Policy, *, steps: int) -> Any:
+def episode_program(env: GeomMapping, policy: Policy, *, steps: int) -> Any:
     """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
     each frame the policy sees."""
 
@@ -86,10 +87,10 @@ def episode_counts(
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
     ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
     ``steps`` (default: built here)."""
-    from iap_mjx.envs.base import ModelEnv
-    from iap_mjx.policies.base import AttendingPolicy
+    from iap_mjx.envs.pixels import maps_geoms
+    from iap_mjx.policies.base import attends
 
-    if not (recording.has_pixels(env) and isinstance(env, ModelEnv) and isinstance(policy, AttendingPolicy)):
+    if not (recording.has_pixels(env) and maps_geoms(env) and attends(policy)):
         raise ValueError("attended shares need an attention policy on a pixel env")
     require_int("episodes", episodes)
     steps = env.episode_length if steps is None else steps

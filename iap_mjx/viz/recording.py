@@ -82,8 +82,8 @@ def episode_program(
         (the poses of :func:`state_camera` alone). Poses (:meth:`iap_mjx.render.Camera.poses`,
         a few hundred floats a step) are drawn afterwards by :func:`render_scene`, only at the
         steps drawn, a chunk at a time.
-      policy: the policy; if it has ``select`` (IAP) and the env has pixels, the selected
-        patches are recorded.
+      policy: the policy; if it selects patches (``policies.base.attends``: ``select`` and
+        ``layer``, IAP) and the env has pixels, the selected patches are recorded.
       steps: control steps to record.
       extra: ``state -> {name: array}`` recorded too, from the state the policy sees (e.g.
         the geom map of its frame: ``viz.attended``).
@@ -100,9 +100,9 @@ def episode_program(
 
     channels = getattr(env, "channels", 3)
     pixels = has_pixels(env)
-    from iap_mjx.policies.base import AttendingPolicy
+    from iap_mjx.policies.base import attends
 
-    selector = policy if pixels and isinstance(policy, AttendingPolicy) else None
+    selector = policy if pixels and attends(policy) else None
     # a state env's only picture is its scene; the poses do not depend on the size drawn
     scene_camera = state_camera(env) if not pixels or (scene and has_scene(env)) else None
 
