@@ -12,12 +12,6 @@ XLA:CPU's older loop emitters instead of its MLIR fusion emitters
 ES iteration from 35.9 s to 26.6 s. Child processes (the CLI and notebook tests) inherit both
 through ``XLA_FLAGS``. Timed figures come from ``benchmarks/``, never from here.
 
-In this process (not its children) programs are partitioned by GSPMD, not Shardy, JAX's
-default: Shardy's propagation pass is a large share of XLA's time on our programs, whose
-only partitioning is the ``shard_map`` over the population, which both partitioners lower
-alike. The child processes (the README's command in ``test_first_run``, the notebook, the
-two ``jax.distributed`` processes) keep JAX's default, so Shardy is what they test.
-
 Tests marked ``slow`` (a minute or more: end-to-end runs, multi-task parity) are handed out
 first, so that no long test starts last and keeps one worker busy after the other is done;
 tests marked ``last`` go at the end (they reuse an earlier test's compiled programs).
@@ -25,8 +19,6 @@ tests marked ``last`` go at the end (they reuse an earlier test's compiled progr
 
 import os
 from pathlib import Path
-
-import jax
 
 from iap_mjx import runtime
 
@@ -38,7 +30,6 @@ runtime.hoist_large_constants()  # as the CLI: large closed-over arrays are argu
 runtime.set_host_device_count(2)
 runtime.disable_dm_control_rendering()  # reference renders run in child processes
 runtime.enable_compilation_cache(Path(__file__).resolve().parent.parent / ".jax_cache")
-jax.config.update("jax_use_shardy_partitioner", False)  # this process only: see above
 
 
 def pytest_collection_modifyitems(items):
