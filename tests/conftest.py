@@ -12,6 +12,14 @@ XLA:CPU's older loop emitters instead of its MLIR fusion emitters
 ES iteration from 35.9 s to 26.6 s. Child processes (the CLI and notebook tests) inherit both
 through ``XLA_FLAGS``. Timed figures come from ``benchmarks/``, never from here.
 
+Programs are partitioned by GSPMD rather than Shardy, JAX's default
+(``JAX_USE_SHARDY_PARTITIONER=false``, inherited by child processes): Shardy's propagation is
+a large share of XLA's time on our programs, whose one partitioning is the ``shard_map`` over
+the population. The README's command (``test_first_run``) and the notebook, run as a user runs
+them, keep JAX's default, so Shardy is tested there. One partitioner per process, and the same
+in a parent and the children it compares with: a program compiled under one and loaded from
+the shared cache by a process under the other can round differently.
+
 Tests marked ``slow`` (a minute or more: end-to-end runs, multi-task parity) are handed out
 first, so that no long test starts last and keeps one worker busy after the other is done;
 tests marked ``last`` go at the end (they reuse an earlier test's compiled programs).
@@ -22,6 +30,7 @@ from pathlib import Path
 
 from iap_mjx import runtime
 
+os.environ.setdefault("JAX_USE_SHARDY_PARTITIONER", "false")  # before JAX reads its config: see above
 _FAST_COMPILE = {"--xla_backend_optimization_level": "0", "--xla_cpu_use_fusion_emitters": "false"}
 for _flag, _value in _FAST_COMPILE.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):

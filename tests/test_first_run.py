@@ -50,6 +50,7 @@ def test_the_main_command_is_the_documented_default():
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
     env.pop("MUJOCO_GL", None)  # as on a newcomer's machine (the tests' conftest sets it)
+    env.pop("JAX_USE_SHARDY_PARTITIONER", None)  # JAX's default partitioner (conftest sets GSPMD)
     return subprocess.run(
         [sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=env, capture_output=True, text=True
     )

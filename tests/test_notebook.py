@@ -31,6 +31,8 @@ def test_notebook_budget_is_the_first_run_tests():
 def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     # the kernel inherits this: it compiles into the tests' cache, not the user's
     monkeypatch.setenv("IAP_MJX_CACHE_DIR", str(NOTEBOOK.parent.parent / ".jax_cache"))
+    # JAX's default partitioner, as a user runs it and as test_first_run compiled the programs
+    monkeypatch.delenv("JAX_USE_SHARDY_PARTITIONER", raising=False)
     notebook = nbformat.read(NOTEBOOK, as_version=4)
     # no per-cell time limit (nbclient's default is 30 s): a loaded machine only makes it slower
     NotebookClient(
