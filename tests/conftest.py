@@ -16,9 +16,9 @@ Programs are partitioned by GSPMD rather than Shardy, JAX's default
 (``JAX_USE_SHARDY_PARTITIONER=false``, inherited by child processes): Shardy's propagation is
 a large share of XLA's time on our programs, whose one partitioning is the ``shard_map`` over
 the population. The README's command (``test_first_run``) and the notebook, run as a user runs
-them, keep JAX's default, so Shardy is tested there. One partitioner per process, and the same
-in a parent and the children it compares with: a program compiled under one and loaded from
-the shared cache by a process under the other can round differently.
+them, keep JAX's default, so Shardy is tested there. A parent and the children whose results
+it compares bit for bit (a run killed in a child and resumed here) use the same partitioner:
+the two round a few operations differently.
 
 Tests marked ``slow`` (a minute or more: end-to-end runs, multi-task parity) are handed out
 first, so that no long test starts last and keeps one worker busy after the other is done;
