@@ -16,9 +16,12 @@ Programs are partitioned by GSPMD rather than Shardy, JAX's default
 (``JAX_USE_SHARDY_PARTITIONER=false``, inherited by child processes): Shardy's propagation is
 a large share of XLA's time on our programs, whose one partitioning is the ``shard_map`` over
 the population. The README's command (``test_first_run``) and the notebook, run as a user runs
-them, keep JAX's default, so Shardy is tested there. A parent and the children whose results
-it compares bit for bit (a run killed in a child and resumed here) use the same partitioner:
-the two round a few operations differently.
+them, keep JAX's default, so Shardy is tested there. The variable is set before JAX starts:
+``jax.config.update`` after the import left a vmapped render 3.5e-5 away from the same render
+unbatched (``test_render_batching``, reproducibly; under either partitioner set at the start
+it is within 1e-5). A parent and the children whose results it compares bit for bit (a run
+killed in a child and resumed here) use the same partitioner: the two round a few operations
+differently.
 
 Tests marked ``slow`` (a minute or more: end-to-end runs, multi-task parity) are handed out
 first, so that no long test starts last and keeps one worker busy after the other is done;
