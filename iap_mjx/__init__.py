@@ -16,7 +16,12 @@ and ``iap_mjx.evaluate_run(run_dir, ...)`` are :mod:`iap_mjx.es`'s, imported on 
 that ``import iap_mjx`` (and ``from iap_mjx import runtime``) loads no JAX.
 """
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # their types, for type checkers; at run time __getattr__ imports them
+    from iap_mjx.es.runs import evaluate_run as evaluate_run
+    from iap_mjx.es.runs import load_run as load_run
+    from iap_mjx.es.train import train as train
 
 __version__ = "0.1.0"
 

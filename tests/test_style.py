@@ -32,6 +32,20 @@ def mypy(root: Path, cache: Path) -> subprocess.CompletedProcess:
 def test_mypy(tmp_path):
     done = mypy(ROOT, tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
+    # a user's script: the top-level entry points (imported lazily at run time) carry their
+    # types, so a wrong argument is caught (checked against the cache just written: quick)
+    script = tmp_path / "script.py"
+    script.write_text("import iap_mjx\n\niap_mjx.train(42)\niap_mjx.evaluate_run('run', episodes='8')\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "mypy", "--cache-dir", str(tmp_path), str(script)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert 'Argument 1 to "train" has incompatible type "int"' in done.stdout, done.stdout
+    assert 'Argument "episodes" to "evaluate_run" has incompatible type "str"' in done.stdout, done.stdout
 
 
 def test_mypy_sees_a_wrong_annotation(tmp_path):
