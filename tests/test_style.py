@@ -22,10 +22,15 @@ def test_ruff(command):
     assert done.returncode == 0, done.stdout + done.stderr
 
 
-def mypy(root: Path, cache: Path) -> subprocess.CompletedProcess:
-    """``mypy`` run in ``root`` with its ``pyproject.toml``, the cache in ``cache``."""
+def mypy(root: Path, cache: Path, *paths: Path) -> subprocess.CompletedProcess:
+    """``mypy`` run in ``root`` with its ``pyproject.toml``, the cache in ``cache``, on ``paths``
+    (none: the files ``pyproject.toml`` names)."""
     return subprocess.run(
-        [sys.executable, "-m", "mypy", "--cache-dir", str(cache)], cwd=root, capture_output=True, text=True, check=False
+        [sys.executable, "-m", "mypy", "--cache-dir", str(cache), *map(str, paths)],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=False,
     )
 
 
@@ -36,13 +41,7 @@ def test_mypy(tmp_path):
     # types, so a wrong argument is caught (checked against the cache just written: quick)
     script = tmp_path / "script.py"
     script.write_text("import iap_mjx\n\niap_mjx.train(42)\niap_mjx.evaluate_run('run', episodes='8')\n")
-    done = subprocess.run(
-        [sys.executable, "-m", "mypy", "--cache-dir", str(tmp_path), str(script)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    done = mypy(ROOT, tmp_path, script)
     assert done.returncode == 1, done.stdout + done.stderr
     assert 'Argument 1 to "train" has incompatible type "int"' in done.stdout, done.stdout
     assert 'Argument "episodes" to "evaluate_run" has incompatible type "str"' in done.stdout, done.stdout
