@@ -238,6 +238,32 @@ def test_evosax_adapter_maximises(name):
     assert float(jnp.linalg.norm(strategy.mean(state) - centre)) < float(jnp.linalg.norm(centre))
 
 
+@pytest.mark.parametrize("name", training.EVOSAX_STRATEGIES)
+def test_every_listed_evosax_strategy_asks_one_population_around_one_mean(name):
+    """Every name ``es.strategy`` takes builds through the adapter and gives what training
+    reads: ``(P, D)`` members and a ``(D,)`` mean (traced, not compiled)."""
+    sample = lambda key: jax.random.normal(key, (3,))  # noqa: E731  (RandomSearch's one member)
+    options = (("sampling_fn", sample),) if name == "RandomSearch" else ()
+    strategy = EvosaxStrategy(name, population_size=6, num_dims=3, options=options)
+    state = jax.eval_shape(strategy.init, jax.random.PRNGKey(0), jnp.zeros(3))
+    population, _ = jax.eval_shape(strategy.ask, jax.random.PRNGKey(1), state)
+    assert population.shape == (6, 3)
+    assert jax.eval_shape(strategy.mean, state).shape == (3,)
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "match"),
+    [
+        ("SV_CMA_ES", (("num_populations", 2),), "one population around one mean"),
+        ("RandomSearch", (), "es.evosax_options .*sampling_fn"),
+        ("CMA_ES", (("no_such_argument", 1),), "es.evosax_options .*no_such_argument"),
+    ],
+)
+def test_unusable_evosax_strategy_or_options_are_refused_clearly(name, options, match):
+    with pytest.raises(ValueError, match=match):
+        EvosaxStrategy(name, population_size=4, num_dims=2, options=options)
+
+
 def test_unknown_evosax_strategy_lists_valid_names():
     with pytest.raises(ValueError, match="CMA_ES"):
         EvosaxStrategy("NoSuchES", population_size=4, num_dims=2)

@@ -23,12 +23,14 @@ OPEN_ES = "open_es"
 EVOSAX_STRATEGIES = (
     "ARS", "ASEBO", "CMAAnchoredLES", "CMA_ES", "CR_FM_NES", "DES", "ESMC", "EvoTF_ES", "GradientlessDescent",
     "GuidedES", "HillClimbing", "LES", "LM_MA_ES", "MA_ES", "NoiseReuseES", "Open_ES", "PGPE", "PersistentES",
-    "RandomSearch", "Rm_ES", "SNES", "SV_CMA_ES", "SV_Open_ES", "Sep_CMA_ES", "SimpleES", "SimulatedAnnealing",
-    "iAMaLGaM_Full", "iAMaLGaM_Univariate", "xNES",
+    "RandomSearch", "Rm_ES", "SNES", "Sep_CMA_ES", "SimpleES", "SimulatedAnnealing", "iAMaLGaM_Full",
+    "iAMaLGaM_Univariate", "xNES",
 )  # fmt: skip
-"""evosax's distribution-based strategies (``evosax.algorithms.distribution_based_algorithms``
-of the pinned evosax; a test holds them equal), the other names ``es.strategy`` takes: listed
-here, since importing evosax loads JAX."""
+"""evosax's distribution-based strategies that keep one population around one mean
+(``evosax.algorithms.distribution_based_algorithms`` of the pinned evosax but the ``SV_*`` ones;
+a test holds them equal), the other names ``es.strategy`` takes: listed here, since importing
+evosax loads JAX. ``RandomSearch`` needs its ``sampling_fn`` in ``es.evosax_options`` (from
+Python: a function)."""
 POLICY_KINDS = ("cnn", "convnet", "hierarchical", "iap", "linear", "mlp", "pmtg")
 """The names ``policy.kind`` takes; ``iap_mjx.policies`` builds its factory table from these
 (so that configs, and the presets built at their import, load no JAX)."""

@@ -12,6 +12,7 @@ A strategy is an object with pure functions (all shapes for ``D`` parameters, po
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -21,6 +22,7 @@ import optax
 from flax import struct
 
 from iap_mjx.checks import require_choice
+from iap_mjx.configs.training import EVOSAX_STRATEGIES
 from iap_mjx.es.shaping import ShapingFn, centred_ranks
 
 
@@ -129,6 +131,13 @@ class OpenES:
         return state.mean
 
 
+def usable_evosax_algorithm(algorithm: type) -> bool:
+    """Whether an evosax algorithm class fits :class:`EvosaxStrategy`: one population around one
+    mean. The Stein variational ones (``SV_*``) keep ``num_populations`` means and ask for
+    ``num_populations x P`` members."""
+    return "num_populations" not in inspect.signature(algorithm.__init__).parameters
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class EvosaxStrategy:
     """Any distribution-based evosax algorithm behind our interface (evosax minimises).
@@ -154,19 +163,22 @@ class EvosaxStrategy:
         from evosax.algorithms import algorithms
 
         require_choice("es.strategy", self.name, sorted(algorithms))
-        return algorithms[self.name](
-            population_size=self.population_size,
-            solution=jnp.zeros((self.num_dims,), jnp.float32),
-            **dict(self.options),
-        )
+        if not usable_evosax_algorithm(algorithms[self.name]):
+            raise ValueError(
+                f"evosax strategy {self.name!r} is not one population around one mean ((P, D) "
+                f"members, a (D,) mean); choose from {', '.join(EVOSAX_STRATEGIES)}"
+            )
+        try:
+            return algorithms[self.name](
+                population_size=self.population_size,
+                solution=jnp.zeros((self.num_dims,), jnp.float32),
+                **dict(self.options),
+            )
+        except TypeError as error:  # a missing or unknown constructor argument
+            raise ValueError(f"es.evosax_options {dict(self.options)} for {self.name!r}: {error}") from None
 
     def __post_init__(self):
         algorithm = self._algorithm()
-        if not hasattr(algorithm, "get_mean"):
-            raise ValueError(
-                f"evosax strategy {self.name!r} keeps no distribution mean; "
-                "use a distribution-based one (e.g. CMA_ES, SNES, Sep_CMA_ES)"
-            )
         object.__setattr__(self, "_algo", algorithm)
         params = algorithm.default_params
         if hasattr(params, "std_init"):
