@@ -62,7 +62,7 @@ def test_each_shaping_name_gives_the_shaping_it_names():
     """``es.shaping``'s names live in ``configs.training``; ``es`` keys its table by them, and a
     name paired with the wrong function would still run: each is checked by what it computes
     (ranks in [-0.5, 0.5], zero mean and unit std, the raw values)."""
-    assert set(SHAPINGS) == set(training.SHAPINGS)
+    assert set(SHAPINGS) == set(training.SHAPING_NAMES)
     fitness = jnp.array([3.0, 1.0, 2.0])
     np.testing.assert_allclose(SHAPINGS["centred_rank"](fitness), [0.5, -0.5, 0.0])
     np.testing.assert_allclose(
@@ -91,7 +91,7 @@ def test_each_optimizer_name_gives_the_optimizer_it_names():
         "momentum": (-lr * grad, -1.9 * lr * grad),
         "adam": (-lr * jnp.sign(grad), -lr * jnp.sign(grad)),
     }
-    assert set(expected) == set(training.OPTIMIZERS)
+    assert set(expected) == set(training.OPTIMIZER_NAMES)
     for name, (first, second) in expected.items():
         optimizer = make_optimizer(ESConfig(optimizer=name, learning_rate=lr))
         params = jnp.zeros(2)

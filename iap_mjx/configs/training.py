@@ -14,8 +14,8 @@ from typing import Any
 
 from iap_mjx.checks import require_bool, require_choice, require_int, require_number
 
-OPTIMIZERS = ("adam", "sgd", "momentum")
-SHAPINGS = ("centred_rank", "z_score", "identity")
+OPTIMIZER_NAMES = ("adam", "sgd", "momentum")
+SHAPING_NAMES = ("centred_rank", "z_score", "identity")
 """The names ``es.optimizer`` and ``es.shaping`` take; ``iap_mjx.es`` builds its tables from
 these (configs import nothing of ``es``, whose ``__init__`` loads orbax)."""
 SIGMA_SCHEDULES = ("constant", "linear", "exponential")
@@ -143,10 +143,10 @@ class ESConfig:
         require_number("es.sigma", self.sigma, 0, low_open=True)
         require_choice("es.sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
         require_number("es.sigma_final", self.sigma_final, 0, low_open=True)
-        require_choice("es.optimizer", self.optimizer, OPTIMIZERS)
+        require_choice("es.optimizer", self.optimizer, OPTIMIZER_NAMES)
         require_number("es.learning_rate", self.learning_rate, 0, low_open=True)
         require_number("es.weight_decay", self.weight_decay, 0)
-        require_choice("es.shaping", self.shaping, SHAPINGS)
+        require_choice("es.shaping", self.shaping, SHAPING_NAMES)
         require_bool("es.antithetic", self.antithetic)
         require_int("es.n_episodes", self.n_episodes)
         require_bool("es.shared_episodes", self.shared_episodes)
@@ -166,8 +166,9 @@ class RunConfig:
       checkpoint_every: save a checkpoint every this many iterations (0: only at the end).
       iterations_per_call: iterations fused into one compiled call (host work between calls);
         ``checkpoint_every`` must be a multiple of it.
-      chunk_size: episodes simulated together by one ``vmap`` (bounds memory); the
-        rest of a device's share runs sequentially in a ``lax.map``.
+      chunk_size: the most episodes one ``vmap`` simulates together (bounds memory): a
+        device's share is split into the fewest equal chunks of at most this many, which a
+        ``lax.map`` runs one after another (:mod:`iap_mjx.es.rollout`).
       num_devices: devices the population is sharded over (0: all of ``jax.devices()``).
       tensorboard: also write TensorBoard event files.
       max_minutes: stop after this much wall-clock (compile included) even if fewer than

@@ -21,7 +21,7 @@ from flax import struct
 from jax.flatten_util import ravel_pytree
 from jax.sharding import NamedSharding, PartitionSpec
 
-from iap_mjx.configs.training import OPEN_ES, OPTIMIZERS, ESConfig, TrainConfig, one_per_name
+from iap_mjx.configs.training import OPEN_ES, OPTIMIZER_NAMES, ESConfig, TrainConfig, one_per_name
 from iap_mjx.es.episode import EpisodeResult
 from iap_mjx.es.normalizer import ObsStats, init_stats
 from iap_mjx.es.rollout import make_mesh, make_rollout, padded_share
@@ -97,7 +97,7 @@ def make_sigma(es: ESConfig, iterations: int) -> float | Callable[[jax.Array], j
 
 
 _OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = one_per_name(
-    OPTIMIZERS,
+    OPTIMIZER_NAMES,
     {
         "adam": optax.adam,
         "sgd": optax.sgd,
@@ -105,7 +105,7 @@ _OPTIMIZERS: dict[str, Callable[[float], optax.GradientTransformation]] = one_pe
     },
 )
 """The optax optimizer of each ``ESConfig.optimizer`` name given its learning rate (the names'
-one home: ``configs.training.OPTIMIZERS``)."""
+one home: ``configs.training.OPTIMIZER_NAMES``)."""
 
 
 def make_optimizer(es: ESConfig) -> optax.GradientTransformation:

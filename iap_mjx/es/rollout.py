@@ -2,8 +2,10 @@
 chunked and sharded.
 
 Episodes are independent, so the flat list of ``members x episodes`` is split over devices
-(``shard_map`` on a 1-D mesh named ``"pop"``) and, on each device, into chunks of
-``chunk_size`` that one ``vmap`` simulates together while ``lax.map`` walks the chunks. Keys
+(``shard_map`` on a 1-D mesh named ``"pop"``) and, on each device, into the fewest equal
+chunks of at most ``chunk_size`` episodes (``ceil(share / chunk_size)`` chunks, the share padded
+to a multiple of their number), each simulated by one ``vmap`` while ``lax.map`` walks the
+chunks: 68 episodes on 2 devices with ``chunk_size=64`` make one chunk of 34 per device. Keys
 are drawn per episode before the split, so results do not depend on the device count or chunk
 size (beyond float rounding).
 """

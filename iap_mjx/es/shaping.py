@@ -11,8 +11,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-from iap_mjx.configs.training import SHAPINGS as SHAPING_NAMES
-from iap_mjx.configs.training import one_per_name
+from iap_mjx.configs.training import SHAPING_NAMES, one_per_name
 
 ShapingFn = Callable[[jax.Array], jax.Array]
 
@@ -64,4 +63,4 @@ SHAPINGS: dict[str, ShapingFn] = one_per_name(
     SHAPING_NAMES, {"centred_rank": centred_ranks, "z_score": z_scores, "identity": identity}
 )
 """The function of each ``ESConfig.shaping`` name (the names' one home:
-``configs.training.SHAPINGS``)."""
+``configs.training.SHAPING_NAMES``)."""

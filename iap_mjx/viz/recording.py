@@ -84,7 +84,7 @@ def episode_program(
         steps drawn, a chunk at a time.
       policy: the policy; if it selects patches (``policies.base.attends``: ``select`` and
         ``layer``, IAP) and the env has pixels, the selected patches are recorded.
-      steps: control steps to record.
+      steps: env steps (actions) to record.
       extra: ``state -> {name: array}`` recorded too, from the state the policy sees (e.g.
         the geom map of its frame: ``viz.attended``).
       scene: ``False``: no scene poses for a pixel env with a scene (a program that draws
@@ -136,7 +136,7 @@ def compile_episode_program(env: Env, policy: Policy, *, steps: int, obs_stats: 
 def record_episode(
     env: Env, policy: Policy, params: Any, key: jax.Array, *, steps: int, obs_stats: Any = None, program: Any = None
 ) -> dict[str, Any]:
-    """Rolls one episode of ``steps`` control steps and records what a video needs.
+    """Rolls one episode of ``steps`` env steps (actions) and records what a video needs.
 
     Args:
       env, policy, steps: as :func:`episode_program`.
