@@ -90,7 +90,9 @@ def test_the_checks_see_pixel_envs_and_attention_policies():
     assert maps_geoms(pixels) and not maps_geoms(state)
     shape, actions = pixels.observation_shape, pixels.action_size
     assert attends(policies.make("iap", shape, actions, patch_size=4, top_l=4))
-    assert not attends(policies.make("cnn", shape, actions)) and not attends(policies.make("linear", (5,), actions))
+    assert not attends(policies.make("convnet", shape, actions, strides=(2, 2, 1))) and not attends(
+        policies.make("linear", (5,), actions)
+    )
 
 
 def test_attended_refuses_a_state_policy():

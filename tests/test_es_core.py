@@ -291,7 +291,6 @@ def test_observation_statistics_merge_equals_whole_batch_moments():
     [
         ("linear", (17,), "zero_init"),
         ("iap", (16, 16, 3), "top_l"),
-        ("cnn", (16, 16, 3), "channels"),
         ("convnet", (16, 16, 3), "channels"),
         ("pmtg", (40,), "residual_range"),
         ("hierarchical", {"pixels": (24, 32, 3), "state": (40,)}, "duration_range"),

@@ -19,7 +19,6 @@ from iap_mjx import configs, envs, policies
 from iap_mjx.configs.presets import ACTION_REPEAT
 from iap_mjx.es import components, iteration
 from iap_mjx.policies.base import param_count
-from iap_mjx.policies.convnet import CNNPolicy
 
 PIXEL_PRESETS = [name for name in configs.names() if "pixels" in name]
 
@@ -47,20 +46,14 @@ def test_pixel_preset_builds_env_and_policy(name):
     assert env.config.action_repeat == ACTION_REPEAT[config.env.name]
     policy = policies.make(config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))
     params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
-    if config.policy.kind == "iap":
-        assert policy.layer.num_patches == 625 and policy.attention.top_l == 10
-        # W_Q, W_K (48 x 4 each) and a 16-unit LSTM on 10 centres, read out to the actions.
-        lstm = (20 + 16) * 4 * 16 + 4 * 16 + 16 * env.action_size + env.action_size
-        assert param_count(params) == 2 * 48 * 4 + lstm
-        variant = name.removeprefix(f"{config.env.name}-pixels").lstrip("-")
-        expected = variant.split("-")[0] if variant in configs.presets.FIG6_KERNELS else "hybrid"
-        assert policy.attention.kernel == expected
-    else:
-        assert config.policy.kind == "cnn" and isinstance(policy, CNNPolicy)
-        assert policy.channels == (8, 16) and policy.hidden_size == 32
-        # two 3x3 convolutions (3 -> 8 -> 16 channels), the average pool, dense 16 -> 32 -> actions
-        convolutions = (9 * 3 * 8 + 8) + (9 * 8 * 16 + 16)
-        assert param_count(params) == convolutions + 16 * 32 + 32 + 32 * env.action_size + env.action_size
+    assert config.policy.kind == "iap"
+    assert policy.layer.num_patches == 625 and policy.attention.top_l == 10
+    # W_Q, W_K (48 x 4 each) and a 16-unit LSTM on 10 centres, read out to the actions.
+    lstm = (20 + 16) * 4 * 16 + 4 * 16 + 16 * env.action_size + env.action_size
+    assert param_count(params) == 2 * 48 * 4 + lstm
+    variant = name.removeprefix(f"{config.env.name}-pixels").lstrip("-")
+    expected = variant.split("-")[0] if variant in configs.presets.FIG6_KERNELS else "hybrid"
+    assert policy.attention.kernel == expected
 
 
 def test_paper_feature_settings():

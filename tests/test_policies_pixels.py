@@ -80,7 +80,7 @@ def test_projections_are_fixed_unless_redrawn():
 
 def test_pixels_plus_state_observations():
     shape = {"pixels": SHAPE, "state": (7,)}
-    for kind, options in (("iap", {"patch_size": 4, "top_l": 3}), ("cnn", {})):
+    for kind, options in (("iap", {"patch_size": 4, "top_l": 3}), ("convnet", {"strides": (2, 2, 1)})):
         policy = policies.make(kind, shape, 2, **options)
         params = policy.init(jax.random.PRNGKey(0))
         obs = {"pixels": images(1)[0], "state": jnp.arange(7.0)}
@@ -88,14 +88,6 @@ def test_pixels_plus_state_observations():
         assert action.shape == (2,)
         moved, _ = policy.apply(params, {**obs, "state": obs["state"] + 1}, policy.initial_state(jax.random.PRNGKey(0)))
         assert not np.allclose(action, moved)  # the state sensors reach the action
-
-
-def test_cnn_policy_shapes():
-    policy = policies.make("cnn", SHAPE, 3, channels=[4, 8])
-    params = policy.init(jax.random.PRNGKey(0))
-    actions, _ = jax.vmap(policy.apply, in_axes=(None, 0, None))(params, images(2), ())
-    assert actions.shape == (2, 3)
-    assert param_count(params) == (27 * 4 + 4) + (36 * 8 + 8) + (8 * 32 + 32) + (32 * 3 + 3)
 
 
 def test_bad_pixel_policy_settings_fail_early():
@@ -113,8 +105,8 @@ def test_bad_pixel_policy_settings_fail_early():
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="mlp", hidden_sizes=32)
     with pytest.raises(ValueError, match="IAPPolicy.hidden_sizes"):
         policies.make("iap", SHAPE, 2, patch_size=4, top_l=3, controller="lstm", hidden_sizes=())
-    with pytest.raises(ValueError, match="CNNPolicy.channels"):
-        policies.make("cnn", SHAPE, 2, channels=())
+    with pytest.raises(ValueError, match="ConvNetPolicy.channels"):
+        policies.make("convnet", SHAPE, 2, channels=())
 
 
 def _lstm_reference(params, features, hidden, cell):

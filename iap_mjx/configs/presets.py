@@ -154,15 +154,6 @@ PRESETS: tuple[Preset, ...] = (
         if kernel != "hybrid-10-5"
     ),
     Preset(
-        "cheetah-run-pixels-cnn",
-        "cheetah-run from 100x100 RGB with a small CNN policy (baseline)",
-        "cheetah-run",
-        "cnn",
-        pixels("cheetah-run"),
-        es=PIXEL_ES,
-        run=PIXEL_RUN,
-    ),
-    Preset(
         "cheetah-run-pixels-quick",
         "cheetah-run-pixels for a first run: population 30, Adam 0.08, 40 iterations (the README's first run)",
         "cheetah-run",

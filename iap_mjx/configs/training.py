@@ -31,7 +31,7 @@ EVOSAX_STRATEGIES = (
 a test holds them equal), the other names ``es.strategy`` takes: listed here, since importing
 evosax loads JAX. ``RandomSearch`` needs its ``sampling_fn`` in ``es.evosax_options`` (from
 Python: a function)."""
-POLICY_KINDS = ("cnn", "convnet", "hierarchical", "iap", "linear", "mlp", "pmtg")
+POLICY_KINDS = ("convnet", "hierarchical", "iap", "linear", "mlp", "pmtg")
 """The names ``policy.kind`` takes; ``iap_mjx.policies`` builds its factory table from these
 (so that configs, and the presets built at their import, load no JAX)."""
 EVAL_SEED = 2021

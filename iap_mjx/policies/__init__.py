@@ -1,7 +1,8 @@
 """Policies: observation -> action (linear and MLP over states; IAP over pixels; PMTG,
 a trajectory generator modulated by a linear policy, for the quadruped; the hierarchical
-quadruped policy, a camera high level over the PMTG low level; the convolutional baselines,
-``convnet`` and ``cnn``, in :mod:`~iap_mjx.policies.convnet`, which says what "cnn" names where).
+quadruped policy, a camera high level over the PMTG low level; the convolutional baseline
+``convnet`` and the hierarchy's CNN high level, in :mod:`~iap_mjx.policies.convnet`, which says
+what "cnn" names where).
 
 ``make(kind, observation_shape, action_size, **options)`` builds a policy by name from
 :data:`FACTORIES` (read-only; a kind of this package is a row there), ``names()`` lists the
@@ -20,14 +21,7 @@ from iap_mjx.checks import require_choice
 from iap_mjx.configs.training import POLICY_KINDS, one_per_name
 from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
 from iap_mjx.policies.base import Policy, check_options, constructor_options, init_param_count, param_count
-from iap_mjx.policies.convnet import (
-    CNNPolicy,
-    ConvFeatures,
-    ConvNet,
-    ConvNetPolicy,
-    make_cnn_policy,
-    make_convnet_policy,
-)
+from iap_mjx.policies.convnet import ConvFeatures, ConvNet, ConvNetPolicy, make_convnet_policy
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
@@ -57,7 +51,6 @@ FACTORIES: Mapping[str, Callable[..., Policy]] = MappingProxyType(
             "linear": _flat_factory("linear", LinearPolicy),
             "mlp": _flat_factory("mlp", MLPPolicy),
             "iap": make_iap_policy,
-            "cnn": make_cnn_policy,
             "convnet": make_convnet_policy,
             "pmtg": make_pmtg_policy,
             "hierarchical": make_hierarchical_policy,
@@ -85,7 +78,6 @@ def make(kind: str, observation_shape: Any, action_size: int, **options: Any) ->
 
 __all__ = [
     "FACTORIES",
-    "CNNPolicy",
     "ConvFeatures",
     "ConvNet",
     "ConvNetPolicy",

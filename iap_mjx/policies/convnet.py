@@ -4,9 +4,7 @@
   the hierarchical policy's ``high_level="cnn"``, preset ``quadruped-walls-cnn``);
 - :class:`ConvNetPolicy`, policy kind ``"convnet"``: the same convolutions and pool as a flat
   policy on the Distracting Control Suite, its embedding read by IAP's controller (presets
-  ``dcs-<task>-cnn``, ``reproduce table1 --policy cnn``);
-- :class:`CNNPolicy`, policy kind ``"cnn"``: a small CNN with a global average pool (preset
-  ``cheetah-run-pixels-cnn``).
+  ``dcs-<task>-cnn``, ``reproduce table1 --policy cnn``).
 
 :class:`ConvNet` is three convolutions of small filters, a pooling layer, a fully connected
 ``tanh`` layer, and an output clipped to ``[-1, 1]``. The paper's text gives no sizes; ours (its
@@ -14,7 +12,7 @@ defaults) on the course's 24x32 RGB camera: 3x3 filters with 8, 16 and 16 channe
 2, 2 and 1 ("SAME" padding, ReLU), so 24x32 -> 12x16x8 -> 6x8x16 -> 6x8x16; a 2x2 max pool ->
 3x4x16 = 192 numbers; a 16-unit ``tanh`` layer; a linear output clipped to ``[-1, 1]``. The
 pool is local, not global: the flattened 3x4 grid keeps *where* in the image a wall is, which
-is what steering needs (:class:`CNNPolicy`'s global average keeps only *what*). With 5 outputs
+is what steering needs (a global average would keep only *what*). With 5 outputs
 (a duration and a 4-d latent command) that is 6,885 parameters.
 """
 
@@ -274,54 +272,3 @@ def make_convnet_policy(observation_shape: Any, action_size: int, **options: Any
     check_options("convnet", options, constructor_options(ConvNetPolicy, "image_shape", "action_size", "state_size"))
     image_shape, state_size = pixel_shape(observation_shape)
     return ConvNetPolicy(image_shape, action_size, state_size=state_size, **lists_as_tuples(options))
-
-
-@dataclasses.dataclass(frozen=True)
-class CNNPolicy:
-    """A small CNN baseline: strided 3x3 convolutions -> average pool -> dense -> tanh.
-
-    Attributes:
-      image_shape: ``(H, W, C)``; action_size: actions in ``[-1, 1]``.
-      channels: output channels of the convolutions (each stride 2, ``tanh``).
-      hidden_size: the dense layer after pooling.
-      state_size: length of the state vector of ``"pixels+state"`` observations (else 0).
-    """
-
-    image_shape: tuple[int, int, int]
-    action_size: int
-    channels: tuple[int, ...] = (8, 16)
-    hidden_size: int = 32
-    state_size: int = 0
-
-    def __post_init__(self):
-        require_int("CNNPolicy.action_size", self.action_size)
-        require_int("CNNPolicy.hidden_size", self.hidden_size)
-        check_sizes("CNNPolicy", "channels", self.channels, non_empty=True)
-
-    def init(self, key: jax.Array) -> dict[str, Any]:
-        """``{"conv": [{"w": (3, 3, in, out), "b": (out,)}], "dense": [dense layers]}``."""
-        keys = jax.random.split(key, len(self.channels) + 1)
-        conv = init_convolutions(keys[:-1], self.image_shape[2], self.channels, 3)
-        sizes = (self.channels[-1] + self.state_size, self.hidden_size, self.action_size)
-        return {"conv": conv, "dense": init_dense_layers(keys[-1], sizes)}
-
-    def initial_state(self, key: jax.Array) -> tuple:
-        """Stateless: the empty tuple."""
-        del key
-        return ()
-
-    def apply(self, params: dict[str, Any], obs: Any, policy_state: tuple):
-        """``obs`` -> ``(action (action_size,), policy_state)``."""
-        pixels, state = split_observation(obs)
-        x = apply_convolutions(params["conv"], pixels[None], (2,) * len(self.channels), jnp.tanh)
-        features = jnp.mean(x, axis=(0, 1, 2))
-        if self.state_size:
-            features = jnp.concatenate([features, required_state(state)])
-        return jnp.tanh(apply_dense_layers(params["dense"], features, jnp.tanh)), policy_state
-
-
-def make_cnn_policy(observation_shape: Any, action_size: int, **options: Any) -> CNNPolicy:
-    """Factory for ``policies.make("cnn", ...)``."""
-    check_options("cnn", options, constructor_options(CNNPolicy, "image_shape", "action_size", "state_size"))
-    image_shape, state_size = pixel_shape(observation_shape)
-    return CNNPolicy(image_shape, action_size, state_size=state_size, **lists_as_tuples(options))
