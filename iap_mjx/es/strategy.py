@@ -135,7 +135,7 @@ def usable_evosax_algorithm(algorithm: type) -> bool:
     """Whether an evosax algorithm class fits :class:`EvosaxStrategy`: one population around one
     mean. The Stein variational ones (``SV_*``) keep ``num_populations`` means and ask for
     ``num_populations x P`` members."""
-    return "num_populations" not in inspect.signature(algorithm.__init__).parameters
+    return "num_populations" not in inspect.signature(algorithm).parameters
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
