@@ -19,8 +19,8 @@ that ``import iap_mjx`` (and ``from iap_mjx import runtime``) loads no JAX.
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # their types, for type checkers; at run time __getattr__ imports them
-    from iap_mjx.es.runs import evaluate_run as evaluate_run
-    from iap_mjx.es.runs import load_run as load_run
+    from iap_mjx.es.results import evaluate_run as evaluate_run
+    from iap_mjx.es.results import load_run as load_run
     from iap_mjx.es.train import train as train
 
 __version__ = "0.1.0"

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from iap_mjx import cli, configs, envs
-from iap_mjx.es import runs
+from iap_mjx.es import results
 
 CACHE = Path(__file__).resolve().parent.parent / ".jax_cache"
 
@@ -217,7 +217,7 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     """``iap-mjx eval RUN env.k=v``: the run's config with the condition's env settings (the
     rest of the env, the policy and the ES as trained), validated before anything is built."""
     stored = configs.get("dcs-cartpole-swingup-quick").to_dict()
-    monkeypatch.setattr(runs.checkpoint, "load_config", lambda run_dir: stored)
+    monkeypatch.setattr(results.checkpoint, "load_config", lambda run_dir: stored)
     built = []
 
     class Built(Exception):
@@ -227,9 +227,9 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
         built.append(config)
         raise Built
 
-    monkeypatch.setattr(runs, "build", build)
+    monkeypatch.setattr(results, "build", build)
     with pytest.raises(Built):
-        runs.evaluate_run("run", episodes=3, overrides=("env.background_videos=val", "env.dynamic=true"))
+        results.evaluate_run("run", episodes=3, overrides=("env.background_videos=val", "env.dynamic=true"))
     (config,) = built
     trained = configs.TrainConfig.from_dict(stored)
     env = dict(config.env.overrides)
@@ -238,12 +238,12 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     assert unchanged(env.items()) == unchanged(trained.env.overrides) and len(unchanged(env.items())) >= 8
     assert config.policy == trained.policy and config.es == trained.es and config.run == trained.run
     with pytest.raises(Built):
-        runs.evaluate_run("run", overrides=("env.distraction=none",))
+        results.evaluate_run("run", overrides=("env.distraction=none",))
     assert envs.check(built[-1].env.name, **dict(built[-1].env.overrides)).distraction_config() is None
     with pytest.raises(ValueError, match=r"set the env \(env.<field>=<value>\) or policy.blind=<value>"):
-        runs.evaluate_run("run", overrides=("es.sigma=0.1",))
+        results.evaluate_run("run", overrides=("es.sigma=0.1",))
     with pytest.raises(ValueError, match="background_videos = 'test': valid train, val"):
-        runs.evaluate_run("run", overrides=("env.background_videos=test",))
+        results.evaluate_run("run", overrides=("env.background_videos=test",))
     assert len(built) == 2
 
 
@@ -263,7 +263,7 @@ def test_eval_defaults_to_the_tables_seed_and_says_so(monkeypatch, capsys):
     import iap_mjx.es
     from iap_mjx.configs.training import EVAL_SEED
 
-    for evaluate in (runs.evaluate_run_episodes, runs.evaluate_run):
+    for evaluate in (results.evaluate_run_episodes, results.evaluate_run):
         assert inspect.signature(evaluate).parameters["seed"].default == EVAL_SEED
     calls = []
 

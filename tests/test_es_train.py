@@ -22,7 +22,7 @@ from test_es_envs import PointMass
 
 from iap_mjx.configs import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 from iap_mjx.es import train
-from iap_mjx.es.runs import evaluate_run
+from iap_mjx.es.results import evaluate_run
 
 TESTS = Path(__file__).resolve().parent
 

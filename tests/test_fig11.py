@@ -1,7 +1,7 @@
 """``iap-mjx reproduce fig11``: bad input fails before anything compiles; finished runs are
 evaluated once each on fresh courses (stored in the run directory) and reported with their
 course statistics, parameter counts and the issue's bars; unfinished runs are read as far as
-they got; exports copy the runs. Training and evaluation are ``iap_mjx.paper.runs``'s and
+they got; exports copy the runs. Training and evaluation are ``iap_mjx.paper.report_runs``'s and
 ``es.evaluate_run_episodes``'s (tested in test_fig1_fig6.py, test_es_train.py and
 test_quadruped_presets.py); here runs are written by hand and the evaluation is a recorder."""
 

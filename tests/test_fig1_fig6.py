@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from iap_mjx import cli
-from iap_mjx.paper import fig1_fig6, runs
+from iap_mjx.paper import fig1_fig6, report_runs
 
 
 def test_unknown_figure_and_bad_override_fail_fast(capsys):
@@ -68,12 +68,12 @@ def test_report_only_reads_rows_up_to_the_last_checkpoint_and_trains_nothing(tmp
 
     config = configs.get("cheetah-run-pixels")
     run_dir = tmp_path / "cheetah-run-pixels-seed0"
-    assert runs.trained_curve(config, 0, run_dir, train=False) is None  # nothing there yet
+    assert report_runs.trained_curve(config, 0, run_dir, train=False) is None  # nothing there yet
     writer = MetricsWriter(run_dir, None, tensorboard=False)
     for i in range(1, 5):  # iteration 4 ran but the run was killed before its checkpoint
         writer.write({"iteration": i, "eval_return": 10.0 * i, "run_s": 2.0, "compile_s": 30.0})
     checkpoint.save(run_dir, 3, {"x": np.zeros(2)}, config.to_dict())
-    curve, seconds = runs.trained_curve(config, 0, run_dir, train=False)
+    curve, seconds = report_runs.trained_curve(config, 0, run_dir, train=False)
     assert curve == [10.0, 20.0, 30.0] and seconds == 3 * 2.0 + 30.0
     with pytest.raises(ValueError, match="no runs of fig1"):
         fig1_fig6.reproduce_fig1_fig6("fig1", tmp_path / "empty", train=False)

@@ -1,6 +1,6 @@
 """``iap-mjx reproduce fig7``: the patch size x l grid, then d_qk at the grid's best cell only
 once the grid is finished; bad input fails before anything compiles. Training and evaluation
-are ``iap_mjx.paper.runs``'s and ``es.evaluate_run``'s (tested elsewhere); here finished runs
+are ``iap_mjx.paper.report_runs``'s and ``es.evaluate_run``'s (tested elsewhere); here finished runs
 are written by hand and the evaluation is a recorder, so the sweep's own logic runs in seconds."""
 
 from __future__ import annotations

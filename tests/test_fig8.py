@@ -1,6 +1,6 @@
 """``iap-mjx reproduce fig8``: curves on a wall-clock axis built from the timings file, brute
 force at ``p = 2`` projected from the same timings; bad input fails before anything compiles.
-Training is ``iap_mjx.paper.runs``'s (tested elsewhere): finished runs are written by hand."""
+Training is ``iap_mjx.paper.report_runs``'s (tested elsewhere): finished runs are written by hand."""
 
 from __future__ import annotations
 

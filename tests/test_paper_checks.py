@@ -4,7 +4,7 @@ read (no evaluation episodes) or that it sets itself per run (what it sweeps).""
 import pytest
 
 from iap_mjx.paper import fig1_fig6, fig7, fig8, fig11, table1, table2
-from iap_mjx.paper.runs import check_evaluated, check_not_swept
+from iap_mjx.paper.report_runs import check_evaluated, check_not_swept
 
 NO_EVALUATION = ("run.eval_episodes=0",)
 

@@ -1,6 +1,6 @@
 """``iap-mjx reproduce table1``: bad input fails before anything compiles; finished runs are
 evaluated once per condition (stored in the run directory); the table holds the paper's
-baselines and the bar. Training and evaluation themselves are ``iap_mjx.paper.runs``'s and
+baselines and the bar. Training and evaluation themselves are ``iap_mjx.paper.report_runs``'s and
 ``es.evaluate_run``'s (tested in test_fig1_fig6.py, test_es_train.py and test_cli.py); here
 they are replaced by recorders so that the command's own logic runs in seconds."""
 

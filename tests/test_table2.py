@@ -2,7 +2,7 @@
 the setting and the valid ones; each setting trains with its overrides and the same budget (the
 preset's own setting in the preset's run, shared with fig11); the table reports the maximum
 episode return, L, the finished runs' walls passed on unseen courses and the command. Training
-is ``iap_mjx.paper.runs``'s (tested in test_fig1_fig6.py) and evaluation ``iap_mjx.es``'s (tested
+is ``iap_mjx.paper.report_runs``'s (tested in test_fig1_fig6.py) and evaluation ``iap_mjx.es``'s (tested
 in test_evaluate.py); here runs are written by hand, training is a recorder and evaluation a
 stand-in."""
 
@@ -15,7 +15,7 @@ import pytest
 from fake_runs import fake_run
 
 from iap_mjx import cli, configs
-from iap_mjx.paper import runs, table2
+from iap_mjx.paper import report_runs, table2
 
 ITERATIONS = ("run.iterations=3",)
 VALID = (
@@ -98,7 +98,7 @@ def test_each_setting_trains_with_its_overrides_and_the_same_budget(tmp_path, mo
         fake_run(run_dir, config, 2, [1.0, 2.0])
         return [1.0, 2.0], 10.0
 
-    monkeypatch.setattr(runs, "trained_curve", trained_curve)
+    monkeypatch.setattr(report_runs, "trained_curve", trained_curve)
     table2.reproduce_table2(tmp_path, seed=1, overrides=("run.iterations=2",))
     assert trained == [
         ("table2-p1-s1-seed1", 1, 1, 2, 1),

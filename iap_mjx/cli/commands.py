@@ -53,7 +53,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     try:
         config = resolve_target(args.target, args.overrides)
         from iap_mjx import envs, es
-        from iap_mjx.es.runs import without_initialisation
+        from iap_mjx.es.results import without_initialisation
 
         parts = es.build(without_initialisation(config) if Path(args.target).is_dir() else config)
     except ValueError as error:

@@ -5,7 +5,7 @@
 """
 
 from iap_mjx.es.components import TrainState, build, make_env_and_policy
-from iap_mjx.es.runs import TrainResult, evaluate_run, evaluate_run_episodes, in_condition, load_run
+from iap_mjx.es.results import TrainResult, evaluate_run, evaluate_run_episodes, in_condition, load_run
 from iap_mjx.es.shaping import SHAPINGS, centred_ranks
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, estimate_gradient
 from iap_mjx.es.train import train

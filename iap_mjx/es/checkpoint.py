@@ -61,7 +61,7 @@ def _step_or_latest(manager: ocp.CheckpointManager, run_dir: str | Path, step: i
 def to_host(tree: Any) -> Any:
     """Numpy copies of a pytree of replicated (possibly multi-process) arrays: each array's
     first local copy, so a sharded array gives only its first local shard (replicate it
-    first, as ``iap_mjx.es.runs.evaluate_run_episodes`` does)."""
+    first, as ``iap_mjx.es.results.evaluate_run_episodes`` does)."""
     return jax.tree_util.tree_map(
         lambda x: np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else np.asarray(x), tree
     )

@@ -2,7 +2,7 @@
 the population evaluator) and ``init_state(parts) -> TrainState``, the state before iteration 0.
 
 The iteration (:mod:`iap_mjx.es.iteration`), the host's bookkeeping
-(:mod:`iap_mjx.es.bookkeeping`), loading and evaluating runs (:mod:`iap_mjx.es.runs`) and
+(:mod:`iap_mjx.es.bookkeeping`), loading and evaluating runs (:mod:`iap_mjx.es.results`) and
 ``train`` itself all take their pieces from one ``Components``. The strategy searches the
 policy's params as one flat vector ``(num_dims,)``; ``unravel`` turns it back into the pytree.
 """

@@ -5,7 +5,7 @@ iteration 0 or resumes from ``run_dir``'s latest checkpoint, then calls the comp
 call (``run.iterations_per_call`` fused iterations, :mod:`iap_mjx.es.iteration`) until
 ``run.iterations`` are done or ``run.max_minutes`` have passed. Between calls the host logs
 metrics, writes checkpoints and moves the progress bar (:mod:`iap_mjx.es.bookkeeping`); the
-result is packed by :mod:`iap_mjx.es.runs`, which also loads and evaluates finished runs.
+result is packed by :mod:`iap_mjx.es.results`, which also loads and evaluates finished runs.
 Every random draw descends from ``run.seed`` through ``fold_in(key, iteration)``, so a resumed
 run continues bit for bit.
 """
@@ -31,7 +31,7 @@ from iap_mjx.es.bookkeeping import (
     training_call_with_timing,
 )
 from iap_mjx.es.components import build, describe_parameters
-from iap_mjx.es.runs import TrainResult, result_from_state
+from iap_mjx.es.results import TrainResult, result_from_state
 from iap_mjx.policies.base import Policy
 
 if TYPE_CHECKING:  # iap_mjx.envs is imported only where an env is built
@@ -62,7 +62,7 @@ def train(
       devices: the devices to shard the population over (default ``jax.devices()``).
       progress_fn: called with each iteration's metrics row.
 
-    Returns a :class:`~iap_mjx.es.runs.TrainResult`. ``KeyboardInterrupt`` saves a checkpoint
+    Returns a :class:`~iap_mjx.es.results.TrainResult`. ``KeyboardInterrupt`` saves a checkpoint
     of the last finished iteration (when ``run_dir`` is set) and is re-raised.
     """
     started = time.perf_counter()

@@ -1,5 +1,5 @@
 """The paper's results, one module per figure or table, run by ``iap-mjx reproduce <figure>``:
-each trains into resumable run directories (:mod:`iap_mjx.paper.runs`; ``fig10`` draws runs
+each trains into resumable run directories (:mod:`iap_mjx.paper.report_runs`; ``fig10`` draws runs
 trained elsewhere), writes its figure's PNG (and JSON, but ``fig10``) and, given ``--results``,
 its RESULTS.md section (``fig1_fig6``: PNG and JSON only):
 

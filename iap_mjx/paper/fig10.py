@@ -37,7 +37,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, E
     selects patches of the camera (an IAP high level, eyes open), built and nothing compiled;
     ``ValueError`` naming the run otherwise."""
     from iap_mjx.es import checkpoint, make_env_and_policy
-    from iap_mjx.es.runs import trained_config
+    from iap_mjx.es.results import trained_config
     from iap_mjx.policies.base import attends
 
     if not run_dirs or len(set(run_dirs)) != len(run_dirs):

@@ -4,7 +4,7 @@ passes on courses it never saw.
 
 Each policy's preset (``quadruped-walls-iap``, ``-cnn``, ``-blind``: the same ES, budget and low
 level) trains on several seeds, each in its own run directory ``<out>/<preset>-seed<k>``
-(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.paper.runs.run_summary`).
+(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.paper.report_runs.run_summary`).
 A finished run's final centre is then evaluated on ``episodes`` episodes of the course, each
 recording the course statistics the env keeps (``QuadrupedWalls.episode_metrics``: walls
 passed, fell off the platform, control steps touching a wall, distance along the course).
@@ -44,7 +44,7 @@ from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_course, seed_means
-from iap_mjx.paper.runs import built_policies, check_evaluated, check_seed_not_set, reported_run
+from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)

@@ -10,7 +10,7 @@ per cell at a budget the caller states in iterations (``run.iterations=...``):
   nine cells are finished (its ``d_qk = 4`` run is the grid cell itself).
 
 Each cell trains in ``<out>/fig7-p<p>-l<l>-d<d>-seed<k>`` (resumed, skipped once finished; the
-training loop is :func:`iap_mjx.paper.runs.trained_curve`'s). A cell's return is its final
+training loop is :func:`iap_mjx.paper.report_runs.trained_curve`'s). A cell's return is its final
 centre's mean over ``episodes`` evaluation episodes in the training condition, stored in the
 run's ``eval.json`` (:func:`iap_mjx.paper.evaluations.evaluate_conditions`). Writes ``fig7.json`` and
 ``fig7.png`` and returns the markdown table.
@@ -27,7 +27,7 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.files import write_json
-from iap_mjx.paper.runs import (
+from iap_mjx.paper.report_runs import (
     built_policies,
     check_evaluated,
     check_not_swept,

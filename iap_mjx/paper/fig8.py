@@ -33,7 +33,7 @@ import numpy as np
 from iap_mjx import configs, runtime
 from iap_mjx.checks import require_int
 from iap_mjx.files import write_json
-from iap_mjx.paper.runs import (
+from iap_mjx.paper.report_runs import (
     built_policies,
     check_evaluated,
     check_not_swept,

@@ -3,7 +3,7 @@ what it does not: generalisation of the same policies to other conditions.
 
 For each suite task, ``dcs-<task>`` trains on several seeds, each in its own run directory
 ``<out>/dcs-<task>-seed<k>`` (resumed from its checkpoint, skipped once finished; the
-training loop is :func:`iap_mjx.paper.runs.trained_curve`'s). A finished run's final centre is
+training loop is :func:`iap_mjx.paper.report_runs.trained_curve`'s). A finished run's final centre is
 then evaluated, ``episodes`` episodes per condition, each episode with its own draw:
 
 - ``train``: the training condition (static medium distractions, training backgrounds);
@@ -35,7 +35,7 @@ from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
-from iap_mjx.paper.runs import check_evaluated, check_seed_not_set, reported_run
+from iap_mjx.paper.report_runs import check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.

@@ -6,7 +6,7 @@ walled course.
 setting the preset has itself (4x4 patches, stride 4) is its own run,
 ``<out>/quadruped-walls-iap-seed<k>``, shared with Figure 11 (:mod:`iap_mjx.paper.fig11`); every other
 trains in ``<out>/table2-p<p>-s<s>-seed<k>``. Runs resume from their checkpoints and are
-skipped once finished (:func:`iap_mjx.paper.runs.run_summary`).
+skipped once finished (:func:`iap_mjx.paper.report_runs.run_summary`).
 
 The table's return is the maximum episode return reached in training, as the paper's: the
 largest ``return_max`` of the run's metrics (per iteration, the best population member's
@@ -34,7 +34,7 @@ from iap_mjx import configs
 from iap_mjx.checks import is_int, require_int
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_course
-from iap_mjx.paper.runs import (
+from iap_mjx.paper.report_runs import (
     built_policies,
     check_evaluated,
     check_not_swept,

@@ -19,10 +19,10 @@ from typing import Any
 
 from iap_mjx.checks import require_choice
 from iap_mjx.configs.training import POLICY_KINDS, one_per_name
-from iap_mjx.policies.attention import IAPPolicy, make_iap_policy
 from iap_mjx.policies.base import Policy, check_options, constructor_options, init_param_count, param_count
 from iap_mjx.policies.convnet import ConvFeatures, ConvNet, ConvNetPolicy, make_convnet_policy
 from iap_mjx.policies.hierarchical import HierarchicalPolicy, make_hierarchical_policy
+from iap_mjx.policies.iap import IAPPolicy, make_iap_policy
 from iap_mjx.policies.linear import LinearPolicy
 from iap_mjx.policies.mlp import MLPPolicy
 from iap_mjx.policies.pmtg import PMTGPolicy, make_pmtg_policy

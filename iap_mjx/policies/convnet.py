@@ -198,7 +198,7 @@ class ConvNetPolicy:
     """The convolutional baseline of the Distracting Control experiments: :class:`ConvNet`'s
     convolutions and pool -> a dense ``tanh`` embedding -> the IAP policy's controller.
 
-    With the same controller as :class:`~iap_mjx.policies.attention.IAPPolicy` (an LSTM in the
+    With the same controller as :class:`~iap_mjx.policies.iap.IAPPolicy` (an LSTM in the
     ``dcs-*`` presets), a comparison of the two differs in the features alone. The defaults
     suit the suite's 240x320 frames: 3x3 filters with 8, 16 and 16 channels at strides 4, 4 and
     2 (240x320 -> 60x80 -> 15x20 -> 8x10), a 2x2 max pool (4x5x16 = 320 numbers, the grid

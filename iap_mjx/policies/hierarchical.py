@@ -53,9 +53,9 @@ from flax import struct
 
 from iap_mjx.attention import AttentionConfig
 from iap_mjx.checks import is_int, require_choice, require_int
-from iap_mjx.policies.attention import IAPPolicy
 from iap_mjx.policies.base import check_options, constructor_options, field_names, lists_as_tuples, param_count
 from iap_mjx.policies.convnet import ConvNet
+from iap_mjx.policies.iap import IAPPolicy
 from iap_mjx.policies.observations import pixel_shape
 from iap_mjx.policies.pmtg import PMTGPolicy, PMTGState, TGConfig
 

@@ -21,7 +21,7 @@ from iap_mjx.viz import curves, recording, video
 
 if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
     from iap_mjx.envs.base import Env
-    from iap_mjx.es.runs import TrainResult
+    from iap_mjx.es.results import TrainResult
     from iap_mjx.policies.base import Policy
 
 logger = logging.getLogger(__name__)
