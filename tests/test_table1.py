@@ -224,3 +224,14 @@ def test_cnn_baseline_is_reported_beside_the_iap_runs_with_both_parameter_counts
     assert sorted(p.name for p in (tmp_path / "pretrained").iterdir()) == ["cartpole-swingup-cnn-seed0"]
     with pytest.raises(ValueError, match="policy 'rnn': choose from iap, cnn"):
         table1.reproduce_table1(tmp_path, policy="rnn")
+
+
+def test_the_parameter_count_is_the_policy_built_for_the_observation_training_sees():
+    """A second stacked frame widens only the patches' rows of W_Q and W_K (the paper's
+    ``d_qk`` columns each): ``2 * patch_size^2 * 3 * d_qk`` more parameters (a count built for a
+    fixed RGB frame would not see the stack)."""
+    config = configs.get("dcs-cartpole-swingup")
+    options = dict(config.policy.options)
+    stacked = configs.apply_overrides(config, ("env.frame_stack=2",))
+    added = table1.parameters(stacked) - table1.parameters(config)
+    assert added == 2 * options["patch_size"] ** 2 * 3 * options["d_qk"]

@@ -35,7 +35,7 @@ from iap_mjx.configs.distraction import TASKS
 from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
-from iap_mjx.paper.report_runs import check_evaluated, check_seed_not_set, reported_run
+from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
@@ -66,15 +66,11 @@ def preset(task: str, policy: str = "iap") -> str:
 
 
 def parameters(config: configs.TrainConfig) -> int:
-    """The trainable parameters of a ``dcs-*`` config's policy (built for its RGB frame)."""
-    from iap_mjx import envs, policies
+    """The trainable parameters of a config's policy, built for its env's observation as
+    training builds it (a frame stack or a depth channel counts)."""
+    from iap_mjx import policies
 
-    env_config = envs.check(config.env.name, **dict(config.env.overrides))
-    action_size = envs.make(config.env.name).action_size  # the state env's: pixels do not change it
-    policy = policies.make(
-        config.policy.kind, (env_config.height, env_config.width, 3), action_size, **dict(config.policy.options)
-    )
-    return policies.init_param_count(policy)
+    return policies.init_param_count(built_policies({None: config})[None])
 
 
 def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap") -> dict[str, configs.TrainConfig]:
@@ -115,11 +111,13 @@ def run_row(
     *,
     train: bool,
     episodes: int,
+    parameter_count: int,
     export: Path | None = None,
     policy: str = "iap",
 ) -> dict[str, Any] | None:
     """One run: its curve, env steps (``control_steps``, :func:`control_steps`), seconds, and
-    (finished runs) every condition's returns; with ``export``, its newest checkpoint and files are copied to
+    (finished runs) every condition's returns; ``parameter_count`` (:func:`parameters`) goes
+    in its row; with ``export``, its newest checkpoint and files are copied to
     ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
     reported = reported_run(
         config,
@@ -133,7 +131,7 @@ def run_row(
     )
     if reported is None:
         return None
-    row = {"task": task, "policy": policy, "parameters": parameters(config), **reported[0]}
+    row = {"task": task, "policy": policy, "parameters": parameter_count, **reported[0]}
     row["control_steps"] = control_steps(config, row["env_steps"])
     return row
 
@@ -141,11 +139,13 @@ def run_row(
 def collect_rows(
     task_configs: dict[str, configs.TrainConfig], seeds: int, out_dir: Path, **kwargs: Any
 ) -> list[dict[str, Any]]:
-    """:func:`run_row` of every task and seed (task by task) that has a run; ``kwargs`` go to it."""
+    """:func:`run_row` of every task and seed (task by task) that has a run; ``kwargs`` go to it.
+    Each task's policy is built once, for its parameter count."""
     rows = []
     for task, config in task_configs.items():
+        count = parameters(config)
         for seed in range(seeds):
-            if (row := run_row(task, config, seed, out_dir, **kwargs)) is not None:
+            if (row := run_row(task, config, seed, out_dir, parameter_count=count, **kwargs)) is not None:
                 rows.append(row)
     return rows
 
