@@ -208,7 +208,7 @@ def main() -> int:
     if not args.no_write:  # record ours now, in case the comparison is cut short
         write_outputs(args, config, summary, ours, brax)
     if not args.skip_brax:
-        env = envs.make(config.env.name, **dict(config.env.overrides))
+        env = envs.make_spec(config.env)
         brax, brax_wall = run_brax(env, config, steps)
         summary["brax"] = {
             "env_steps": brax[-1]["env_steps"],

@@ -87,7 +87,7 @@ def test_a_bad_setting_is_named_as_the_command_line_sets_it(override, message):
 
     with pytest.raises(ValueError) as error:
         config = configs.apply_overrides(configs.get("dcs-cartpole-swingup-quick"), (override,))
-        envs.check(config.env.name, **dict(config.env.overrides))
+        envs.check_spec(config.env)
     assert message in str(error.value)
 
 

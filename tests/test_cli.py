@@ -239,7 +239,7 @@ def test_eval_conditions_set_the_evaluated_env_and_nothing_else(monkeypatch):
     assert config.policy == trained.policy and config.es == trained.es and config.run == trained.run
     with pytest.raises(Built):
         results.evaluate_run("run", overrides=("env.distraction=none",))
-    assert envs.check(built[-1].env.name, **dict(built[-1].env.overrides)).distraction_config() is None
+    assert envs.check_spec(built[-1].env).distraction_config() is None
     with pytest.raises(ValueError, match=r"set the env \(env.<field>=<value>\) or policy.blind=<value>"):
         results.evaluate_run("run", overrides=("es.sigma=0.1",))
     with pytest.raises(ValueError, match="background_videos = 'test': valid train, val"):

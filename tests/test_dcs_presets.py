@@ -87,7 +87,7 @@ def test_action_repeat_has_one_entry_per_suite_task():
 @pytest.mark.parametrize("task", sorted(SUITE))
 def test_preset_is_the_papers_setting(task):
     config = configs.get(f"dcs-{task}")
-    env_config = envs.check(config.env.name, **dict(config.env.overrides))
+    env_config = envs.check_spec(config.env)
     assert config.env.name == task
     assert (env_config.height, env_config.width, env_config.obs_mode) == (240, 320, "pixels")
     assert env_config.action_repeat == SUITE[task]
@@ -105,7 +105,7 @@ def test_preset_is_the_papers_setting(task):
     ) == (2, 10, "hybrid", 10, 5, "lstm")
     quick = configs.get(f"dcs-{task}-quick")
     assert quick.policy == config.policy and quick.env.name == config.env.name
-    assert envs.check(quick.env.name, **dict(quick.env.overrides)).distraction_config().kinds == dcs.kinds
+    assert envs.check_spec(quick.env).distraction_config().kinds == dcs.kinds
     # the policy attends over the native frame's 2x2 patches: L = 19,200, as the paper
     policy = policies.make(config.policy.kind, (240, 320, 3), 1, **options)
     assert policy.layer.num_patches == 19200

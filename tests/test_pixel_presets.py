@@ -41,7 +41,7 @@ def test_every_dm_control_task_has_a_pixel_preset():
 @pytest.mark.parametrize("name", PIXEL_PRESETS)
 def test_pixel_preset_builds_env_and_policy(name):
     config = configs.get(name)
-    env = envs.make(config.env.name, **dict(config.env.overrides))
+    env = envs.make_spec(config.env)
     assert env.observation_shape == (100, 100, 3)
     assert env.config.action_repeat == ACTION_REPEAT[config.env.name]
     policy = policies.make(config.policy.kind, env.observation_shape, env.action_size, **dict(config.policy.options))

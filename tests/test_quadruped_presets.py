@@ -24,7 +24,7 @@ def test_presets_are_the_hierarchies_they_name():
     seen = {}
     for name in PRESETS:
         config = configs.get(name)
-        env_config = envs.check(config.env.name, **dict(config.env.overrides))
+        env_config = envs.check_spec(config.env)
         assert (config.env.name, env_config.obs_mode, env_config.height, env_config.width) == (
             "quadruped-walls",
             "pixels+state",

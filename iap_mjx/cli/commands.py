@@ -62,7 +62,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     view = {
         "config": config.to_dict(),
         "env": {
-            "settings": dataclasses.asdict(envs.check(config.env.name, **dict(config.env.overrides))),
+            "settings": dataclasses.asdict(envs.check_spec(config.env)),
             "observation_shape": env.observation_shape,
             "action_size": env.action_size,
             "env_steps_per_episode": env.episode_length,

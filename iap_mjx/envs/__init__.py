@@ -18,7 +18,7 @@ from iap_mjx.configs.env import (
 )
 from iap_mjx.envs import batch
 from iap_mjx.envs.base import Env, State
-from iap_mjx.envs.registry import check, episode_length, make, names
+from iap_mjx.envs.registry import check, check_spec, episode_length, make, make_spec, names
 
 __all__ = [
     "Env",
@@ -30,7 +30,9 @@ __all__ = [
     "State",
     "batch",
     "check",
+    "check_spec",
     "episode_length",
     "make",
+    "make_spec",
     "names",
 ]

@@ -1,4 +1,5 @@
-"""The env registry: ``make(name, **overrides)`` and ``names()``.
+"""The env registry: ``make(name, **overrides)`` and ``names()``; ``check_spec``/``make_spec``
+take a training config's :class:`~iap_mjx.configs.EnvSpec` (its name and overrides).
 
 Each task class names its config class (``config_class``: ``EnvConfig`` for the dm_control
 ports, ``QuadrupedConfig`` for the quadruped's tasks); a task's settings are validated against
@@ -12,6 +13,7 @@ from typing import Any
 
 from iap_mjx.configs.distraction import check_task
 from iap_mjx.configs.env import EnvConfig
+from iap_mjx.configs.training import EnvSpec
 from iap_mjx.envs.dmc import DmControlEnv
 
 
@@ -126,3 +128,13 @@ def make(name: str, config: EnvConfig | None = None, **overrides: Any) -> Any:
         depth_max=cfg.depth_max,
         **getattr(env, "camera_options", {}),
     )
+
+
+def check_spec(spec: EnvSpec) -> EnvConfig:
+    """:func:`check` of a training config's env (``config.env``)."""
+    return check(spec.name, **dict(spec.overrides))
+
+
+def make_spec(spec: EnvSpec) -> Any:
+    """:func:`make` of a training config's env (``config.env``)."""
+    return make(spec.name, **dict(spec.overrides))

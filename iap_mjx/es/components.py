@@ -144,7 +144,7 @@ def make_env_and_policy(
     if env is None:
         from iap_mjx import envs
 
-        env = envs.make(config.env.name, **dict(config.env.overrides))
+        env = envs.make_spec(config.env)
     if policy is None:
         policy = policies.make(
             config.policy.kind,

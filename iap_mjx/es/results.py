@@ -201,7 +201,7 @@ def evaluate_run_episodes(
     if env is None:
         from iap_mjx import envs
 
-        envs.check(config.env.name, **dict(config.env.overrides))  # a bad env value here, before building
+        envs.check_spec(config.env)  # a bad env value here, before building
     parts = build(config, env=env, policy=policy)
     try:
         state = restore_state(parts, run_dir, init_state(parts))

@@ -65,7 +65,7 @@ def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
     checked = {}
     for label, preset in POLICIES.items():
         config = configs.apply_overrides(configs.get(preset), overrides)
-        envs.check(config.env.name, **dict(config.env.overrides))
+        envs.check_spec(config.env)
         checked[label] = config
     check_evaluated("fig11", checked.values())
     return checked

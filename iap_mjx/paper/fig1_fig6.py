@@ -51,7 +51,7 @@ def check(figure: str, overrides: tuple[str, ...]) -> list[tuple[str, configs.Tr
         (label, configs.apply_overrides(configs.get(preset), overrides), preset) for label, preset in VARIANTS[figure]
     ]
     for _, config, _ in variants:
-        envs.check(config.env.name, **dict(config.env.overrides))
+        envs.check_spec(config.env)
     check_evaluated(figure, (config for _, config, _ in variants))
     return variants
 

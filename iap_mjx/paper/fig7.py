@@ -76,7 +76,7 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[int, int, int], configs.Trai
                 )
     check_evaluated("fig7", cells.values())
     first = next(iter(cells.values()))
-    envs.check(first.env.name, **dict(first.env.overrides))  # the cells share one env
+    envs.check_spec(first.env)  # the cells share one env
     return cells
 
 

@@ -73,7 +73,7 @@ def check(overrides: tuple[str, ...]) -> dict[tuple[str, int], configs.TrainConf
         )
     check_evaluated("fig8", result.values())
     first = next(iter(result.values()))
-    envs.check(first.env.name, **dict(first.env.overrides))
+    envs.check_spec(first.env)
     return result
 
 

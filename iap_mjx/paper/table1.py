@@ -89,7 +89,7 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap
         check_evaluated("table1", [config])
         for condition in CONDITIONS.values():
             probe = apply_condition(config, condition)
-            envs.check(probe.env.name, **dict(probe.env.overrides))
+            envs.check_spec(probe.env)
         result[task] = config
     return result
 
@@ -100,7 +100,7 @@ def control_steps(config: configs.TrainConfig, env_steps: int) -> int:
     (cheetah-run's 1000-step episode is 250 actions at action repeat 4)."""
     from iap_mjx import envs
 
-    return env_steps * envs.check(config.env.name, **dict(config.env.overrides)).action_repeat
+    return env_steps * envs.check_spec(config.env).action_repeat
 
 
 def run_row(

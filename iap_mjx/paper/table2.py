@@ -102,7 +102,7 @@ def check(
         raise ValueError(f"settings = {given!r} must be distinct (patch size, stride) pairs of ints")
     settings = tuple((patch_size, stride) for patch_size, stride in given)
     base = configs.apply_overrides(configs.get(PRESET), overrides)
-    camera = envs.check(base.env.name, **dict(base.env.overrides))
+    camera = envs.check_spec(base.env)
     check_evaluated("table2", [base])
     top_l = dict(base.policy.options).get("top_l", AttentionConfig.top_l)
     for patch_size, stride in settings:
