@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.configs.training import EVAL_SEED
+from iap_mjx.paper import table2
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
@@ -29,7 +30,7 @@ if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_RUNS = ("table2-p1-s1-seed0", "quadruped-walls-iap-seed0")  # Table 2's smallest and the preset's patches
+DEFAULT_RUNS = (table2.run_name((1, 1), 0), table2.run_name(None, 0))  # Table 2's smallest and the preset's patches
 
 
 def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Env, AttendingPolicy]]:

@@ -121,16 +121,18 @@ def check(
             )
     checked: dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]] = {}
     for setting in settings:
-        if setting == own_setting(base):
-            checked[setting] = (base, f"{PRESET}-seed{seed}", ())
-        else:
-            extra = setting_overrides(*setting)
-            checked[setting] = (
-                configs.apply_overrides(base, extra),
-                f"table2-p{setting[0]}-s{setting[1]}-seed{seed}",
-                extra,
-            )
+        own = setting == own_setting(base)
+        extra = () if own else setting_overrides(*setting)
+        config = base if own else configs.apply_overrides(base, extra)
+        checked[setting] = (config, run_name(None if own else setting, seed), extra)
     return checked
+
+
+def run_name(setting: tuple[int, int] | None, seed: int) -> str:
+    """The run directory's name of a (patch size, stride) setting, ``table2-p<patch>-s<stride>-seed<k>``;
+    ``None``: the preset's own setting, whose run is Figure 11's (``quadruped-walls-iap-seed<k>``,
+    reused)."""
+    return f"{PRESET}-seed{seed}" if setting is None else f"table2-p{setting[0]}-s{setting[1]}-seed{seed}"
 
 
 def reproduce_table2(
