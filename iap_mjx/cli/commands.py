@@ -115,27 +115,39 @@ def cmd_train(args: argparse.Namespace) -> int:
     except ValueError as error:
         return usage_error(error)
     except KeyboardInterrupt:
-        from iap_mjx.es import checkpoint
-
-        step = checkpoint.latest_step(run_dir)
-        saved = f"last checkpoint: iteration {step}" if step is not None else "no checkpoint yet"
-        # the overrides before the options: argparse takes positionals in one run
-        resume = shlex.join(["iap-mjx", "train", args.preset, *args.overrides, "--run-dir", str(run_dir)])
-        print(f"\ninterrupted; {saved}. Resume with: {resume}", file=sys.stderr)
-        return 130
+        return interrupted(args, run_dir)
     if not primary:
         return 0
     written = artifacts.write_run_artifacts(result, run_dir, video_program)
-    last = next((row for row in reversed(result.history) if "eval_return" in row), None)
-    summary = {
+    print(json.dumps(train_summary(result.history, run_dir, config.run.iterations, written)))
+    return 0
+
+
+def interrupted(args: argparse.Namespace, run_dir: Path) -> int:
+    """After Ctrl-C in ``train``: says which checkpoint stands and the command that resumes
+    from it; the exit code 130."""
+    from iap_mjx.es import checkpoint
+
+    step = checkpoint.latest_step(run_dir)
+    saved = f"last checkpoint: iteration {step}" if step is not None else "no checkpoint yet"
+    # the overrides before the options: argparse takes positionals in one run
+    resume = shlex.join(["iap-mjx", "train", args.preset, *args.overrides, "--run-dir", str(run_dir)])
+    print(f"\ninterrupted; {saved}. Resume with: {resume}", file=sys.stderr)
+    return 130
+
+
+def train_summary(history: list[dict[str, Any]], run_dir: Path, iterations: int, written: list[Path]) -> dict[str, Any]:
+    """The JSON line ``train`` prints last: the run directory, its iterations, the artifacts
+    written and the last evaluation return (when the run evaluates its centre)."""
+    summary: dict[str, Any] = {
         "run_dir": str(run_dir),
-        "iterations": config.run.iterations,
+        "iterations": iterations,
         "artifacts": [str(path) for path in written],
     }
+    last = next((row for row in reversed(history) if "eval_return" in row), None)
     if last is not None:
         summary["eval_return"] = last["eval_return"]
-    print(json.dumps(summary))
-    return 0
+    return summary
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
