@@ -19,16 +19,17 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
 from iap_mjx.checks import require_int
+from iap_mjx.chunks import map_chunks
 
 BATCH_AXIS = "batch"
 
 
 def chunked_vmap(fn: Callable[..., Any], chunk_size: int) -> Callable[..., Any]:
-    """``vmap(fn)`` evaluated ``chunk_size`` rows at a time with ``lax.map``.
+    """``vmap(fn)`` evaluated ``chunk_size`` rows at a time (:func:`iap_mjx.chunks.map_chunks`).
 
-    The returned function takes pytrees whose leaves share a leading axis of size ``n``
-    (``n`` a multiple of ``chunk_size``, or at most ``chunk_size``) and returns
-    ``vmap(fn)(*args)``, computed as ``n / chunk_size`` sequential chunks.
+    The returned function takes pytrees whose leaves share a leading axis of size ``n`` (``n``
+    a multiple of ``chunk_size``, or at most ``chunk_size``: a benchmark times whole chunks)
+    and returns ``vmap(fn)(*args)``, computed as ``n / chunk_size`` sequential chunks.
     """
     require_int("chunk_size", chunk_size)
     batched = jax.vmap(fn)
@@ -38,13 +39,9 @@ def chunked_vmap(fn: Callable[..., Any], chunk_size: int) -> Callable[..., Any]:
         if len(sizes) != 1:
             raise ValueError(f"all leaves need the same leading (batch) axis, got sizes {sizes}.")
         (n,) = sizes
-        if n <= chunk_size:
-            return batched(*args)
-        if n % chunk_size:
+        if n > chunk_size and n % chunk_size:
             raise ValueError(f"batch size {n} is not a multiple of chunk_size={chunk_size}.")
-        chunks = jax.tree.map(lambda x: x.reshape((n // chunk_size, chunk_size) + x.shape[1:]), args)
-        out = jax.lax.map(lambda chunk: batched(*chunk), chunks)
-        return jax.tree.map(lambda x: x.reshape((n,) + x.shape[2:]), out)
+        return map_chunks(lambda chunk: batched(*chunk), args, chunk_size, n)
 
     return run
 
