@@ -130,17 +130,21 @@ def _compile(spec: mujoco.MjSpec) -> mujoco.MjModel:
 
 
 class DmControlEnv:
-    """A dm_control suite task on MJX. Subclasses set the class constants and task hooks.
+    """A MuJoCo task on MJX: the dm_control suite's ports and, on the same machinery, our own
+    models (the quadruped's tasks, ``domain = None``, which build their model in
+    ``_model_spec``). Subclasses set the class constants and task hooks.
 
     Attributes:
       config: the ``EnvConfig``.
-      mj_model: the ``mujoco.MjModel`` built from dm_control's XML, with this env's solver
-        settings (and, for cartpole, the energy flag off), exactly what went into ``mjx_model``.
+      mj_model: the ``mujoco.MjModel`` built from the task's XML (dm_control's, for its
+        ports), with this env's solver settings (and, for cartpole, the energy flag off),
+        exactly what went into ``mjx_model``.
       mjx_model: the ``mjx.Model`` the env steps.
     """
 
     name: ClassVar[str]
-    domain: ClassVar[Any]  # the dm_control.suite module, e.g. dm_control.suite.cheetah
+    # the dm_control.suite module (e.g. dm_control.suite.cheetah) of a port; None for our own models
+    domain: ClassVar[Any]
     n_sub_steps: ClassVar[int] = 1
     default_max_contacts: ClassVar[int | None] = None  # None: keep every candidate contact
     default_episode_steps: ClassVar[int] = DM_CONTROL_EPISODE_STEPS  # control steps
