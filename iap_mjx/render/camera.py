@@ -109,12 +109,13 @@ class CameraConfig:
 
 class _Traced(NamedTuple):
     """What :meth:`Camera._trace` hands the colour pass, per image (a leading axis when
-    batched): the geoms' frames ``geom_frames``, ``seen`` (the camera pose is finite) and its ``(..., 1, 1)``
-    broadcast ``seen_px``, ``any_seen`` (some image of the batch is seen), the padded planes
-    ``(depth_p, best_p)`` ``(H + 2, W + 2)``, and the image's ``depth`` and geom ``ids``
-    ``(H, W)``."""
+    batched): the geoms' frames ``geom_frames`` (:class:`~iap_mjx.render.tracing.GeomFrames`),
+    ``seen`` ``()`` bool (the camera pose is finite) and its ``(..., 1, 1)`` broadcast
+    ``seen_px``, ``any_seen`` ``()`` bool (some image of the batch is seen), the padded planes
+    ``(depth_p, best_p)`` ``(H + 2, W + 2)`` float32, and the image's ``depth`` float32 and
+    geom ``ids`` int32 ``(H, W)``."""
 
-    geom_frames: dict
+    geom_frames: tracing.GeomFrames
     seen: jax.Array
     seen_px: jax.Array
     any_seen: jax.Array
@@ -231,7 +232,7 @@ class Camera:
         inputs = self._checked_inputs(background, geom_rgb, sky_texture)
         return self._chunked_over_batch(True)(self.poses(data), *inputs)
 
-    def render_poses(self, poses: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array]:
+    def render_poses(self, poses: tracing.Poses) -> tuple[jax.Array, jax.Array]:
         """:meth:`render` (the model's colours and sky) of a state given by its :meth:`poses`:
         what an episode records to render some of its steps afterwards, a few hundred floats
         a step where its ``mjx.Data`` holds thousands."""
@@ -281,14 +282,17 @@ class Camera:
 
     # -- one image, and a batch of them -----------------------------------------------------
 
-    def poses(self, data: mjx.Data) -> dict[str, jax.Array]:
-        """The few per-state arrays the renderer reads (:meth:`render_poses`): the camera's
-        pose, the drawn geoms' positions ``(G, 3)`` and orientations ``(G, 3, 3)``, and the positions, orientations
-        and subtree centres of mass of the lights' bodies (and their targets')."""
+    def poses(self, data: mjx.Data) -> tracing.Poses:
+        """The few per-state arrays the renderer reads (:meth:`render_poses`;
+        :class:`~iap_mjx.render.tracing.Poses` gives each key's shape): the camera's pose
+        ``(3,)`` and ``(3, 3)``, the drawn geoms' positions ``(G, 3)`` and orientations
+        ``(G, 3, 3)``, and the positions ``(L, 3)``, orientations ``(L, 3, 3)`` and subtree
+        centres of mass ``(L, 3)`` of the lights' bodies (and their targets', only if a light
+        aims at one)."""
         sc = self.scene
         cam = self.config.camera_id
         gids = jnp.asarray(sc.geom_ids)
-        return {
+        poses: tracing.Poses = {
             "cam_pos": data.cam_xpos[cam],
             "cam_mat": data.cam_xmat[cam],
             "geom_pos": data.geom_xpos[gids],
@@ -296,15 +300,11 @@ class Camera:
             "light_body_pos": data.xpos[jnp.asarray(sc.light_bodyid)],
             "light_body_mat": data.xmat[jnp.asarray(sc.light_bodyid)],
             "light_body_com": data.subtree_com[jnp.asarray(sc.light_bodyid)],
-            **(
-                {
-                    "light_target_pos": data.xpos[jnp.asarray(sc.light_targetbodyid)],
-                    "light_target_com": data.subtree_com[jnp.asarray(sc.light_targetbodyid)],
-                }
-                if sc.has_aimed_lights
-                else {}
-            ),
         }
+        if sc.has_aimed_lights:
+            poses["light_target_pos"] = data.xpos[jnp.asarray(sc.light_targetbodyid)]
+            poses["light_target_com"] = data.subtree_com[jnp.asarray(sc.light_targetbodyid)]
+        return poses
 
     def _chunked_over_batch(self, colour: bool):
         """:meth:`_trace_and_shade` of one image (``colour``: with the colour pass, else the
@@ -317,13 +317,19 @@ class Camera:
         if cached is not None:
             return cached
 
-        def single(poses, background, geom_rgb, sky_texture, sky_frame):
+        def single(
+            poses: tracing.Poses,
+            background: jax.Array,
+            geom_rgb: jax.Array,
+            sky_texture: jax.Array,
+            sky_frame: jax.Array,
+        ):
             return self._trace_and_shade(poses, background, geom_rgb, sky_texture, sky_frame, colour, batched=False)
 
         batched = jax.custom_batching.custom_vmap(single)
 
         @batched.def_vmap
-        def _rule(axis_size, in_batched, poses, background, geom_rgb, sky_texture, sky_frame):
+        def _rule(axis_size, in_batched, poses: tracing.Poses, background, geom_rgb, sky_texture, sky_frame):
             # an unbatched sky stack is shared by every chunk as it is (not broadcast per image)
             shared_sky = not in_batched[3]
             per_image = _PerImage(poses, background, geom_rgb, sky_frame, None if shared_sky else sky_texture)
@@ -342,7 +348,9 @@ class Camera:
         self._programs[colour] = batched
         return batched
 
-    def _trace_and_shade(self, poses, background, geom_rgb, sky_texture, sky_frame, colour: bool, batched: bool):
+    def _trace_and_shade(
+        self, poses: tracing.Poses, background, geom_rgb, sky_texture, sky_frame, colour: bool, batched: bool
+    ):
         """One image, or (``batched``) a leading axis of images: ``(rgb (H, W, 3) or None,
         depth (H, W), geom id (H, W))``: :meth:`_trace`, then (``colour``) :meth:`_shade`. An
         image whose camera pose is not finite sees nothing (depth ``zfar``, id ``-1``, black),
@@ -354,7 +362,7 @@ class Camera:
         rgb = self._shade(poses, traced, background, geom_rgb, sky_texture, sky_frame, lift)
         return rgb, traced.depth, traced.ids
 
-    def _trace(self, poses, lift) -> _Traced:
+    def _trace(self, poses: tracing.Poses, lift) -> _Traced:
         """The geometry pass: culled tracing first; if any image of the batch has more (tile,
         geom) pairs than the budget, dense tracing. ``lift``: ``jax.vmap`` over a batch, or the
         identity for one image."""
@@ -405,7 +413,9 @@ class Camera:
         ids = jnp.where(seen_px, jnp.asarray(np.append(self.scene.geom_ids, -1).astype(np.int32))[best], -1)
         return _Traced(geom_frames, seen, seen_px, any_seen, (depth_p, best_p), depth, ids)
 
-    def _shade(self, poses, traced: _Traced, background, geom_rgb, sky_texture, sky_frame, lift) -> jax.Array:
+    def _shade(
+        self, poses: tracing.Poses, traced: _Traced, background, geom_rgb, sky_texture, sky_frame, lift
+    ) -> jax.Array:
         """The colour pass over :meth:`_trace`'s planes: ``(H, W, 3)`` (per image)."""
         shader = self.shader
         geom_frames, seen, seen_px, any_seen, padded, depth, _ = traced
@@ -448,7 +458,7 @@ class _PerImage(NamedTuple):
     """The renderer's inputs as its batching rule splits them into chunks of images, each
     with a leading batch axis (``sky_texture`` ``None``: one stack every image shares)."""
 
-    poses: dict[str, jax.Array]
+    poses: tracing.Poses
     background: jax.Array
     geom_rgb: jax.Array
     sky_frame: jax.Array

@@ -12,6 +12,7 @@ interleaved ``(H, W, 3)`` array, until the camera stacks the result.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import jax
@@ -20,6 +21,7 @@ import numpy as np
 
 from iap_mjx.render import scene as scene_lib
 from iap_mjx.render import sky as sky_lib
+from iap_mjx.render.tracing import GeomFrames, Poses
 
 if TYPE_CHECKING:  # camera.py imports this module
     from iap_mjx.render.camera import CameraConfig
@@ -30,8 +32,9 @@ class Shader:
     image (``vmap`` them for a batch) except :meth:`skybox_texels`, which takes a chunk.
 
     ``padded`` arguments are the trace's depth and geom index with a one-pixel border
-    (``tracing.pad_by_one_pixel``); ``poses`` are the per-state arrays the camera reads
-    (``Camera.poses``); ``frames`` are ``Tracer.geom_frames``'s."""
+    (``tracing.pad_by_one_pixel``), both ``(H + 2, W + 2)`` float32; ``poses`` are the
+    per-state arrays the camera reads (``Camera.poses``, :class:`~iap_mjx.render.tracing.Poses`);
+    ``frames`` are ``Tracer.geom_frames``'s (:class:`~iap_mjx.render.tracing.GeomFrames`)."""
 
     def __init__(
         self,
@@ -48,9 +51,22 @@ class Shader:
         self.x, self.y = x, y
         self.pixel_pitch = pixel_pitch
 
-    def compose(self, poses, surface, light, best_p, background):
-        """``3 x (H, W)`` image planes: lit surface where a geom is hit, else the background
-        (``best_p``: the padded float geom index of ``tracing.pad_by_one_pixel``)."""
+    def compose(
+        self,
+        poses: Poses,
+        surface: Sequence[jax.Array],
+        light: Sequence[jax.Array],
+        best_p: jax.Array,
+        background: jax.Array | tuple[jax.Array, ...] | list[jax.Array],
+    ) -> tuple[jax.Array, ...]:
+        """``3 x (H, W)`` float32 image planes: lit surface where a geom is hit, else the
+        background.
+
+        ``surface``: ``3 x (H, W)`` colours (:meth:`surface_colour`); ``light``: ``1 x (H, W)``
+        or ``3 x (H, W)`` (:meth:`incident_light`); ``best_p``: ``(H + 2, W + 2)`` the padded
+        float geom index of ``tracing.pad_by_one_pixel``; ``background``: ``3 x (H, W)`` planes
+        (:meth:`skybox_texels`' colours), an ``(H, W, 3)`` float image, or an empty array for
+        the sky (:meth:`sky_gradient` from ``poses["cam_mat"]``)."""
         best = best_p[1:-1, 1:-1]
         if isinstance(background, (tuple, list)):  # the skybox planes of ``skybox_texels``
             background = list(background)
@@ -69,7 +85,7 @@ class Shader:
             lit = [sky_lib.over(alpha, lit[c], background[c]) for c in range(3)]
         return tuple(jnp.where(hit, lit[c], background[c]) for c in range(3))
 
-    def skybox_texels(self, cam_mat, sky_texture, sky_frame) -> jax.Array:
+    def skybox_texels(self, cam_mat: jax.Array, sky_texture: jax.Array, sky_frame: jax.Array) -> jax.Array:
         """``([C,] H, W)`` int32 packed texels of frame ``sky_frame`` ``([C])`` of the stack
         ``sky_texture`` (``(N, S * S)`` shared, or ``(C, N, S * S)`` one stack per image) by
         world ray direction (``cam_mat`` ``([C,] 3, 3)``): one gather for a whole chunk."""
@@ -84,10 +100,12 @@ class Shader:
         size = math.isqrt(int(sky_texture.shape[-1]))
         return sky_lib.skybox_texels(sky_texture, sky_frame, size, dx, dy, dz)
 
-    def surface_colour(self, frames, padded, geom_rgb):
-        """Surface colour ``3 x (H, W)`` of each pixel's nearest geom: the geom's, or the
-        checker floor's at the hit point. ``geom_rgb``: ``(G, 3)`` colours replacing the
-        model's, or empty."""
+    def surface_colour(
+        self, frames: GeomFrames, padded: tuple[jax.Array, jax.Array], geom_rgb: jax.Array
+    ) -> tuple[jax.Array, ...]:
+        """Surface colour ``3 x (H, W)`` float32 of each pixel's nearest geom (``0`` where none
+        is hit): the geom's, or the checker floor's at the hit point. ``geom_rgb``: ``(G, 3)``
+        colours replacing the model's, or empty (``(0,)``)."""
         rgb_table = self.scene.geom_rgb if geom_rgb.size == 0 else geom_rgb.astype(jnp.float32)
         sc = self.scene
         depth_p, best_p = padded
@@ -113,9 +131,9 @@ class Shader:
                 colour = [jnp.where(mine, jnp.where(odd, tints[c][1], tints[c][0]), colour[c]) for c in range(3)]
         return tuple(colour)
 
-    def incident_light(self, poses, padded):
-        """The light falling on each pixel's surface, ``1 x (H, W)`` when all lights are grey
-        (dm_control's are) else ``3 x (H, W)``.
+    def incident_light(self, poses: Poses, padded: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, ...]:
+        """The light falling on each pixel's surface, float32 ``1 x (H, W)`` when all lights
+        are grey (dm_control's are) else ``3 x (H, W)``.
 
         The normal for Lambert shading comes from the hit points of neighbouring pixels on
         the same geom (the one-sided difference with the smaller depth step, so edges do not
@@ -160,7 +178,7 @@ class Shader:
         light = [sc.ambient[c] + sum(diffuse[j, c] * cosines[j] for j in range(len(cosines))) for c in channels]
         return tuple(light)
 
-    def lights_in_camera_frame(self, poses) -> tuple[jax.Array, jax.Array]:
+    def lights_in_camera_frame(self, poses: Poses) -> tuple[jax.Array, jax.Array]:
         """Model lights in camera coordinates: positions ``(L, 3)`` and unit directions they
         shine along ``(L, 3)``, as MuJoCo's ``mj_camlight`` places them."""
         sc = self.scene
@@ -188,9 +206,10 @@ class Shader:
         cam_mat = poses["cam_mat"]
         return (world_pos - poses["cam_pos"]) @ cam_mat, world_dir @ cam_mat
 
-    def sky_gradient(self, cam_mat) -> list[jax.Array]:
-        """``[3 x (H, W)]`` background: the skybox gradient over world elevation, or a flat
-        colour (``sky="color"``)."""
+    def sky_gradient(self, cam_mat: jax.Array) -> list[jax.Array]:
+        """``[3 x (H, W)]`` float32 background: the skybox gradient over world elevation of the
+        rays of a camera of orientation ``cam_mat`` ``(3, 3)``, or a flat colour
+        (``sky="color"``)."""
         sc, cfg = self.scene, self.config
         h, w = cfg.height, cfg.width
         if cfg.sky == "color":
@@ -202,22 +221,25 @@ class Shader:
         return [jnp.clip(sc.sky_mid[c] + sc.sky_slope[c] * z, 0.0, 1.0) for c in range(3)]
 
 
-def _floor_int(a):
-    """``floor(a)`` as int32 (a truncating conversion and a fix-up: vectorises on CPU, where
-    ``jnp.floor`` may not)."""
+def _floor_int(a: jax.Array) -> jax.Array:
+    """``floor(a)`` as int32 of ``a``'s shape (a truncating conversion and a fix-up:
+    vectorises on CPU, where ``jnp.floor`` may not)."""
     truncated = a.astype(jnp.int32)
     return truncated - (a < truncated.astype(a.dtype)).astype(jnp.int32)
 
 
-def _surface_tangent(depth_p, best_p, x, y, pixel: float, axis: int):
+def _surface_tangent(
+    depth_p: jax.Array, best_p: jax.Array, x: jax.Array, y: jax.Array, pixel: float, axis: int
+) -> list[jax.Array]:
     """Tangent ``[3 x (H, W)]`` along ``axis`` (columns: 1, rows: 0) between the hit points
     ``depth * (x, y, -1)`` of neighbouring pixels on the same geom: the forward or backward
     difference with the smaller depth step; where neither neighbour is on the same geom, a
     step of one pixel along the image axis at the pixel's depth. ``depth_p``, ``best_p`` are
-    padded by one pixel; ``pixel`` is the pixel pitch in image coordinates (positive along
-    columns, negative along rows)."""
+    padded by one pixel, ``(H + 2, W + 2)`` float32; ``x`` ``(1, W)`` and ``y`` ``(H, 1)``
+    are the pixels' image coordinates; ``pixel`` is the pixel pitch in image coordinates
+    (positive along columns, negative along rows)."""
 
-    def window(a, offset):
+    def window(a: jax.Array, offset: int) -> jax.Array:
         rows = slice(1 + offset, a.shape[0] - 1 + offset) if axis == 0 else slice(1, -1)
         cols = slice(1 + offset, a.shape[1] - 1 + offset) if axis == 1 else slice(1, -1)
         return a[rows, cols]
@@ -238,6 +260,7 @@ def _surface_tangent(depth_p, best_p, x, y, pixel: float, axis: int):
     return [step * x, step * y + far * pixel, -step]
 
 
-def _cross(u, v):
-    """Cross product of two 3-vectors given as lists of arrays."""
+def _cross(u: Sequence[jax.Array], v: Sequence[jax.Array]) -> list[jax.Array]:
+    """Cross product of two 3-vectors given as lists of 3 arrays (of shapes that broadcast),
+    as such a list."""
     return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]

@@ -16,7 +16,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 import jax
 import jax.numpy as jnp
@@ -28,6 +28,60 @@ from iap_mjx.render import scene as scene_lib
 
 if TYPE_CHECKING:  # camera.py imports this module
     from iap_mjx.render.camera import CameraConfig
+
+
+class Poses(TypedDict):
+    """The few per-state arrays the renderer reads: what ``Camera.poses`` takes from an
+    ``mjx.Data`` (defined here, where the geometry pass first reads them, so that ``camera.py``
+    and ``shading.py`` import it without a cycle). Shapes are one state's; under ``vmap`` each
+    array has the batch's leading axes too (a recorded episode's ``(T, ...)``).
+
+    ``G`` is the number of geoms drawn (``Scene.geom_ids``), ``L`` the number of model lights
+    (``Scene.light_mode``, possibly 0); every array is float32.
+
+    Keys:
+      cam_pos: ``(3,)`` the camera's position in the world frame (``data.cam_xpos``).
+      cam_mat: ``(3, 3)`` the camera's orientation, its axes as columns in world coordinates
+        (``data.cam_xmat``).
+      geom_pos: ``(G, 3)`` the drawn geoms' positions (``data.geom_xpos``).
+      geom_mat: ``(G, 3, 3)`` the drawn geoms' orientations (``data.geom_xmat``).
+      light_body_pos: ``(L, 3)`` the position of each light's body (``data.xpos``).
+      light_body_mat: ``(L, 3, 3)`` the orientation of each light's body (``data.xmat``).
+      light_body_com: ``(L, 3)`` the centre of mass of each light's body's subtree
+        (``data.subtree_com``).
+      light_target_pos: ``(L, 3)`` the position of each light's target body
+        (``Scene.light_targetbodyid``; body 0 for lights without one); present only when
+        ``Scene.has_aimed_lights``.
+      light_target_com: ``(L, 3)`` the centre of mass of each target body's subtree; present
+        only when ``Scene.has_aimed_lights``.
+    """
+
+    cam_pos: jax.Array
+    cam_mat: jax.Array
+    geom_pos: jax.Array
+    geom_mat: jax.Array
+    light_body_pos: jax.Array
+    light_body_mat: jax.Array
+    light_body_com: jax.Array
+    light_target_pos: NotRequired[jax.Array]
+    light_target_com: NotRequired[jax.Array]
+
+
+class GeomFrames(TypedDict):
+    """Per-geom constants of one image (:meth:`Tracer.geom_frames`), in the camera frame and
+    the geoms' local frames; ``G`` geoms drawn, every array float32 (a leading batch axis
+    under ``vmap``).
+
+    Keys:
+      r_cam: ``(G, 3, 3)`` each geom's axes in camera coordinates (``cam_mat^T geom_mat``):
+        its rows are the camera's axes in the geom's frame.
+      origin: ``(G, 3)`` the camera's position in each geom's frame.
+      centre: ``(G, 3)`` each geom's centre in the camera frame.
+    """
+
+    r_cam: jax.Array
+    origin: jax.Array
+    centre: jax.Array
 
 
 class Tracer:
@@ -95,10 +149,11 @@ class Tracer:
             [self.tile_x.min(1), self.tile_x.max(1), self.tile_y.min(1), self.tile_y.max(1)], axis=1
         )
 
-    def geom_frames(self, poses) -> dict[str, jax.Array]:
-        """Per-geom constants of one image in camera and local frames: ``r_cam`` ``(G, 3, 3)``
-        (geom axes in camera coordinates), ``origin`` ``(G, 3)`` (the camera in each geom's
-        frame) and ``centre`` ``(G, 3)`` (each geom's centre in the camera frame)."""
+    def geom_frames(self, poses: Poses) -> GeomFrames:
+        """Per-geom constants of one image in camera and local frames (:class:`GeomFrames`):
+        ``r_cam`` ``(G, 3, 3)`` (geom axes in camera coordinates), ``origin`` ``(G, 3)`` (the
+        camera in each geom's frame) and ``centre`` ``(G, 3)`` (each geom's centre in the
+        camera frame), from one image's :class:`Poses`."""
         cam_mat = poses["cam_mat"]
         geom_mat = poses["geom_mat"]
         # r_cam[k] = cam_mat^T geom_mat[k]: geom axes in camera coordinates. Its rows are the
@@ -112,8 +167,9 @@ class Tracer:
             "centre": offset @ cam_mat,
         }
 
-    def dense_keys(self, frames):
-        """Every geom against every pixel: the nearest-hit keys (:meth:`key`) ``(H, W)``."""
+    def dense_keys(self, frames: GeomFrames) -> jax.Array:
+        """Every geom against every pixel: the nearest-hit keys (:meth:`key`) ``(H, W)`` int32
+        of one image's :meth:`geom_frames`."""
         x, y = jnp.asarray(self.x), jnp.asarray(self.y)
         r_cam, origin = frames["r_cam"], frames["origin"]
         shape = (self.height, self.width)
@@ -123,14 +179,15 @@ class Tracer:
         ]
         return jnp.min(jnp.stack(keys), axis=0)
 
-    def culled_keys(self, frames):
+    def culled_keys(self, frames: GeomFrames) -> tuple[jax.Array, jax.Array]:
         """Planes and small type groups against every pixel; each culled type group only
         against the tiles its geoms' projected bounds reach: the (tile, geom) pairs are listed
         (at most ``self.pair_budget`` per group), each pair traces its tile's pixels, and a
-        scatter-min of the tile windows merges them. Returns the nearest-hit keys (:meth:`key`)
-        ``(ny * th, nx * tw)`` (the image padded to whole tiles) and ``overflow``, true if a
-        group had more pairs than the budget (the result is then incomplete and the caller
-        falls back to :meth:`dense_keys`)."""
+        scatter-min of the tile windows merges them. Takes one image's :meth:`geom_frames`;
+        returns the nearest-hit keys (:meth:`key`) ``(ny * th, nx * tw)`` int32 (the image
+        padded to whole tiles) and ``overflow`` ``()`` bool, true if a group had more pairs
+        than the budget (the result is then incomplete and the caller falls back to
+        :meth:`dense_keys`)."""
         sc = self.scene
         ny, nx, th, tw = self.tile_grid
         gx, gy = jnp.asarray(self.grid_x), jnp.asarray(self.grid_y)
@@ -187,8 +244,10 @@ class Tracer:
             )
         return keys, overflow
 
-    def tile_overlap(self, frames, members):
+    def tile_overlap(self, frames: GeomFrames, members: tuple[int, ...]) -> jax.Array:
         """``(tiles, len(members))`` bool: may the geom cover a pixel centre of the tile?
+        ``frames``: one image's :meth:`geom_frames`; ``members``: geom indices (into
+        ``scene.geom_ids``) of one type group, ``tiles`` is ``ny * nx``.
         Each geom is bounded by one sphere, or (capsule, cylinder) by the convex hull of its
         two end spheres (the capsule, which holds the cylinder); each sphere by a conservative
         box in image coordinates ``x / -z, y / -z``, and the hull by the box around its
@@ -223,7 +282,7 @@ class Tracer:
         behind = jnp.all(far <= 0.0, axis=1)
         safe_near = jnp.maximum(near, 1e-6)
 
-        def extent(c):
+        def extent(c: jax.Array) -> tuple[jax.Array, jax.Array]:
             lo = c - radius
             hi = c + radius
             lo = jnp.where(lo >= 0, lo / far, lo / safe_near)
@@ -241,9 +300,12 @@ class Tracer:
         )
         return (overlap | crosses[None]) & ~behind[None]
 
-    def hit_depth(self, k, r_cam, origin, x, y):
-        """Ray parameter (= depth) of geom ``k`` for pixels at image coordinates ``x, y``
-        (its type and size unrolled as constants)."""
+    def hit_depth(self, k: int, r_cam: jax.Array, origin: jax.Array, x: jax.Array, y: jax.Array) -> jax.Array:
+        """Ray parameter (= depth) of geom ``k`` (a static index into ``scene.geom_ids``) for
+        pixels at image coordinates ``x, y`` (its type and size unrolled as constants): float32
+        in the shape ``x`` and ``y`` broadcast to (``(1, W)`` and ``(H, 1)`` give ``(H, W)``),
+        ``inf`` where the ray misses. ``r_cam`` ``(G, 3, 3)`` and ``origin`` ``(G, 3)``:
+        :class:`GeomFrames`'s."""
         sc = self.scene
         size = tuple(float(s) for s in sc.geom_size[k])
         o = (origin[k, 0], origin[k, 1], origin[k, 2])
@@ -255,8 +317,9 @@ class Tracer:
         """The low bits of a key that hold the geom index."""
         return (1 << max(1, len(self.scene.geom_ids).bit_length())) - 1
 
-    def key(self, t, k):
-        """int32 key of a hit at ray parameter ``t`` on geom index ``k``.
+    def key(self, t: jax.Array, k: int | jax.Array) -> jax.Array:
+        """int32 key of a hit at ray parameter ``t`` (float32, any shape) on geom index ``k``
+        (a static int, or int32 broadcasting against ``t``), in their broadcast shape.
 
         A positive float's bits order like its value, so replacing the depth's low mantissa
         bits by the geom index gives keys whose minimum is the nearest hit *and* names its
@@ -266,25 +329,27 @@ class Tracer:
         bits = jax.lax.bitcast_convert_type(jnp.maximum(t, 0.0), jnp.int32)
         return (bits & ~self.index_mask) | k
 
-    def far_key(self, shape):
-        """Keys of 'nothing before the far plane' (index ``G``)."""
+    def far_key(self, shape: tuple[int, int]) -> jax.Array:
+        """Keys of 'nothing before the far plane' (index ``G``): int32 of shape ``shape``."""
         zfar_bits = int(np.float32(self.scene.zfar).view(np.int32))
         return jnp.full(shape, (zfar_bits & ~self.index_mask) | len(self.scene.geom_ids), jnp.int32)
 
-    def decode(self, keys):
-        """Keys -> depth (far plane where nothing is hit) and geom index (``G`` if none)."""
+    def decode(self, keys: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Keys (:meth:`key`, int32, any shape) -> depth, float32 (far plane where nothing is
+        hit), and geom index, int32 (``G`` if none), both of the keys' shape."""
         n_geom = len(self.scene.geom_ids)
         index = keys & self.index_mask
         depth = jax.lax.bitcast_convert_type(keys & ~self.index_mask, jnp.float32)
         return jnp.where(index == n_geom, jnp.float32(self.scene.zfar), depth), index
 
-    def decode_tiled(self, keys):
-        """Keys of the image padded to whole tiles (:meth:`culled_keys`) -> depth and geom
-        index ``(H, W)``."""
+    def decode_tiled(self, keys: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Keys ``(ny * th, nx * tw)`` int32 of the image padded to whole tiles
+        (:meth:`culled_keys`) -> depth ``(H, W)`` float32 and geom index ``(H, W)`` int32
+        (:meth:`decode`)."""
         return self.decode(keys[: self.height, : self.width])
 
 
-def first_pairs(overlap, budget: int):
+def first_pairs(overlap: jax.Array, budget: int) -> tuple[jax.Array, jax.Array]:
     """The indices of the first ``budget`` true entries of ``overlap`` ``(P,)`` bool, in order,
     ``(budget,)`` int32, and which of those slots hold one (``(budget,)`` bool; empty slots
     hold ``P - 1``, so the list stays sorted, as the tile scatter promises XLA). Ranks come
@@ -302,10 +367,10 @@ def first_pairs(overlap, budget: int):
     return pair, jnp.arange(budget) < jnp.sum(overlap)
 
 
-def pad_by_one_pixel(depth_and_best):
-    """Depth and geom index ``(H, W)`` with a one-pixel border (depth 0, geom -1: no
-    neighbour), ``(H + 2, W + 2)``, both float32 (CPU loops that mix int32 tests into float
-    math do not vectorise; geom indices are exact in float32). Shading reads a pixel's
-    neighbours as slices of these padded planes."""
+def pad_by_one_pixel(depth_and_best: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+    """Depth ``(H, W)`` float32 and geom index ``(H, W)`` int32 (:meth:`Tracer.decode`) with a
+    one-pixel border (depth 0, geom -1: no neighbour), ``(H + 2, W + 2)``, both float32 (CPU
+    loops that mix int32 tests into float math do not vectorise; geom indices are exact in
+    float32). Shading reads a pixel's neighbours as slices of these padded planes."""
     depth, best = depth_and_best
     return jnp.pad(depth, 1), jnp.pad(best.astype(jnp.float32), 1, constant_values=-1.0)

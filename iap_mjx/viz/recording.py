@@ -26,6 +26,7 @@ import numpy as np
 if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
     from iap_mjx.envs.base import Env
     from iap_mjx.policies.base import Policy
+    from iap_mjx.render import Camera
 
 STATE_VIDEO_SIZE = (240, 320)  # (height, width) of frames rendered for state envs
 SCENE_VIDEO_SIZE = (360, 480)  # (height, width) of the scene around a pixel env's inset view
@@ -51,7 +52,7 @@ def has_scene(env: Env) -> bool:
     return has_pixels(env) and hasattr(env, "video_camera_id")
 
 
-def state_camera(env: Env, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Any:
+def state_camera(env: Env, size: tuple[int, int] = STATE_VIDEO_SIZE) -> Camera:
     """The ray-cast camera a video of a state env is rendered with: the model camera
     ``env.video_camera_id`` (default 0) of ``env.mj_model`` (:class:`~iap_mjx.envs.base.ModelEnv`),
     every geom group drawn."""
@@ -168,9 +169,11 @@ def live_returns(record: dict[str, np.ndarray]) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=4)
-def _scene_renderer(camera: Any) -> Callable[[dict], jax.Array]:
-    """The jitted batched render of a scene camera's poses, built once per camera (cameras are
-    hashable), so that every video and strip of one env shares its compiled programs."""
+def _scene_renderer(camera: Camera) -> Callable[[dict[str, np.ndarray]], jax.Array]:
+    """The jitted batched render of a scene camera's poses (the keys of
+    :class:`~iap_mjx.render.tracing.Poses`, each array with a leading batch axis ``(N, ...)``)
+    -> ``(N, H, W, 3)`` float32 frames, built once per camera (cameras are hashable), so that
+    every video and strip of one env shares its compiled programs."""
     return jax.jit(jax.vmap(lambda pose: camera.render_poses(pose)[0]))
 
 
@@ -178,8 +181,10 @@ def render_scene(
     env: Env, poses: dict[str, np.ndarray], size: tuple[int, int] = SCENE_VIDEO_SIZE, *, batch: int | None = None
 ) -> np.ndarray:
     """``(N, H, W, 3)`` uint8: the scene camera's (:func:`state_camera`, ``size``) frames of
-    ``N`` recorded steps' poses (a record's ``"scene"`` at those steps), rendered ``batch`` at a
-    time (default ``min(RENDER_CHUNK, N)``), the last batch padded: one compiled shape."""
+    ``N`` recorded steps' poses (a record's ``"scene"`` at those steps: the keys of
+    :class:`~iap_mjx.render.tracing.Poses`, each a numpy array with a leading ``(N,)`` axis),
+    rendered ``batch`` at a time (default ``min(RENDER_CHUNK, N)``), the last batch padded: one
+    compiled shape."""
     render = _scene_renderer(state_camera(env, size))
     count = len(next(iter(poses.values())))
     batch = min(RENDER_CHUNK, count) if batch is None else batch
