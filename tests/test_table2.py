@@ -2,9 +2,9 @@
 the setting and the valid ones; each setting trains with its overrides and the same budget (the
 preset's own setting in the preset's run, shared with fig11); the table reports the maximum
 episode return, L, the finished runs' walls passed on unseen courses and the command. Training
-is ``iap_mjx.paper.report_runs``'s (tested in test_fig1_fig6.py) and evaluation ``iap_mjx.es``'s (tested
-in test_evaluate.py); here runs are written by hand, training is a recorder and evaluation a
-stand-in."""
+is ``iap_mjx.paper.report_runs``'s (tested in test_fig1_fig6.py) and evaluation ``iap_mjx.es``'s
+(``evaluate_run``: test_es_train.py, test_cli.py, test_pretrained.py); here runs are written by
+hand, training is a recorder and evaluation a stand-in."""
 
 from __future__ import annotations
 
