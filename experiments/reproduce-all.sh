@@ -121,14 +121,14 @@ if step table1-finger; then
 fi
 # Figure 11's nine runs continued from 200 to 400 iterations (RESULTS.md, fig11-analysis: the one
 # setting left to try on the course, decided before it ran), on copies so that the 200-iteration
-# runs stay as they are
+# runs stay as they are; exported as they finish (restore-runs.sh puts them back)
 if step fig11-400; then
     mkdir -p "$OUT/fig11-400"
     for d in "$OUT"/fig11/quadruped-walls-*-seed*; do
         [ -e "$d" ] || continue  # no Figure 11 runs yet: the pattern itself
         [ -e "$OUT/fig11-400/$(basename "$d")" ] || cp -r "$d" "$OUT/fig11-400/"
     done
-    run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400"
+    run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400" --export "$EXPORT/quadruped-400"
 fi
 # beyond the paper (issue 24), after the paper's tables: the gates corridor seen through depth, IAP
 # and the blind control

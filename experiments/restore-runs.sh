@@ -32,3 +32,4 @@ restore "$EXPORT/quadruped" "$OUT/fig11"                 # fig11's runs and tabl
 restore "$EXPORT/quadruped-turn" "$OUT/fig11-turn" "" "quadruped-walls-*"   # fig11-turn's runs
 restore "$EXPORT/quadruped-turn" "$OUT/turn" "" "quadruped-turn-*"            # the run its low level came from
 restore "$EXPORT/quadruped-shared" "$OUT/fig11-shared"  # Figure 11 on shared courses (seed 0 began as a tuning run)
+restore "$EXPORT/quadruped-400" "$OUT/fig11-400"         # Figure 11's runs continued to 400 iterations
