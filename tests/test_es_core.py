@@ -255,6 +255,7 @@ def test_every_listed_evosax_strategy_asks_one_population_around_one_mean(name):
     ("name", "options", "match"),
     [
         ("SV_CMA_ES", (("num_populations", 2),), "one population around one mean"),
+        ("SimpleGA", (), "one population around one mean"),
         ("RandomSearch", (), "es.evosax_options .*sampling_fn"),
         ("CMA_ES", (("no_such_argument", 1),), "es.evosax_options .*no_such_argument"),
     ],

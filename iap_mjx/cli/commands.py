@@ -48,7 +48,7 @@ def resolve_target(target: str, overrides: list[str]):
 def cmd_show(args: argparse.Namespace) -> int:
     """Prints the resolved config of a preset (or run directory) with overrides, and what it
     builds: every env setting, the policy's settings and its number of parameters. A run
-    directory is built as its checkpoint is loaded (``es.runs.without_initialisation``: the file a
+    directory is built as its checkpoint is loaded (``es.results.without_initialisation``: the file a
     low level started from need not exist here), and its stored config is printed as it is."""
     try:
         config = resolve_target(args.target, args.overrides)

@@ -29,8 +29,9 @@ EVOSAX_STRATEGIES = (
 """evosax's distribution-based strategies that keep one population around one mean
 (``evosax.algorithms.distribution_based_algorithms`` of the pinned evosax but the ``SV_*`` ones;
 a test holds them equal), the other names ``es.strategy`` takes: listed here, since importing
-evosax loads JAX. ``RandomSearch`` needs its ``sampling_fn`` in ``es.evosax_options`` (from
-Python: a function)."""
+evosax loads JAX. ``RandomSearch`` needs its ``sampling_fn`` in ``es.evosax_options``: a
+function, so from Python only, and only without a run directory (``config.json`` cannot hold
+a function)."""
 POLICY_KINDS = ("convnet", "hierarchical", "iap", "linear", "mlp", "pmtg")
 """The names ``policy.kind`` takes; ``iap_mjx.policies`` builds its factory table from these
 (so that configs, and the presets built at their import, load no JAX)."""

@@ -39,7 +39,9 @@ def chunked_vmap(fn: Callable[..., Any], chunk_size: int) -> Callable[..., Any]:
         if len(sizes) != 1:
             raise ValueError(f"all leaves need the same leading (batch) axis, got sizes {sizes}.")
         (n,) = sizes
-        if n > chunk_size and n % chunk_size:
+        if n <= chunk_size:
+            return batched(*args)
+        if n % chunk_size:
             raise ValueError(f"batch size {n} is not a multiple of chunk_size={chunk_size}.")
         return map_chunks(lambda chunk: batched(*chunk), args, chunk_size, n)
 

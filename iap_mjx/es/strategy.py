@@ -133,17 +133,18 @@ class OpenES:
 
 def usable_evosax_algorithm(algorithm: type) -> bool:
     """Whether an evosax algorithm class fits :class:`EvosaxStrategy`: one population around one
-    mean. The Stein variational ones (``SV_*``) keep ``num_populations`` means and ask for
+    mean (``get_mean``). The population-based ones (``SimpleGA``, ``PSO``, ...) keep no mean;
+    the Stein variational ones (``SV_*``) keep ``num_populations`` means and ask for
     ``num_populations x P`` members."""
-    return "num_populations" not in inspect.signature(algorithm).parameters
+    return hasattr(algorithm, "get_mean") and "num_populations" not in inspect.signature(algorithm).parameters
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class EvosaxStrategy:
-    """Any distribution-based evosax algorithm behind our interface (evosax minimises).
+    """A distribution-based evosax algorithm behind our interface (evosax minimises).
 
     Attributes:
-      name: an ``evosax.algorithms.algorithms`` key, e.g. ``"CMA_ES"``, ``"SNES"``.
+      name: one of ``configs.training.EVOSAX_STRATEGIES``, e.g. ``"CMA_ES"``, ``"SNES"``.
       population_size: ``P``.
       num_dims: ``D``.
       sigma: the initial std, written to the algorithm's ``std_init`` param when it has one.
@@ -162,12 +163,12 @@ class EvosaxStrategy:
     def _algorithm(self):
         from evosax.algorithms import algorithms
 
-        require_choice("es.strategy", self.name, sorted(algorithms))
-        if not usable_evosax_algorithm(algorithms[self.name]):
+        if self.name in algorithms and not usable_evosax_algorithm(algorithms[self.name]):
             raise ValueError(
                 f"evosax strategy {self.name!r} is not one population around one mean ((P, D) "
                 f"members, a (D,) mean); choose from {', '.join(EVOSAX_STRATEGIES)}"
             )
+        require_choice("es.strategy", self.name, EVOSAX_STRATEGIES)
         try:
             return algorithms[self.name](
                 population_size=self.population_size,

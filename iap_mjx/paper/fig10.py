@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.configs.training import EVAL_SEED
-from iap_mjx.paper import table2
 from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
 
 if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
@@ -30,7 +29,13 @@ if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_RUNS = (table2.run_name((1, 1), 0), table2.run_name(None, 0))  # Table 2's smallest and the preset's patches
+
+def default_runs() -> tuple[str, str]:
+    """The runs drawn by default: Table 2's smallest patches and the preset's
+    (``table2.run_name``; imported here, as it loads JAX)."""
+    from iap_mjx.paper import table2
+
+    return table2.run_name((1, 1), 0), table2.run_name(None, 0)
 
 
 def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, Env, AttendingPolicy]]:
@@ -72,7 +77,7 @@ def reproduce_fig10(
     frames: int = 6,
     results: str | Path | None = None,
 ) -> str:
-    """Writes one strip per run (default: :data:`DEFAULT_RUNS` in ``out_dir``) into ``out_dir``
+    """Writes one strip per run (default: :func:`default_runs` in ``out_dir``) into ``out_dir``
     and returns markdown with each image and its caption; ``results``: a markdown file whose
     ``fig10`` section is rewritten with it."""
     import jax
@@ -82,7 +87,7 @@ def reproduce_fig10(
 
     require_int("frames", frames)
     out_dir = Path(out_dir)
-    checked = check(tuple(Path(run_dir) for run_dir in (run_dirs or [out_dir / name for name in DEFAULT_RUNS])))
+    checked = check(tuple(Path(run_dir) for run_dir in (run_dirs or [out_dir / name for name in default_runs()])))
     names = [strip_name(policy) for _, _, policy in checked.values()]
     if len(set(names)) != len(names):
         raise ValueError(f"fig10: two runs of the same patch size and stride ({', '.join(names)})")

@@ -67,10 +67,12 @@ def preset(task: str, policy: str = "iap") -> str:
 
 def parameters(config: configs.TrainConfig) -> int:
     """The trainable parameters of a config's policy, built for its env's observation as
-    training builds it (a frame stack or a depth channel counts)."""
+    training builds it (a frame stack or a depth channel counts), on undistracted frames: the
+    distraction changes no shape, and its backgrounds are not loaded for a count."""
     from iap_mjx import policies
 
-    return policies.init_param_count(built_policies({None: config})[None])
+    undistracted = apply_condition(config, CONDITIONS["none"])
+    return policies.init_param_count(built_policies({None: undistracted})[None])
 
 
 def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap") -> dict[str, configs.TrainConfig]:
