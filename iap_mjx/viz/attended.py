@@ -117,11 +117,6 @@ def shares(counts: list[dict[str, int]]) -> dict[str, float]:
     return {label: count / total for label, count in sorted(totals.items(), key=lambda item: -item[1])}
 
 
-def attended_shares(env: Env, policy: Policy, params: Any, **kwargs: Any) -> dict[str, float]:
-    """:func:`shares` of :func:`episode_counts` (same arguments)."""
-    return shares(episode_counts(env, policy, params, **kwargs))
-
-
 def markdown(counts: list[dict[str, int]]) -> str:
     """A markdown table of the shares over all episodes, and per label the episodes in which
     it has the largest share."""
