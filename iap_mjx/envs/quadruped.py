@@ -118,10 +118,10 @@ class QuadrupedFlat(DmControlEnv):
         """Full contact slots, or a culled group with more pairs whose bounding spheres
         overlap than MJX kept (so a touching pair may have been skipped)."""
         saturated = super()._contacts_saturated(data)
-        rbound = jnp.asarray(self.mj_model.geom_rbound, jnp.float32)
         limit = self.max_geom_pairs
         if limit is None:  # nothing culled
             return saturated
+        rbound = jnp.asarray(self.mj_model.geom_rbound, jnp.float32)
         for pairs in self._culled_pairs:
             gap = (
                 jnp.linalg.norm(data.geom_xpos[pairs[:, 1]] - data.geom_xpos[pairs[:, 0]], axis=1)
