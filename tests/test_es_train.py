@@ -118,6 +118,25 @@ def test_metrics_files_and_policy_fn(tmp_path):
     assert four.shape == (4,) and len(set(four.tolist())) == 4
 
 
+def test_evaluate_run_repeats_the_trainings_own_evaluation(tmp_path):
+    """A checkpoint after ``k`` iterations, evaluated with the run's seed on its
+    ``run.eval_episodes``, sees the episodes the training's centre evaluation at the start of
+    iteration ``k + 1`` saw: the same returns (the row's mean and std), up to float rounding
+    between the two programs' batches. Another iteration's keys give other returns."""
+    import shutil
+
+    env = PointMass()
+    config = small_config()
+    train(config, env=env, run_dir=tmp_path, progress=False)
+    rows = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    shutil.rmtree(tmp_path / "checkpoints" / "6")  # the latest is now the checkpoint after 3
+    returns = evaluate_run(tmp_path, episodes=config.run.eval_episodes, seed=config.run.seed, env=env)
+    assert returns.mean() == pytest.approx(rows[3]["eval_return"], rel=1e-5, abs=1e-5)
+    assert returns.std() == pytest.approx(rows[3]["eval_return_std"], rel=1e-4, abs=1e-5)
+    other = evaluate_run(tmp_path, episodes=config.run.eval_episodes, seed=config.run.seed + 1, env=env)
+    assert abs(other.mean() - rows[3]["eval_return"]) > 1e-3
+
+
 def test_nan_episodes_are_counted_and_do_not_poison_the_update():
     env = PointMass(nan_wall=2.0)  # large perturbations push some members past the wall
     config = small_config(checkpoint_every=0)
