@@ -17,6 +17,7 @@ from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint
 from iap_mjx.es.metrics_log import EVAL_FILE
 from iap_mjx.paper import table1
+from iap_mjx.viz import sections
 
 
 def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):
@@ -26,9 +27,13 @@ def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):
         table1.reproduce_table1(tmp_path, overrides=("env.heigth=64",))
     with pytest.raises(ValueError, match="episodes"):
         table1.reproduce_table1(tmp_path, episodes=0)
+    with pytest.raises(ValueError, match="section = 'Table 1' must be lower-case"):
+        table1.reproduce_table1(tmp_path, section="Table 1")
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "table1", "--tasks", "reacher", "--out", str(tmp_path)]) == 2
     assert "choose from" in capsys.readouterr().err
+    assert cli.main(["reproduce", "table1", "--section", "Table 1", "--out", str(tmp_path)]) == 2
+    assert "must be lower-case letters" in capsys.readouterr().err
 
 
 def test_every_condition_is_a_valid_env_of_every_task():
@@ -104,6 +109,26 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     published = tmp_path / "experiments" / "table1" / "table1.png"  # tracked, unlike the output folder
     assert published.read_bytes() == (tmp_path / "table1.png").read_bytes()
     assert json.loads((tmp_path / "table1.json").read_text())[0]["conditions"]["none"] == [210.0] * 4
+    # a second setting's table beside the first: its own section, json and figure
+    table1.reproduce_table1(
+        tmp_path,
+        seeds=2,
+        overrides=("run.iterations=3",),
+        episodes=4,
+        train=False,
+        tasks=("cartpole-swingup",),
+        results=results,
+        section="table1-second",
+    )
+    second = sections.read_section(results, "table1-second")
+    assert second is not None and second.startswith("## Table 1 (`table1-second`): the Distracting Control Suite")
+    assert "--section table1-second --out" in second and row in second
+    assert "![table1-second](experiments/table1-second/table1-second.png)" in second
+    assert (
+        sections.read_section(results, "table1")
+        == text.split("<!-- BEGIN table1 -->\n")[1].split("\n<!-- END table1 -->")[0]
+    )
+    assert (tmp_path / "table1-second.json").exists() and (tmp_path / "experiments" / "table1-second").is_dir()
 
 
 def test_the_bar_counts_tasks_at_or_above_the_better_baseline():

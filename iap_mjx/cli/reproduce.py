@@ -174,6 +174,7 @@ def _table1(args: argparse.Namespace) -> str:
         results=args.results,
         export=args.export,
         policy=args.policy,
+        section=args.section,
     )
 
 
@@ -201,6 +202,12 @@ def _add_table1(figures: Any) -> None:
     )
     _add_results(parser)
     _add_export(parser, "DIR/<task>-seed<k>, with --policy cnn DIR/<task>-cnn-seed<k> (e.g. pretrained/dcs)")
+    parser.add_argument(
+        "--section",
+        default="table1",
+        help="the --results section, experiments/ folder and table1.json's name (default table1, "
+        "table1-cnn with --policy cnn; e.g. table1-fs2 for a second setting beside the first)",
+    )
     _add_report_only(parser)
 
 

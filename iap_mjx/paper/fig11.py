@@ -32,7 +32,6 @@ stated as lines.
 from __future__ import annotations
 
 import logging
-import re
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +44,7 @@ from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_course, seed_means
 from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
-from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
+from iap_mjx.viz.sections import check_section_name, image_link, mean_std, reproduce_command, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -119,8 +118,7 @@ def reproduce_fig11(
     newest checkpoint, config and metrics as ``<preset>-seed<k>``, finished or not."""
     require_int("episodes", episodes)
     require_int("seeds", seeds)
-    if not isinstance(section, str) or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", section):
-        raise ValueError(f"section = {section!r} must be lower-case letters, digits and dashes, e.g. fig11-turn")
+    check_section_name(section, "fig11-turn")
     from iap_mjx import policies
 
     checked = check(tuple(overrides))

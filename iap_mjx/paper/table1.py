@@ -36,7 +36,7 @@ from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
 from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
-from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
+from iap_mjx.viz.sections import check_section_name, image_link, mean_std, reproduce_command, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {
@@ -58,6 +58,7 @@ CONDITIONS = {
 
 
 POLICIES = {"iap": "", "cnn": "-cnn"}
+SECTION = "table1"  # the RESULTS.md section and experiments/ folder written by default
 """The policies a table can train, and their presets' suffix (``dcs-<task><suffix>``)."""
 
 
@@ -163,16 +164,19 @@ def reproduce_table1(
     results: str | Path | None = None,
     export: str | Path | None = None,
     policy: str = "iap",
+    section: str = SECTION,
 ) -> str:
     """Trains (``train=False``: only reads) every task and seed, evaluates the finished runs,
-    writes ``<name>.json`` / ``<name>.png`` in ``out_dir`` (``name``: ``table1``, or
-    ``table1-cnn`` for ``policy="cnn"``) and returns the markdown table; ``results``: a
+    writes ``<name>.json`` / ``<name>.png`` in ``out_dir`` (``name``: ``section``, default
+    ``table1``, with ``-cnn`` appended for ``policy="cnn"``; another section keeps a second
+    setting's table beside the first) and returns the markdown table; ``results``: a
     markdown file (RESULTS.md) whose ``<name>`` section is rewritten with it; ``export``: a
     folder (e.g. ``pretrained/dcs``, tracked by git) that receives each run's newest checkpoint,
     config and metrics as ``<task><suffix>-seed<k>`` as soon as the run is trained (finished or
     not), so trained policies ship and unfinished runs survive a lost ``out_dir``."""
     require_int("episodes", episodes)
     require_int("seeds", seeds)
+    check_section_name(section, "table1-fs2")
     task_configs = check(tuple(tasks), tuple(overrides), policy)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -180,7 +184,7 @@ def reproduce_table1(
     rows = collect_rows(task_configs, seeds, out_dir, train=train, episodes=episodes, export=export, policy=policy)
     if not rows:
         raise ValueError(f"no table1 {policy} runs in {out_dir} to report")
-    name = "table1" + POLICIES[policy]
+    name = section + POLICIES[policy]
     write_json(out_dir / f"{name}.json", rows)
     png = plot(rows, out_dir / f"{name}.png")
     if policy == "iap":
@@ -198,6 +202,7 @@ def reproduce_table1(
             episodes=episodes,
             policy=policy,
             tasks=tuple(tasks),
+            section=section,
         )
     return markdown
 
@@ -218,13 +223,16 @@ def write_results(
     episodes: int,
     policy: str = "iap",
     tasks: tuple[str, ...] = TASKS,
+    section: str = SECTION,
 ) -> None:
-    """The ``table1`` (or ``table1-cnn``) section of ``path``: the command, the table and the
-    curves."""
-    name = "table1" + POLICIES[policy]
+    """The ``<section>`` (or ``<section>-cnn``) section of ``path``: the command, the table and
+    the curves."""
+    name = section + POLICIES[policy]
     options = [*overrides, f"--seeds {seeds}", f"--episodes {episodes}"]
     if tuple(tasks) != TASKS:  # the command reproduces these tasks only
         options.append("--tasks " + ",".join(tasks))
+    if section != SECTION:
+        options.append(f"--section {section}")
     command = reproduce_command(
         "table1", options + ([f"--policy {policy}"] if policy != "iap" else []), out=png.parent, results=path
     )
@@ -244,7 +252,11 @@ def write_results(
             "embedding in place of the attention. Return: the final centre's mean over {episodes} "
             "evaluation episodes per seed; mean ± std over seeds."
         )
-    body = f"{title.format(command=command, episodes=episodes)}\n\n![{name}]({image})\n\n{markdown}\n"
+    title = title.format(command=command, episodes=episodes)
+    if section != SECTION:  # e.g. "## Table 1 (`table1-fs2`): ..."
+        heading, rest = title.split(":", 1)
+        title = f"{heading} (`{name}`):{rest}"
+    body = f"{title}\n\n![{name}]({image})\n\n{markdown}\n"
     write_results_section(path, name, body)
 
 

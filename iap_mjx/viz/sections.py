@@ -33,6 +33,13 @@ def mean_std(values: list[float], digits: int = 1) -> str:
     return f"{np.mean(values):.{digits}f} ± {np.std(values):.{digits}f}" if len(values) else "-"
 
 
+def check_section_name(section: str, example: str) -> None:
+    """``ValueError`` unless ``section`` can name a RESULTS.md section and an ``experiments/``
+    folder: lower-case letters, digits and dashes (``example``: one the message shows)."""
+    if not isinstance(section, str) or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", section):
+        raise ValueError(f"section = {section!r} must be lower-case letters, digits and dashes, e.g. {example}")
+
+
 def _section_pattern(name: str) -> re.Pattern:
     """``<!-- BEGIN name -->``, the section's text (group ``body``), ``<!-- END name -->``."""
     begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
