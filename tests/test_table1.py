@@ -251,6 +251,30 @@ def test_cnn_baseline_is_reported_beside_the_iap_runs_with_both_parameter_counts
         table1.reproduce_table1(tmp_path, policy="rnn")
 
 
+def test_cnn_baseline_reads_the_iap_runs_with_the_setting_they_trained_with(tmp_path, monkeypatch):
+    """A second setting whose IAP runs took an option the CNN cannot take
+    (``policy.with_patches``): the CNN table's IAP column is those runs, counted as trained
+    (its parameters from their own config), not ``dcs-<task>`` with the CNN's overrides."""
+    stack = ("run.iterations=2", "env.frame_stack=2")
+    iap = configs.apply_overrides(configs.get("dcs-cartpole-swingup"), (*stack, "policy.with_patches=true"))
+    cnn = configs.apply_overrides(configs.get("dcs-cartpole-swingup-cnn"), stack)
+    fake_run(tmp_path / "dcs-cartpole-swingup-seed0", iap, 2, [150.0, 160.0])
+    fake_run(tmp_path / "dcs-cartpole-swingup-cnn-seed0", cnn, 2, [100.0, 120.0])
+    from iap_mjx import es
+
+    monkeypatch.setattr(es, "evaluate_run", lambda run_dir, *, episodes, seed, overrides: np.full(episodes, 1.0))
+    markdown = table1.reproduce_table1(
+        tmp_path, seeds=1, overrides=stack, episodes=2, train=False, tasks=("cartpole-swingup",), policy="cnn"
+    )
+    row = next(line for line in markdown.splitlines() if line.startswith("| cartpole-swingup"))
+    with_patches, without = (
+        table1.parameters(iap),
+        table1.parameters(configs.apply_overrides(configs.get("dcs-cartpole-swingup"), stack)),
+    )
+    assert with_patches - without == 64 * 10 * 2 * 2 * 6  # the LSTM's 4 x 16 gates see 10 stacked 2x2 RGB patches more
+    assert row.startswith(f"| cartpole-swingup | {with_patches:,} | 1.0 ± 0.0 |"), row
+
+
 def test_the_parameter_count_is_the_policy_built_for_the_observation_training_sees():
     """A second stacked frame widens only the patches' rows of W_Q and W_K (the paper's
     ``d_qk`` columns each): ``2 * patch_size^2 * 3 * d_qk`` more parameters (a count built for a

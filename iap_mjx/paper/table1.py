@@ -153,6 +153,21 @@ def collect_rows(
     return rows
 
 
+def iap_beside(tasks: tuple[str, ...], overrides: tuple[str, ...], out_dir: Path) -> dict[str, configs.TrainConfig]:
+    """The IAP configs a CNN table reads beside its own runs: per task, the config its first IAP
+    run with a checkpoint in ``out_dir`` trained with (an IAP setting may hold options the CNN
+    cannot take, e.g. ``policy.with_patches``), else ``dcs-<task>`` with ``overrides``."""
+    from iap_mjx.es import checkpoint
+    from iap_mjx.es.results import trained_config
+
+    out = check(tasks, overrides)
+    for task in tasks:
+        trained = [d for d in sorted(out_dir.glob(f"{preset(task)}-seed*")) if checkpoint.latest_step(d) is not None]
+        if trained:
+            out[task] = trained_config(trained[0])
+    return out
+
+
 def reproduce_table1(
     out_dir: str | Path,
     *,
@@ -190,7 +205,9 @@ def reproduce_table1(
     if policy == "iap":
         markdown = table(rows, seeds=seeds)
     else:  # beside the IAP runs of the same tasks, read (and evaluated) but never trained here
-        iap = collect_rows(check(tuple(tasks), tuple(overrides)), seeds, out_dir, train=False, episodes=episodes)
+        iap = collect_rows(
+            iap_beside(tuple(tasks), tuple(overrides), out_dir), seeds, out_dir, train=False, episodes=episodes
+        )
         markdown = comparison(rows, iap, seeds=seeds)
     if results is not None:
         write_results(
