@@ -62,9 +62,19 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     from iap_mjx import es
 
     monkeypatch.setattr(es, "evaluate_run", evaluate_run)
-    markdown = table1.reproduce_table1(
-        tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
-    )
+
+    def report(**kwargs):
+        return table1.reproduce_table1(
+            tmp_path,
+            seeds=2,
+            overrides=("run.iterations=3",),
+            episodes=4,
+            train=False,
+            tasks=("cartpole-swingup",),
+            **kwargs,
+        )
+
+    markdown = report()
     assert sorted(call[1] for call in calls) == sorted(table1.CONDITIONS.values())
     assert {call[0] for call in calls} == {"dcs-cartpole-swingup-seed0"}  # the finished run only
     assert all(call[2] == 4 and call[3] == EVAL_SEED for call in calls)
@@ -75,18 +85,14 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     assert "0 of 0 finished tasks" in markdown  # a task counts once all its seeds are finished
     stored = json.loads((tmp_path / "dcs-cartpole-swingup-seed0" / EVAL_FILE).read_text())
     assert len(stored) == 4
-    table1.reproduce_table1(
-        tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
-    )
+    report()
     assert len(calls) == 4  # read back, not evaluated again
     eval_path = tmp_path / "dcs-cartpole-swingup-seed0" / EVAL_FILE
     short = json.loads(eval_path.read_text())
     key = next(k for k in short if k.startswith("none@"))
     short[key] = short[key][:2]  # as an evaluate_run that returned one device's share stored it
     eval_path.write_text(json.dumps(short))
-    table1.reproduce_table1(
-        tmp_path, seeds=2, overrides=("run.iterations=3",), episodes=4, train=False, tasks=("cartpole-swingup",)
-    )
+    report()
     assert len(calls) == 5 and calls[-1][1] == table1.CONDITIONS["none"]
     assert len(json.loads(eval_path.read_text())[key]) == 4
     assert (tmp_path / "table1.png").stat().st_size > 0
@@ -94,15 +100,7 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     results.write_text(
         "# Results\n\n<!-- BEGIN table1 -->\nold\n<!-- END table1 -->\n\n<!-- BEGIN other -->\nkept\n<!-- END other -->\n"
     )
-    table1.reproduce_table1(
-        tmp_path,
-        seeds=2,
-        overrides=("run.iterations=3",),
-        episodes=4,
-        train=False,
-        tasks=("cartpole-swingup",),
-        results=results,
-    )
+    report(results=results)
     text = results.read_text()
     assert "old" not in text and "kept" in text and row in text and "![table1](experiments/table1/table1.png)" in text
     assert "`iap-mjx reproduce table1 run.iterations=3 --seeds 2 --episodes 4" in text
@@ -110,16 +108,7 @@ def test_finished_runs_are_evaluated_once_per_condition_and_reported(tmp_path, m
     assert published.read_bytes() == (tmp_path / "table1.png").read_bytes()
     assert json.loads((tmp_path / "table1.json").read_text())[0]["conditions"]["none"] == [210.0] * 4
     # a second setting's table beside the first: its own section, json and figure
-    table1.reproduce_table1(
-        tmp_path,
-        seeds=2,
-        overrides=("run.iterations=3",),
-        episodes=4,
-        train=False,
-        tasks=("cartpole-swingup",),
-        results=results,
-        section="table1-second",
-    )
+    report(results=results, section="table1-second")
     second = sections.read_section(results, "table1-second")
     assert second is not None and second.startswith("## Table 1 (`table1-second`): the Distracting Control Suite")
     assert "--section table1-second --out" in second and row in second
