@@ -40,8 +40,12 @@ def test_start_skips_the_steps_before_it(tmp_path):
     assert result.returncode == 0, result.stderr
     calls = [line for line in result.stdout.splitlines() if line.startswith("iap-mjx ")]
     assert calls[0].startswith("iap-mjx reproduce table1 ") and "--policy cnn" in calls[0]
-    assert not any("fig7" in call or "table2" in call or "reacher-easy" in call for call in calls)
-    assert any(call.startswith("iap-mjx train quadruped-gates-blind") for call in calls)
+    skipped = ("fig7", "table2", "--tasks reacher-easy,ball_in_cup-catch,walker-walk")  # table1-rest's
+    assert not any(word in call for call in calls for word in skipped)
+    second = [i for i, call in enumerate(calls) if "--out " + str(tmp_path / "out" / "table1-fs2") in call]
+    gates = [i for i, call in enumerate(calls) if call.startswith("iap-mjx train quadruped-gates-blind")]
+    assert len(second) == 2 and len(gates) == 1 and second[-1] < gates[0]  # Table 1's second setting, then gates
+    assert "env.frame_stack=2 policy.with_patches=true" in calls[second[0]] and "--policy cnn" in calls[second[1]]
     assert "--section fig11-turn" in calls[-1]  # the last step ran: step fig11-turn's command again
     turn = _run(tmp_path, "fig11-turn")
     assert [line for line in turn.stdout.splitlines() if line.startswith("iap-mjx ")][0] == calls[-1]
