@@ -58,8 +58,8 @@ CONDITIONS = {
 
 
 POLICIES = {"iap": "", "cnn": "-cnn"}
-SECTION = "table1"  # the RESULTS.md section and experiments/ folder written by default
 """The policies a table can train, and their presets' suffix (``dcs-<task><suffix>``)."""
+SECTION = "table1"  # the RESULTS.md section and experiments/ folder written by default
 
 
 def preset(task: str, policy: str = "iap") -> str:
