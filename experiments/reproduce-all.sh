@@ -133,7 +133,7 @@ fi
 # Table 1 again, every task and seed, at the setting its second short test adopted by the rule
 # fixed before it ran (RESULTS.md, table1-inputs-tuning: a second frame, and the selected patches'
 # pixels to the controller); the first setting's runs stay in $OUT/table1 and $EXPORT/dcs. Its
-# report: `iap-mjx reproduce table1 FS2 --report-only --section table1-fs2 ...` (main's code)
+# report: `iap-mjx reproduce table1 $FS2 ... --report-only --results RESULTS.md --section table1-fs2`
 FS2="env.frame_stack=2 policy.with_patches=true"
 T1FS2="reproduce table1 --seeds 3 --episodes 20 --out $OUT/table1-fs2 --export $EXPORT/dcs-fs2"
 if step table1-fs2; then

@@ -36,7 +36,10 @@ def test_paired_difference_and_its_standard_error():
 def test_the_verdict_follows_the_rule(tmp_path, capsys):
     base = [0.0, 10.0, 20.0, 30.0]
     noise = [1.0, -1.0, 1.0, -1.0]  # the SE of (base + c + noise) - base: sqrt(4/3) / sqrt(4) = 0.577
-    shifted = lambda c: [b + c + n for b, n in zip(base, noise)]  # noqa: E731
+
+    def shifted(c: float) -> list[float]:
+        return [b + c + n for b, n in zip(base, noise)]
+
     _write(
         tmp_path,
         {

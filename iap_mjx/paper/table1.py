@@ -256,23 +256,21 @@ def write_results(
     image = image_link(png, path, name)
     if policy == "iap":
         title = (
-            "## Table 1: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
+            "## Table 1{label}: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
             "the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
             "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
             "Stone et al. 2021)."
         )
     else:
         title = (
-            "## Table 1's baseline: convolutions against attention, the same budget\n\nCommand: "
+            "## Table 1's baseline{label}: convolutions against attention, the same budget\n\nCommand: "
             "`{command}`. The `dcs-<task>-cnn` presets: the same frames, ES setting, iterations and "
             "LSTM(16) controller as `dcs-<task>`, with three convolutions, a max pool and a dense "
             "embedding in place of the attention. Return: the final centre's mean over {episodes} "
             "evaluation episodes per seed; mean ± std over seeds."
         )
-    title = title.format(command=command, episodes=episodes)
-    if section != SECTION:  # e.g. "## Table 1 (`table1-fs2`): ..."
-        heading, rest = title.split(":", 1)
-        title = f"{heading} (`{name}`):{rest}"
+    label = "" if section == SECTION else f" (`{name}`)"  # e.g. "## Table 1 (`table1-fs2`): ..."
+    title = title.format(command=command, episodes=episodes, label=label)
     body = f"{title}\n\n![{name}]({image})\n\n{markdown}\n"
     write_results_section(path, name, body)
 
