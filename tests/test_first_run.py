@@ -47,13 +47,27 @@ def test_the_main_command_is_the_documented_default():
     assert args[1] in configs.names()
 
 
-def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+def _newcomer_env() -> dict[str, str]:
+    """The environment the README's command runs in here: a newcomer's, but the tests' cache."""
     env = dict(os.environ, IAP_MJX_CACHE_DIR=str(CACHE))
     env.pop("MUJOCO_GL", None)  # as on a newcomer's machine (the tests' conftest sets it)
     env.pop("JAX_USE_SHARDY_PARTITIONER", None)  # JAX's default partitioner (conftest sets GSPMD)
+    return env
+
+
+def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=env, capture_output=True, text=True
+        [sys.executable, "-m", "iap_mjx.cli", *args], cwd=cwd, env=_newcomer_env(), capture_output=True, text=True
     )
+
+
+def test_the_main_command_runs_under_shardy():
+    """The rest of the suite partitions with GSPMD (``conftest.py``); the README's command runs
+    with JAX's default, Shardy, as a user's does."""
+    code = "import jax; print(jax.config.jax_use_shardy_partitioner)"
+    done = subprocess.run([sys.executable, "-c", code], env=_newcomer_env(), capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "True"
 
 
 @pytest.mark.slow

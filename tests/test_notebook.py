@@ -34,6 +34,8 @@ def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     # JAX's default partitioner, as a user runs it and as test_first_run compiled the programs
     monkeypatch.delenv("JAX_USE_SHARDY_PARTITIONER", raising=False)
     notebook = nbformat.read(NOTEBOOK, as_version=4)
+    # a probe cell after the notebook's own: the partitioner its kernel ran with
+    notebook.cells.append(nbformat.v4.new_code_cell("print(jax.config.jax_use_shardy_partitioner)"))
     # no per-cell time limit (nbclient's default is 30 s): a loaded machine only makes it slower
     NotebookClient(
         notebook, timeout=None, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
@@ -45,6 +47,8 @@ def test_quickstart_notebook_executes(tmp_path, monkeypatch):
         for output in cell.get("outputs", [])
         if "image/png" in output.get("data", {}) or "image/gif" in output.get("data", {})
     ]
+    (probe,) = notebook.cells[-1].outputs
+    assert probe["text"].strip() == "True"  # Shardy, JAX's default, as a user's kernel runs it
     assert len(images) == 3  # the reward curve, the episode, distracted first frames
     assert (tmp_path / "runs" / "notebook" / "episode.gif").stat().st_size > 1000
     assert (tmp_path / "runs" / "notebook" / "distracted.png").stat().st_size > 1000
