@@ -57,7 +57,7 @@ def test_shares_over_a_distracted_episode_describe_the_frames_the_policy_saw():
     )
     policy = policies.make("iap", env.observation_shape, env.action_size, patch_size=2, top_l=10)
     params = policy.init(jax.random.PRNGKey(1))
-    program = attended.episode_program(env, policy, steps=6)
+    program = attended.geom_episode_program(env, policy, steps=6)
     shares = attended.shares(attended.episode_counts(env, policy, params, episodes=1, seed=3, program=program))
     assert abs(sum(shares.values()) - 1.0) < 1e-9 and list(shares.values()) == sorted(shares.values(), reverse=True)
     names = {attended.geom_label(env.mj_model, g) for g in range(env.mj_model.ngeom)} | {attended.BACKGROUND}

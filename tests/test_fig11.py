@@ -18,7 +18,7 @@ from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint
 from iap_mjx.es.metrics_log import EVAL_FILE
 from iap_mjx.paper import fig11
-from iap_mjx.paper.evaluations import EYES_CLOSED
+from iap_mjx.paper.evaluations import EYES_CLOSED_OVERRIDES
 
 ITERATIONS = ("run.iterations=3",)
 POLICIES_RUN = ("iap", "cnn", "blind")
@@ -51,7 +51,7 @@ def evaluations(monkeypatch):
         calls.append((run_dir.name, episodes, seed, tuple(overrides)))
         policy, run_seed = run_dir.name.split("-")[2], int(run_dir.name[-1])
         base, walls = RUNS[policy, run_seed]
-        if tuple(overrides) == EYES_CLOSED:
+        if tuple(overrides) == EYES_CLOSED_OVERRIDES:
             base, walls = base - 4.0 - run_seed, walls - run_seed
         alternate = np.arange(episodes) % 2
         return {
@@ -199,7 +199,9 @@ def test_export_copies_each_runs_newest_checkpoint(tmp_path, evaluations, capsys
         == 0
     )
     assert "| IAP (`quadruped-walls-iap`) | 873 | 20.0 ± 0.0 |" in capsys.readouterr().out
-    assert evaluations == [("quadruped-walls-iap-seed0", 2, EVAL_SEED, condition) for condition in ((), EYES_CLOSED)]
+    assert evaluations == [
+        ("quadruped-walls-iap-seed0", 2, EVAL_SEED, condition) for condition in ((), EYES_CLOSED_OVERRIDES)
+    ]
     assert sorted(p.name for p in export.iterdir()) == ["quadruped-walls-blind-seed0", "quadruped-walls-iap-seed0"]
     assert checkpoint.latest_step(export / "quadruped-walls-iap-seed0") == 3
     assert checkpoint.latest_step(export / "quadruped-walls-blind-seed0") == 2

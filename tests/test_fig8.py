@@ -19,7 +19,7 @@ ITERATIONS = ("run.iterations=3",)
 
 def _fake_run(out, kernel, patch, returns):
     config = configs.apply_overrides(configs.get(fig8.PRESET), (*ITERATIONS, *fig8.variant_overrides(kernel, patch)))
-    run_dir = out / f"{fig8.name(kernel, patch)}-seed0"
+    run_dir = out / f"{fig8.variant_name(kernel, patch)}-seed0"
     writer = MetricsWriter(run_dir, None, tensorboard=False)
     for i, value in enumerate(returns, start=1):
         writer.write({"iteration": i, "eval_return": value, "run_s": 99.0, "compile_s": 99.0, "env_steps": 1000 * i})
@@ -28,7 +28,7 @@ def _fake_run(out, kernel, patch, returns):
 
 def _timings():
     variants = {
-        fig8.name(k, p): {"iteration_s": 2.0 * p + (k == "brute"), "compile_s": 30.0, "iterations_timed": 2}
+        fig8.variant_name(k, p): {"iteration_s": 2.0 * p + (k == "brute"), "compile_s": 30.0, "iterations_timed": 2}
         for k, p in fig8.VARIANTS
     }
     return {

@@ -286,17 +286,23 @@ def _add_train(commands: Any) -> None:
     train.set_defaults(func=cmd_train, command_parser=train)
 
 
-def _add_eval(commands: Any) -> None:
-    evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
-    evaluate.add_argument("run_dir")
-    evaluate.add_argument(
+def _add_run_and_condition(parser: argparse.ArgumentParser, whose: str) -> None:
+    """A command's run directory, and the condition its episodes run in (the run's own unless
+    overridden: ``iap_mjx.es.results.in_condition``)."""
+    parser.add_argument("run_dir")
+    parser.add_argument(
         "overrides",
         nargs="*",
         metavar="key=value",
-        help="the evaluation's condition, e.g. env.distraction=none, env.dynamic=true, "
+        help=f"the {whose} condition, e.g. env.distraction=none, env.dynamic=true, "
         "env.background_videos=val (held-out backgrounds), policy.blind=true (a hierarchical "
         "policy with its eyes closed)",
     )
+
+
+def _add_eval(commands: Any) -> None:
+    evaluate = commands.add_parser("eval", help="evaluate a run's latest checkpoint")
+    _add_run_and_condition(evaluate, "evaluation's")
     evaluate.add_argument("--episodes", type=arguments.count, default=8)
     evaluate.add_argument(
         "--seed",
@@ -312,14 +318,7 @@ def _add_video(commands: Any) -> None:
     video = commands.add_parser(
         "video", help="render an episode (pixel agents: the selected patches outlined; state agents: the env's camera)"
     )
-    video.add_argument("run_dir")
-    video.add_argument(
-        "overrides",
-        nargs="*",
-        metavar="key=value",
-        help="the episode's condition: env.<field>=<value> (e.g. env.background_videos=val, held-out "
-        "backgrounds) or policy.blind=true",
-    )
+    _add_run_and_condition(video, "episode's")
     video.add_argument("--out", help="output .mp4 or .gif (default: RUN_DIR/episode.mp4)")
     video.add_argument("--seed", type=int, default=0, help="episode seed")
     video.add_argument(
@@ -343,13 +342,7 @@ def _add_attended(commands: Any) -> None:
         "the selected patches' pixels that show each geom of the scene or the "
         "background (sky or distraction picture).",
     )
-    look.add_argument("run_dir")
-    look.add_argument(
-        "overrides",
-        nargs="*",
-        metavar="key=value",
-        help="the episodes' condition: env.<field>=<value> (e.g. env.background_videos=val) or policy.blind=true",
-    )
+    _add_run_and_condition(look, "episodes'")
     look.add_argument("--episodes", type=arguments.count, default=3)
     look.add_argument("--seed", type=int, default=0, help="episode seed")
     look.set_defaults(func=cmd_attended, command_parser=look)

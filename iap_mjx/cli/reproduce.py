@@ -2,7 +2,7 @@
 
 Each figure's subcommand takes only its own options: another figure's (``reproduce fig7
 --tasks ...``) is refused by the parser, not ignored, and no option is taken for an
-abbreviation of another (``--seed`` is table2's, never ``--seeds``). Its function hands them to
+abbreviation of another (``--seed``, fig7's and table2's one training seed, is never ``--seeds``). Its function hands them to
 the module that trains, evaluates and reports the figure. Every figure is resumable: finished
 runs are skipped, the others continue from their last checkpoint.
 
@@ -73,6 +73,15 @@ def _add_report_only(parser: argparse.ArgumentParser) -> None:
         "--report-only",
         action="store_true",
         help="train nothing: report the runs already in --out, however far they got",
+    )
+
+
+def _add_section(parser: argparse.ArgumentParser, default: str, what: str, example: str) -> None:
+    parser.add_argument(
+        "--section",
+        default=default,
+        help=f"names the --results section and the experiments/ folder{what} (default {default}; e.g. "
+        f"{example} for a second setting beside the first)",
     )
 
 
@@ -202,12 +211,7 @@ def _add_table1(figures: Any) -> None:
     )
     _add_results(parser)
     _add_export(parser, "DIR/<task>-seed<k>, with --policy cnn DIR/<task>-cnn-seed<k> (e.g. pretrained/dcs)")
-    parser.add_argument(
-        "--section",
-        default="table1",
-        help="the --results section, experiments/ folder and table1.json's name (default table1, "
-        "table1-cnn with --policy cnn; e.g. table1-fs2 for a second setting beside the first)",
-    )
+    _add_section(parser, "table1", ", and table1.json (with --policy cnn: <section>-cnn)", "table1-fs2")
     _add_report_only(parser)
 
 
@@ -239,12 +243,7 @@ def _add_fig11(figures: Any) -> None:
     _add_episodes(parser, "per run, each on a course not seen in training")
     _add_results(parser)
     _add_export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
-    parser.add_argument(
-        "--section",
-        default="fig11",
-        help="the --results section and experiments/ folder to write (default fig11; e.g. fig11-turn for "
-        "a second experiment beside the first)",
-    )
+    _add_section(parser, "fig11", "", "fig11-turn")
     _add_report_only(parser)
 
 

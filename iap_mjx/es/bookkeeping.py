@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from iap_mjx.configs.training import OPEN_ES, ESConfig, RunConfig, TrainConfig
-from iap_mjx.es import checkpoint
+from iap_mjx.es import checkpoint, distributed
 from iap_mjx.es.components import Components, TrainState, init_state
 from iap_mjx.es.episode import episode_metric_names
 from iap_mjx.es.iteration import make_train_call
@@ -74,7 +74,7 @@ def start_state(parts: Components, run_dir: str | Path | None) -> tuple[TrainSta
         return state, 0
     _check_resumable(parts.config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
     state = restore_state(parts, run_dir, state)
-    done = int(checkpoint.to_host(state.iteration))
+    done = int(distributed.to_host(state.iteration))
     logger.info("resuming training after iteration %d", done)
     return state, done
 
@@ -137,7 +137,7 @@ def training_call_with_timing(
     call = calls.get(count, state)
     tick = time.perf_counter()
     new_state, metrics = call(state)
-    metrics = checkpoint.to_host(metrics)
+    metrics = distributed.to_host(metrics)
     run_s = time.perf_counter() - tick
     return new_state, metric_rows(parts, done, metrics, run_s, calls.seconds)
 

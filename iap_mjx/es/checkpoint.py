@@ -15,7 +15,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from iap_mjx.es import metrics_log
+from iap_mjx.es import distributed, metrics_log
 
 logger = logging.getLogger(__name__)
 
@@ -58,15 +58,6 @@ def _step_or_latest(manager: ocp.CheckpointManager, run_dir: str | Path, step: i
     return step
 
 
-def to_host(tree: Any) -> Any:
-    """Numpy copies of a pytree of replicated (possibly multi-process) arrays: each array's
-    first local copy, so a sharded array gives only its first local shard (replicate it
-    first, as ``iap_mjx.es.results.evaluate_run_episodes`` does)."""
-    return jax.tree_util.tree_map(
-        lambda x: np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else np.asarray(x), tree
-    )
-
-
 def latest_step(run_dir: str | Path) -> int | None:
     """The iteration of the newest complete checkpoint in ``run_dir``, or ``None``."""
     if not _has_checkpoints(run_dir):
@@ -81,7 +72,7 @@ def save(run_dir: str | Path, step: int, state: Any, config: dict[str, Any]) -> 
         manager.save(
             step,
             args=ocp.args.Composite(
-                state=ocp.args.StandardSave(to_host(state)),
+                state=ocp.args.StandardSave(distributed.to_host(state)),
                 config=ocp.args.JsonSave(config),
             ),
             force=True,
@@ -102,7 +93,7 @@ def restore(run_dir: str | Path, like: Any, step: int | None = None) -> tuple[in
     """``(step, state)`` restored into the structure, shapes and dtypes of ``like``."""
     with _reader(run_dir) as manager:
         step = _step_or_latest(manager, run_dir, step)
-        target = to_host(like)
+        target = distributed.to_host(like)
         _check_shapes(run_dir, step, target)
         restored = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(target)))
         return step, restored["state"]

@@ -1,4 +1,5 @@
-"""Multi-host training: join several processes into one JAX runtime over CPU collectives.
+"""Multi-host training: join several processes into one JAX runtime over CPU collectives, and
+read a replicated array's local copy on the host (:func:`to_host`).
 
 Every process runs the same ``train`` call; ``jax.devices()`` then lists the devices of all
 processes, the population mesh spans them, and each process simulates its share of the
@@ -22,6 +23,10 @@ CLI's default is one device per core). ``run.max_minutes`` is refused with sever
 from __future__ import annotations
 
 import logging
+from typing import Any
+
+import jax
+import numpy as np
 
 from iap_mjx.checks import require_int
 
@@ -33,8 +38,6 @@ def initialize(coordinator_address: str, num_processes: int, process_id: int) ->
 
     Must run before JAX computes anything in this process.
     """
-    import jax
-
     require_int("num_processes", num_processes)
     require_int("process_id", process_id, 0)
     if process_id >= num_processes:
@@ -51,4 +54,13 @@ def initialize(coordinator_address: str, num_processes: int, process_id: int) ->
         num_processes,
         coordinator_address,
         len(jax.devices()),
+    )
+
+
+def to_host(tree: Any) -> Any:
+    """Numpy copies of a pytree of replicated (possibly multi-process) arrays: each array's
+    first local copy, so a sharded array gives only its first local shard (replicate it
+    first, as ``iap_mjx.es.results.evaluate_run_episodes`` does)."""
+    return jax.tree_util.tree_map(
+        lambda x: np.asarray(x.addressable_data(0)) if isinstance(x, jax.Array) else np.asarray(x), tree
     )

@@ -19,7 +19,7 @@ import numpy as np
 from iap_mjx.checks import require_int
 from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import EVAL_SEED, TrainConfig
-from iap_mjx.es import checkpoint
+from iap_mjx.es import checkpoint, distributed
 from iap_mjx.es.bookkeeping import restore_state
 from iap_mjx.es.components import Components, TrainState, build, init_state, make_env_and_policy
 from iap_mjx.es.episode import observe
@@ -77,7 +77,7 @@ def make_policy_fn(parts: Components, obs_stats: ObsStats | None):
 
 def result_from_state(parts: Components, state: TrainState, history, run_dir) -> TrainResult:
     """Packs a ``TrainState`` into a ``TrainResult`` (host copies of params and statistics)."""
-    host = checkpoint.to_host(state)
+    host = distributed.to_host(state)
     params = parts.unravel(jnp.asarray(parts.strategy.mean(host.strategy_state)))
     obs_stats = jax.tree_util.tree_map(jnp.asarray, host.obs_stats) if parts.config.es.normalize_observations else None
     return TrainResult(
@@ -210,7 +210,7 @@ def evaluate_run_episodes(
             raise
         raise ValueError(f"{error}; here the condition {' '.join(overrides)}: {_KEEP_SHAPES}") from None
     state = state.replace(key=jax.random.PRNGKey(seed))
-    # replicated out: the episodes are sharded over the devices, and ``to_host`` reads one
+    # replicated out: the episodes are sharded over the devices, and ``distributed.to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
     results = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=parts.replicated)(state)
-    return checkpoint.to_host(results)
+    return distributed.to_host(results)

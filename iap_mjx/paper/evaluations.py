@@ -1,7 +1,7 @@
 """Evaluations of a run's checkpoint kept in its run directory (``eval.json``), so that a report
 (``reproduce table1``, ``fig7``, ``fig11``, ``table2``) reads them instead of evaluating again.
 
-``eval.json`` maps a key (:func:`tables_key`: what was evaluated, the checkpoint, the number
+``eval.json`` maps a key (:func:`eval_key`: what was evaluated, the checkpoint, the number
 of episodes and the seed) to a list of per-episode returns, or to a dict of per-episode lists
 (``"return"`` and an env's course statistics).
 """
@@ -24,12 +24,12 @@ from iap_mjx.files import write_json
 
 logger = logging.getLogger(__name__)
 
-COURSE = "course"  # the eval.json entry of a quadruped run on its training env's course, unseen draws
-EYES_CLOSED = ("policy.blind=true",)  # the condition: the trained high level given a zeroed image
-CLOSED = "course-eyes-closed"  # its eval.json entry
+COURSE_KEY = "course"  # the eval.json entry of a quadruped run on its training env's course, unseen draws
+EYES_CLOSED_OVERRIDES = ("policy.blind=true",)  # the condition: the trained high level given a zeroed image
+EYES_CLOSED_KEY = "course-eyes-closed"  # its eval.json entry
 
 
-def tables_key(name: str, step: int, episodes: int) -> str:
+def eval_key(name: str, step: int, episodes: int) -> str:
     """The ``eval.json`` key of evaluation ``name`` of checkpoint ``step`` on ``episodes``
     episodes drawn from the tables' seed, :data:`EVAL_SEED` (``metrics_log.evaluation_key``)."""
     return metrics_log.evaluation_key(name, step, episodes, EVAL_SEED)
@@ -71,7 +71,7 @@ def evaluate_conditions(
 
     return {
         name: stored_evaluation(
-            run_dir, tables_key(name, step, episodes), episodes, functools.partial(evaluate, condition)
+            run_dir, eval_key(name, step, episodes), episodes, functools.partial(evaluate, condition)
         )
         for name, condition in conditions.items()
     }
@@ -84,13 +84,13 @@ def evaluate_course(run_dir: Path, step: int, *, episodes: int, eyes_closed: boo
     ``eval.json`` where stored, evaluated (and stored) otherwise. Figure 11's and Table 2's."""
     from iap_mjx import es
 
-    condition = EYES_CLOSED if eyes_closed else ()
+    condition = EYES_CLOSED_OVERRIDES if eyes_closed else ()
 
     def evaluate() -> dict[str, list[float]]:
         results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
         return {name: [float(value) for value in values] for name, values in results.items()}
 
-    key = tables_key(CLOSED if eyes_closed else COURSE, step, episodes)
+    key = eval_key(EYES_CLOSED_KEY if eyes_closed else COURSE_KEY, step, episodes)
     return stored_evaluation(run_dir, key, episodes, evaluate)
 
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.configs.training import EVAL_SEED
-from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
+from iap_mjx.viz.sections import reproduce_command, tracked_copy, write_results_section
 
 if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
     from iap_mjx.envs.base import Env
@@ -116,7 +116,7 @@ def reproduce_fig10(
             )
         )
         logger.info("fig10: %s, return %.2f", path, episode_return)
-    links = [path if results is None else image_link(path, Path(results), "fig10") for path, _ in parts]
+    links = [path if results is None else tracked_copy(path, Path(results), "fig10") for path, _ in parts]
     markdown = "\n\n".join(f"{caption}\n\n![{path.stem}]({link})" for (path, caption), link in zip(parts, links))
     if results is not None:
         write_results(

@@ -44,7 +44,7 @@ from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_course, seed_means
 from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
-from iap_mjx.viz.sections import check_section_name, image_link, mean_std, reproduce_command, write_results_section
+from iap_mjx.viz.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -295,7 +295,7 @@ def write_results(
         f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
         f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
         f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
-        f"the mean ± std over seeds of the per-seed means.\n\n![{section}]({image_link(png, path, section)})\n\n"
+        f"the mean ± std over seeds of the per-seed means.\n\n![{section}]({tracked_copy(png, path, section)})\n\n"
         f"{markdown}\n"
     )
     write_results_section(path, section, body)

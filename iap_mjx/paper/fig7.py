@@ -35,7 +35,7 @@ from iap_mjx.paper.report_runs import (
     reported_run,
     train_command,
 )
-from iap_mjx.viz.sections import image_link, mean_std, reproduce_command, write_results_section
+from iap_mjx.viz.sections import mean_std, reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -145,7 +145,7 @@ def reproduce_fig7(
     return markdown
 
 
-def command(overrides: tuple[str, ...], row: dict[str, Any], seed: int) -> str:
+def cell_command(overrides: tuple[str, ...], row: dict[str, Any], seed: int) -> str:
     """The ``iap-mjx train`` command of one cell."""
     cell = cell_overrides(row["patch_size"], row["top_l"], row["d_qk"])
     return train_command(PRESET, (*overrides, *cell), seed)
@@ -163,7 +163,7 @@ def table(rows: list[dict[str, Any]], best: tuple[int, int] | None, *, overrides
         lines.append(
             f"| {row['patch_size']} | {row['top_l']} | {row['d_qk']} | {row['patches']:,} | {final} | "
             f"{max(row['curve']):.1f} | {row['iterations']} | {row['seconds']:.0f} | "
-            f"`{command(overrides, row, seed)}` |"
+            f"`{cell_command(overrides, row, seed)}` |"
         )
     lines.append("")
     lines.append(
@@ -216,7 +216,7 @@ def write_results(
     command_line = reproduce_command(
         "fig7", [*overrides, f"--seed {seed}", f"--episodes {episodes}"], out=png.parent, results=path
     )
-    image = image_link(png, path, "fig7")
+    image = tracked_copy(png, path, "fig7")
     body = (
         f"## Figure 7: patch size, selected patches and d_qk on cartpole-swingup (static medium)\n\n"
         f"Command: `{command_line}`. One seed per cell (seed {seed}). Return: the final centre's mean over {episodes} "

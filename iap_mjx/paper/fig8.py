@@ -55,7 +55,8 @@ def variant_overrides(kernel: str, patch_size: int) -> tuple[str, ...]:
     return (f"policy.kernel={kernel}", f"policy.patch_size={patch_size}")
 
 
-def name(kernel: str, patch_size: int) -> str:
+def variant_name(kernel: str, patch_size: int) -> str:
+    """The variant's key in ``timings.json``; its run directory is ``<variant_name>-seed0``."""
     return f"fig8-{kernel}-p{patch_size}"
 
 
@@ -116,12 +117,12 @@ def measure(
     with runtime.persistent_cache_off():
         for kernel, patch in VARIANTS:
             logger.info("timing %s at patch size %d (%d iterations)", kernel, patch, iterations)
-            timings["variants"][name(kernel, patch)] = time_iterations(checked[kernel, patch], iterations)
+            timings["variants"][variant_name(kernel, patch)] = time_iterations(checked[kernel, patch], iterations)
     hybrid = checked["hybrid", 2]
     brute_pass = inference_seconds(checked["brute", 2], passes=passes)
-    hybrid_pass = inference_seconds(hybrid, passes=max(passes, 20))
+    hybrid_pass = inference_seconds(hybrid, passes=max(passes, 20))  # far shorter: more passes to time it
     frames = frames_per_iteration(hybrid)
-    hybrid_iteration = timings["variants"][name("hybrid", 2)]["iteration_s"]
+    hybrid_iteration = timings["variants"][variant_name("hybrid", 2)]["iteration_s"]
     timings["brute_p2"] = {
         "forward_pass_s": brute_pass,
         "hybrid_forward_pass_s": hybrid_pass,
@@ -157,11 +158,13 @@ def reproduce_fig8(
     timings = json.loads(path.read_text())
     rows = []
     for kernel, patch in VARIANTS:
-        trained = trained_curve(checked[kernel, patch], 0, out_dir / f"{name(kernel, patch)}-seed0", train=train)
+        trained = trained_curve(
+            checked[kernel, patch], 0, out_dir / f"{variant_name(kernel, patch)}-seed0", train=train
+        )
         if trained is None:
             continue
         curve, seconds = trained
-        timing = timings["variants"][name(kernel, patch)]
+        timing = timings["variants"][variant_name(kernel, patch)]
         rows.append(
             {
                 "kernel": kernel,
@@ -224,7 +227,7 @@ def table(rows: list[dict[str, Any]], timings: dict[str, Any], *, brute_patches:
             f"{wall_seconds(row)[-1]:.0f} |"
         )
     brute = timings["brute_p2"]
-    hybrid = timings["variants"][name("hybrid", 2)]["iteration_s"]
+    hybrid = timings["variants"][variant_name("hybrid", 2)]["iteration_s"]
     lines += [
         "",
         f"Brute force at patch size 2 (L = {brute_patches:,}), not trained: one forward pass measured "
@@ -238,12 +241,12 @@ def table(rows: list[dict[str, Any]], timings: dict[str, Any], *, brute_patches:
 
 def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], timings: dict[str, Any]) -> None:
     """The ``fig8`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
+    from iap_mjx.viz.sections import reproduce_command, tracked_copy, write_results_section
 
     command_line = reproduce_command("fig8", overrides, out=png.parent, results=path)
-    image = image_link(png, path, "fig8")
+    image = tracked_copy(png, path, "fig8")
     # the timings measured alone are the figure's x axis: kept beside it, tracked
-    image_link(png.parent / TIMINGS_FILE, path, "fig8")
+    tracked_copy(png.parent / TIMINGS_FILE, path, "fig8")
     body = (
         f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
         f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "

@@ -36,7 +36,7 @@ from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
 from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
-from iap_mjx.viz.sections import check_section_name, image_link, mean_std, reproduce_command, write_results_section
+from iap_mjx.viz.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {
@@ -57,13 +57,13 @@ CONDITIONS = {
 }
 
 
-POLICIES = {"iap": "", "cnn": "-cnn"}
+PRESET_SUFFIXES = {"iap": "", "cnn": "-cnn"}
 """The policies a table can train, and their presets' suffix (``dcs-<task><suffix>``)."""
 SECTION = "table1"  # the RESULTS.md section and experiments/ folder written by default
 
 
 def preset(task: str, policy: str = "iap") -> str:
-    return f"dcs-{task}{POLICIES[policy]}"
+    return f"dcs-{task}{PRESET_SUFFIXES[policy]}"
 
 
 def parameters(config: configs.TrainConfig) -> int:
@@ -81,8 +81,8 @@ def check(tasks: tuple[str, ...], overrides: tuple[str, ...], policy: str = "iap
     from iap_mjx import envs
 
     check_seed_not_set("table1", overrides)
-    if policy not in POLICIES:
-        raise ValueError(f"policy {policy!r}: choose from {', '.join(POLICIES)}")
+    if policy not in PRESET_SUFFIXES:
+        raise ValueError(f"policy {policy!r}: choose from {', '.join(PRESET_SUFFIXES)}")
     unknown = [task for task in tasks if task not in TASKS]
     if unknown or not tasks:
         raise ValueError(f"tasks {list(tasks)}: choose from {', '.join(TASKS)}")
@@ -121,7 +121,7 @@ def run_row(
     """One run: its curve, env steps (``control_steps``, :func:`control_steps`), seconds, and
     (finished runs) every condition's returns; ``parameter_count`` (:func:`parameters`) goes
     in its row; with ``export``, its newest checkpoint and files are copied to
-    ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`POLICIES`)."""
+    ``export/<task><suffix>-seed<k>`` (``suffix``: :data:`PRESET_SUFFIXES`)."""
     reported = reported_run(
         config,
         seed,
@@ -130,7 +130,7 @@ def run_row(
         evaluate=lambda run_dir, step: {
             "conditions": evaluate_conditions(run_dir, step, episodes=episodes, conditions=CONDITIONS)
         },
-        export=None if export is None else export / f"{task}{POLICIES[policy]}-seed{seed}",
+        export=None if export is None else export / f"{task}{PRESET_SUFFIXES[policy]}-seed{seed}",
     )
     if reported is None:
         return None
@@ -199,7 +199,7 @@ def reproduce_table1(
     rows = collect_rows(task_configs, seeds, out_dir, train=train, episodes=episodes, export=export, policy=policy)
     if not rows:
         raise ValueError(f"no table1 {policy} runs in {out_dir} to report")
-    name = section + POLICIES[policy]
+    name = section + PRESET_SUFFIXES[policy]
     write_json(out_dir / f"{name}.json", rows)
     png = plot(rows, out_dir / f"{name}.png")
     if policy == "iap":
@@ -244,7 +244,7 @@ def write_results(
 ) -> None:
     """The ``<section>`` (or ``<section>-cnn``) section of ``path``: the command, the table and
     the curves."""
-    name = section + POLICIES[policy]
+    name = section + PRESET_SUFFIXES[policy]
     options = [*overrides, f"--seeds {seeds}", f"--episodes {episodes}"]
     if tuple(tasks) != TASKS:  # the command reproduces these tasks only
         options.append("--tasks " + ",".join(tasks))
@@ -253,24 +253,23 @@ def write_results(
     command = reproduce_command(
         "table1", options + ([f"--policy {policy}"] if policy != "iap" else []), out=png.parent, results=path
     )
-    image = image_link(png, path, name)
+    image = tracked_copy(png, path, name)
+    label = "" if section == SECTION else f" (`{name}`)"  # e.g. "## Table 1 (`table1-fs2`): ..."
     if policy == "iap":
         title = (
-            "## Table 1{label}: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
-            "the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
+            f"## Table 1{label}: the Distracting Control Suite, static medium\n\nCommand: `{command}`. Return: "
+            f"the final centre's mean over {episodes} evaluation episodes per seed, each with its own draw "
             "of the condition; mean ± std over seeds. SAC and QT-Opt: the IAP paper's Table 1 (from "
             "Stone et al. 2021)."
         )
     else:
         title = (
-            "## Table 1's baseline{label}: convolutions against attention, the same budget\n\nCommand: "
-            "`{command}`. The `dcs-<task>-cnn` presets: the same frames, ES setting, iterations and "
+            f"## Table 1's baseline{label}: convolutions against attention, the same budget\n\nCommand: "
+            f"`{command}`. The `dcs-<task>-cnn` presets: the same frames, ES setting, iterations and "
             "LSTM(16) controller as `dcs-<task>`, with three convolutions, a max pool and a dense "
-            "embedding in place of the attention. Return: the final centre's mean over {episodes} "
+            f"embedding in place of the attention. Return: the final centre's mean over {episodes} "
             "evaluation episodes per seed; mean ± std over seeds."
         )
-    label = "" if section == SECTION else f" (`{name}`)"  # e.g. "## Table 1 (`table1-fs2`): ..."
-    title = title.format(command=command, episodes=episodes, label=label)
     body = f"{title}\n\n![{name}]({image})\n\n{markdown}\n"
     write_results_section(path, name, body)
 

@@ -42,7 +42,7 @@ from iap_mjx.paper.report_runs import (
     reported_run,
     train_command,
 )
-from iap_mjx.viz.sections import image_link, reproduce_command, write_results_section
+from iap_mjx.viz.sections import reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def own_setting(config: configs.TrainConfig) -> tuple[int, int]:
     return patch_size, options.get("stride") or patch_size
 
 
-def fits(patch_size: int, stride: int, height: int, width: int, top_l: int) -> str | None:
+def misfit_reason(patch_size: int, stride: int, height: int, width: int, top_l: int) -> str | None:
     """Why ``(patch_size, stride)`` cannot be the high level's on a ``height`` x ``width``
     camera choosing ``top_l`` patches (``iap_mjx.attention.patches.patch_grid``'s reason, or
     too few patches), or ``None`` when it can."""
@@ -106,13 +106,13 @@ def check(
     check_evaluated("table2", [base])
     top_l = dict(base.policy.options).get("top_l", AttentionConfig.top_l)
     for patch_size, stride in settings:
-        reason = fits(patch_size, stride, camera.height, camera.width, top_l)
+        reason = misfit_reason(patch_size, stride, camera.height, camera.width, top_l)
         if reason is not None:
             valid = [
                 (p, s)
                 for p in range(1, LARGEST_LISTED_PATCH + 1)
                 for s in range(1, p + 1)
-                if fits(p, s, camera.height, camera.width, top_l) is None
+                if misfit_reason(p, s, camera.height, camera.width, top_l) is None
             ]
             raise ValueError(
                 f"table2 setting (patch size {patch_size}, stride {stride}): {reason}. Valid (patch "
@@ -298,6 +298,6 @@ def write_results(
         "Unseen courses: each finished "
         f"run's final centre on {episodes} courses never seen in training (Figure 11's), the mean walls "
         "passed and return per course. L: patches on the course's camera."
-        f"\n\n![table2]({image_link(png, path, 'table2')})\n\n{markdown}\n"
+        f"\n\n![table2]({tracked_copy(png, path, 'table2')})\n\n{markdown}\n"
     )
     write_results_section(path, "table2", body)

@@ -60,7 +60,7 @@ def count_geoms(geoms: np.ndarray, indices: np.ndarray, layer: Any) -> dict[int,
     return {int(i): int(c) for i, c in zip(ids, counts)}
 
 
-def episode_program(env: GeomMapping, policy: Policy, *, steps: int) -> Any:
+def geom_episode_program(env: GeomMapping, policy: Policy, *, steps: int) -> Any:
     """The video's episode program recording also ``"geoms" (T, H, W)``: the geom map of
     each frame the policy sees."""
 
@@ -85,7 +85,7 @@ def episode_counts(
     episode lived (a fallen quadruped's view of the ground after its episode ended is not
     counted) of ``episodes`` episodes of
     ``policy`` (an attention policy) on the pixel env ``env``, episode ``i`` from key
-    ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`episode_program` for these
+    ``split(PRNGKey(seed), episodes)[i]``. ``program``: :func:`geom_episode_program` for these
     ``steps`` (default: built here)."""
     from iap_mjx.envs.pixels import maps_geoms
     from iap_mjx.policies.base import attends
@@ -94,7 +94,7 @@ def episode_counts(
         raise ValueError("attended shares need an attention policy on a pixel env")
     require_int("episodes", episodes)
     steps = env.episode_length if steps is None else steps
-    program = episode_program(env, policy, steps=steps) if program is None else program
+    program = geom_episode_program(env, policy, steps=steps) if program is None else program
     out = []
     for key in jax.random.split(jax.random.PRNGKey(seed), episodes):
         record = recording.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)

@@ -13,9 +13,10 @@ import numpy as np
 from iap_mjx.files import write_text
 
 
-def image_link(image: Path, markdown: Path, section: str) -> Path:
-    """Copies ``image`` (or any file the section cites, e.g. fig8's ``timings.json``) to
-    ``<markdown's folder>/experiments/<section>/`` and returns its link relative to ``markdown``.
+def tracked_copy(image: Path, markdown: Path, section: str) -> Path:
+    """Copies ``image`` (a figure, or any file the section cites, e.g. fig8's ``timings.json``)
+    to ``<markdown's folder>/experiments/<section>/`` and returns the copy's path relative to
+    ``markdown``: the section's link to it.
 
     Runs write their figures into an output folder that git ignores (``results/``); the copy
     puts the figure a committed markdown file shows in a tracked folder beside it.
