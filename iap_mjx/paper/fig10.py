@@ -3,8 +3,9 @@ episode, for a small and a large patch size.
 
 For each trained ``quadruped-walls-iap`` run (by default Table 2's runs in ``out``: patch size 1,
 stride 1, and the preset's own 4x4, :mod:`iap_mjx.paper.table2`), one episode of the centre of its
-latest checkpoint (the final one once the run is finished) on a course not seen in training (keys
-of :data:`iap_mjx.configs.training.EVAL_SEED`) is written as a PNG
+latest checkpoint (the final one once the run is finished) on a course not seen in training (the
+episode of ``PRNGKey(EVAL_SEED)`` itself, as ``iap-mjx video --seed 2021`` draws it: none of the
+tables' evaluation episodes, whose keys are split from that seed) is written as a PNG
 strip: ``frames`` frames evenly spaced over the episode, each the course seen from the camera
 that follows the robot with the first-person camera inset, scaled up, the patches the high level
 selects in red (``iap_mjx.viz.video.episode_strip``; the high level is evaluated at every step,
@@ -143,9 +144,10 @@ def write_results(
     body = (
         f"## Figure 10: what the quadruped's IAP high level selects, small and large patches\n\n"
         f"Command: `{command}`. One episode of each run's latest centre on a course not seen in training "
-        f"(seed {EVAL_SEED}); {frames} frames evenly spaced over it, each the course from the camera that follows "
-        f"the robot, the first-person camera inset at {scale}x with the selected patches in red (the high "
-        f"level's choice were it asked at that step; it is asked when the command it holds runs out).\n\n"
+        f"(`iap-mjx video --seed {EVAL_SEED}`'s episode); {frames} frames evenly spaced over it, each the course "
+        f"from the camera that follows the robot, the first-person camera inset at {scale}x with the selected "
+        "patches in red (the high level's choice were it asked at that step; it is asked when the command it "
+        "holds runs out).\n\n"
         f"{markdown}\n"
     )
     write_results_section(path, "fig10", body)
