@@ -13,7 +13,14 @@ import numpy as np
 
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint
-from iap_mjx.es.metrics_log import CONFIG_FILE, EVAL_FILE, parse_evaluation_key, read_config, read_history
+from iap_mjx.es.metrics_log import (
+    CONFIG_FILE,
+    EVAL_FILE,
+    entry_returns,
+    parse_evaluation_key,
+    read_config,
+    read_history,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,7 +103,7 @@ def _evaluations(run_dir: Path, step: int) -> dict[str, tuple[float, int]]:
         found: dict[str, tuple[float, int]] = {}
         for key, entry in stored.items():
             name, at, episodes, seed = parse_evaluation_key(key)
-            returns = entry["return"] if isinstance(entry, dict) else entry
+            returns = entry_returns(entry)
             if at == step and seed == EVAL_SEED and episodes >= found.get(name, (0.0, 0))[1]:
                 found[name] = (float(np.mean(returns)), episodes)
     except (KeyError, TypeError, ValueError) as error:

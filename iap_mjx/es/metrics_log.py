@@ -116,6 +116,12 @@ def evaluation_key(name: str, step: int, episodes: int, seed: int) -> str:
     return f"{name}@{step}x{episodes}s{seed}"
 
 
+def entry_returns(entry: Any) -> list[float]:
+    """The per-episode returns an :data:`EVAL_FILE` entry holds: the entry itself (a list), or
+    its ``"return"`` (a dict that also holds an env's per-episode statistics)."""
+    return entry["return"] if isinstance(entry, dict) else entry
+
+
 def parse_evaluation_key(key: str) -> tuple[str, int, int, int]:
     """``(name, step, episodes, seed)`` of an :func:`evaluation_key` (``ValueError`` otherwise)."""
     match = re.fullmatch(r"(.+)@(\d+)x(\d+)s(-?\d+)", key)

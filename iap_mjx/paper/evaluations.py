@@ -37,7 +37,7 @@ def eval_key(name: str, step: int, episodes: int) -> str:
 
 def episode_count(entry: Any) -> int:
     """The episodes an ``eval.json`` entry holds (a list of returns, or a dict with ``"return"``)."""
-    return len(entry["return"]) if isinstance(entry, dict) else len(entry)
+    return len(metrics_log.entry_returns(entry))
 
 
 def stored_evaluation(run_dir: Path, key: str, episodes: int, evaluate: Callable[[], Any]) -> Any:
