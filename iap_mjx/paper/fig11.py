@@ -4,7 +4,7 @@ passes on courses it never saw.
 
 Each policy's preset (``quadruped-walls-iap``, ``-cnn``, ``-blind``: the same ES, budget and low
 level) trains on several seeds, each in its own run directory ``<out>/<preset>-seed<k>``
-(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.paper.report_runs.run_summary`).
+(resumed from its checkpoint, skipped once finished: :func:`iap_mjx.paper.report_runs.reported_run`).
 A finished run's final centre is then evaluated on ``episodes`` episodes of the course, each
 recording the course statistics the env keeps (``QuadrupedWalls.episode_metrics``: walls
 passed, fell off the platform, control steps touching a wall, distance along the course).

@@ -22,7 +22,8 @@ import numpy as np
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.files import write_json
-from iap_mjx.paper.report_runs import check_evaluated, check_seed_not_set, inference_seconds, trained_curve
+from iap_mjx.paper.report_runs import check_evaluated, check_seed_not_set, trained_curve
+from iap_mjx.paper.timing import inference_seconds
 
 logger = logging.getLogger(__name__)
 

@@ -38,9 +38,9 @@ from iap_mjx.paper.report_runs import (
     check_evaluated,
     check_not_swept,
     check_seed_not_set,
-    inference_seconds,
     trained_curve,
 )
+from iap_mjx.paper.timing import inference_seconds
 
 logger = logging.getLogger(__name__)
 

@@ -1,13 +1,11 @@
 """The training runs behind every figure and table: their configs checked before anything
 compiles, trained (or resumed) in their own run directory, read back as a report's row, and
 their policies built without compiling, so that a report is reproduced by running it again and
-a finished run is never trained twice; and the time of one policy forward pass, which Figures 1,
-6 and 8 report beside the runs."""
+a finished run is never trained twice."""
 
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -144,24 +142,3 @@ def built_policies(checked: dict[Any, configs.TrainConfig]) -> dict[Any, Any]:
         env, out[name] = make_env_and_policy(config, env=built_envs.get(spec))
         built_envs[spec] = env
     return out
-
-
-def inference_seconds(config: configs.TrainConfig, *, passes: int = 100) -> float:
-    """Mean wall time of one compiled policy forward pass on one rendered observation (the mean
-    of ``passes`` passes after compiling)."""
-    import jax
-
-    from iap_mjx.es import make_env_and_policy
-
-    env, policy = make_env_and_policy(config)
-    key = jax.random.PRNGKey(0)
-    obs = jax.jit(env.reset)(key).obs
-    params = policy.init(key)
-    policy_state = policy.initial_state(key)
-    forward = jax.jit(policy.apply)
-    jax.block_until_ready(forward(params, obs, policy_state))
-    start = time.perf_counter()
-    for _ in range(passes):
-        out = forward(params, obs, policy_state)
-    jax.block_until_ready(out)
-    return (time.perf_counter() - start) / passes

@@ -6,7 +6,7 @@ walled course.
 setting the preset has itself (4x4 patches, stride 4) is its own run,
 ``<out>/quadruped-walls-iap-seed<k>``, shared with Figure 11 (:mod:`iap_mjx.paper.fig11`); every other
 trains in ``<out>/table2-p<p>-s<s>-seed<k>``. Runs resume from their checkpoints and are
-skipped once finished (:func:`iap_mjx.paper.report_runs.run_summary`).
+skipped once finished (:func:`iap_mjx.paper.report_runs.reported_run`).
 
 The table's return is the maximum episode return reached in training, as the paper's: the
 largest ``return_max`` of the run's metrics (per iteration, the best population member's
