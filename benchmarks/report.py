@@ -12,7 +12,7 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 
-from iap_mjx.viz.sections import write_section  # noqa: E402,F401  (the benchmarks' sections)
+from iap_mjx.sections import write_section  # noqa: E402,F401  (the benchmarks' sections)
 
 
 def readme_main_command() -> list[str]:

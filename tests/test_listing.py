@@ -9,11 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from iap_mjx import cli
+from iap_mjx import cli, sections
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint, listing
 from iap_mjx.es.metrics_log import METRICS_JSONL, evaluation_key, parse_evaluation_key, read_history
-from iap_mjx.viz import sections
 
 PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained"
 

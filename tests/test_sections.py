@@ -1,9 +1,9 @@
-"""``iap_mjx.viz.sections``: a script rewrites its own named section of a markdown file and
+"""``iap_mjx.sections``: a script rewrites its own named section of a markdown file and
 reads it back; the rest of the file stays as it was."""
 
 from __future__ import annotations
 
-from iap_mjx.viz import sections
+from iap_mjx import sections
 
 
 def test_a_section_reads_back_what_was_written_and_leaves_the_others(tmp_path):

@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 from fake_runs import fake_run
 
-from iap_mjx import cli, configs
+from iap_mjx import cli, configs, sections
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.es import checkpoint
 from iap_mjx.es.metrics_log import EVAL_FILE
 from iap_mjx.paper import table1
-from iap_mjx.viz import sections
 
 
 def test_bad_tasks_and_settings_fail_before_anything_runs(tmp_path, capsys):

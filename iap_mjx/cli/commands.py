@@ -230,7 +230,7 @@ def cmd_runs(args: argparse.Namespace) -> int:
     far it has got, its evaluations (``iap_mjx.es.listing``); with ``--results``, also writes
     it as that file's ``runs`` section."""
     from iap_mjx.es import listing
-    from iap_mjx.viz.sections import write_section
+    from iap_mjx.sections import write_section
 
     folder = Path(args.folder)
     if not folder.is_dir():

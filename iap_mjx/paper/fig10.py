@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.configs.training import EVAL_SEED
-from iap_mjx.viz.sections import reproduce_command, tracked_copy, write_results_section
+from iap_mjx.sections import reproduce_command, tracked_copy, write_results_section
 
 if TYPE_CHECKING:  # check() builds them, importing iap_mjx.es lazily
     from iap_mjx.envs.base import Env

@@ -44,7 +44,7 @@ from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_course, seed_means
 from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
-from iap_mjx.viz.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
+from iap_mjx.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
 

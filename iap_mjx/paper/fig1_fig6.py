@@ -156,7 +156,7 @@ def figure(rows: list[dict[str, Any]], *, title: str):
 
 def table(rows: list[dict[str, Any]]) -> str:
     """A markdown table of the rows."""
-    from iap_mjx.viz.sections import mean_std
+    from iap_mjx.sections import mean_std
 
     lines = [
         "| variant | preset | ms per forward pass | return (mean ± std) | seeds | iterations | training s (all seeds) |",

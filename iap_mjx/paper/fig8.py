@@ -241,7 +241,7 @@ def table(rows: list[dict[str, Any]], timings: dict[str, Any], *, brute_patches:
 
 def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str, ...], timings: dict[str, Any]) -> None:
     """The ``fig8`` section of ``path``: the command, the figure and the table."""
-    from iap_mjx.viz.sections import reproduce_command, tracked_copy, write_results_section
+    from iap_mjx.sections import reproduce_command, tracked_copy, write_results_section
 
     command_line = reproduce_command("fig8", overrides, out=png.parent, results=path)
     image = tracked_copy(png, path, "fig8")

@@ -36,7 +36,7 @@ from iap_mjx.configs.overrides import apply_condition
 from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_conditions, seed_means
 from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
-from iap_mjx.viz.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
+from iap_mjx.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
 
 # The IAP paper's Table 1 (static, medium; from Stone et al. 2021): SAC, QT-Opt.
 BASELINES = {

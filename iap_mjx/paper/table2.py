@@ -42,7 +42,7 @@ from iap_mjx.paper.report_runs import (
     reported_run,
     train_command,
 )
-from iap_mjx.viz.sections import reproduce_command, tracked_copy, write_results_section
+from iap_mjx.sections import reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
 
