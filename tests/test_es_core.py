@@ -12,7 +12,7 @@ import scipy.stats
 
 from iap_mjx.configs import ESConfig, training
 from iap_mjx.es.components import make_optimizer
-from iap_mjx.es.shaping import SHAPINGS, centred_ranks, identity, z_scores
+from iap_mjx.es.shaping import SHAPINGS, centred_ranks, identity, nan_to_worst, z_scores
 from iap_mjx.es.strategy import EvosaxStrategy, OpenES, antithetic_noise, estimate_gradient
 
 
@@ -56,6 +56,18 @@ def test_nan_fitness_ranks_and_scores_lowest():
         shaped = shaping(fitness)
         assert np.all(np.isfinite(shaped))
         assert float(shaped[1]) == float(jnp.min(shaped))
+
+
+def test_nan_to_worst_puts_non_finite_entries_below_every_finite_one():
+    values = jnp.array([1.0, jnp.nan, -3.0, jnp.inf, 2.0])
+    for margin in (0.0, 1.0):
+        expected = [1.0, -3.0 - margin, -3.0, -3.0 - margin, 2.0]
+        np.testing.assert_array_equal(np.asarray(nan_to_worst(values, margin)), expected)
+    # z-scores of the finite entries as their closed form: mean and (population) std over them
+    finite = np.array([1.0, -3.0, 5.0])  # a mean off 0: a NaN counted as 0 would move the std
+    shaped = np.asarray(z_scores(jnp.array([1.0, jnp.nan, -3.0, 5.0])))
+    np.testing.assert_allclose(shaped[[0, 2, 3]], (finite - finite.mean()) / finite.std(), rtol=1e-6)
+    assert shaped[1] == shaped.min()
 
 
 def test_each_shaping_name_gives_the_shaping_it_names():

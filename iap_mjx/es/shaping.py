@@ -42,6 +42,13 @@ def centred_ranks(fitness: jax.Array) -> jax.Array:
     return _ranks(fitness) / (fitness.shape[0] - 1) - 0.5
 
 
+def nan_to_worst(values: jax.Array, margin: float = 0.0) -> jax.Array:
+    """``values`` with every non-finite entry replaced by the lowest finite one minus ``margin``:
+    a member whose episode went NaN scores below every other."""
+    finite = jnp.isfinite(values)
+    return jnp.where(finite, values, jnp.min(jnp.where(finite, values, jnp.inf)) - margin)
+
+
 def z_scores(fitness: jax.Array) -> jax.Array:
     """``(f - mean) / std`` over the finite entries; NaN entries get the lowest score."""
     finite = jnp.isfinite(fitness)
@@ -49,14 +56,12 @@ def z_scores(fitness: jax.Array) -> jax.Array:
     count = jnp.maximum(jnp.sum(finite), 1)
     mean = jnp.sum(safe) / count
     std = jnp.sqrt(jnp.sum(jnp.where(finite, (safe - mean) ** 2, 0.0)) / count)
-    scores = (safe - mean) / (std + 1e-8)
-    return jnp.where(finite, scores, jnp.min(jnp.where(finite, scores, jnp.inf)))
+    return nan_to_worst(jnp.where(finite, (safe - mean) / (std + 1e-8), jnp.nan))
 
 
 def identity(fitness: jax.Array) -> jax.Array:
     """The raw fitness (NaN replaced by the lowest finite value)."""
-    finite = jnp.isfinite(fitness)
-    return jnp.where(finite, fitness, jnp.min(jnp.where(finite, fitness, jnp.inf)))
+    return nan_to_worst(fitness)
 
 
 SHAPINGS: dict[str, ShapingFn] = one_per_name(

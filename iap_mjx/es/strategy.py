@@ -23,7 +23,7 @@ from flax import struct
 
 from iap_mjx.checks import require_choice
 from iap_mjx.configs.training import EVOSAX_STRATEGIES
-from iap_mjx.es.shaping import ShapingFn, centred_ranks
+from iap_mjx.es.shaping import ShapingFn, centred_ranks, nan_to_worst
 
 
 class Strategy(Protocol):
@@ -195,9 +195,7 @@ class EvosaxStrategy:
     def tell(self, key: jax.Array, population: jax.Array, fitness: jax.Array, state: Any) -> Any:
         # A NaN fitness ranks below the worst finite one (as centred ranks put it); evosax
         # minimises, so negate.
-        finite = jnp.isfinite(fitness)
-        worst = jnp.min(jnp.where(finite, fitness, jnp.inf))
-        loss = -jnp.where(finite, fitness, worst - 1.0)
+        loss = -nan_to_worst(fitness, margin=1.0)
         state, _ = self._algo.tell(key, population, loss, state, self._params)
         return state
 
