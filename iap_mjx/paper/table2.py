@@ -80,6 +80,17 @@ def misfit_reason(patch_size: int, stride: int, height: int, width: int, top_l: 
     return None if rows * cols >= top_l else f"L = {rows * cols} patches, fewer than top_l = {top_l}"
 
 
+def valid_settings(height: int, width: int, top_l: int) -> list[tuple[int, int]]:
+    """Every ``(patch size, stride)`` with ``stride <= patch size <= LARGEST_LISTED_PATCH`` that
+    fits a ``height`` x ``width`` camera choosing ``top_l`` patches: what a bad setting's error lists."""
+    return [
+        (p, s)
+        for p in range(1, LARGEST_LISTED_PATCH + 1)
+        for s in range(1, p + 1)
+        if misfit_reason(p, s, height, width, top_l) is None
+    ]
+
+
 def check(
     settings: tuple[tuple[int, int], ...], overrides: tuple[str, ...], seed: int, episodes: int = 20
 ) -> dict[tuple[int, int], tuple[configs.TrainConfig, str, tuple[str, ...]]]:
@@ -108,12 +119,7 @@ def check(
     for patch_size, stride in settings:
         reason = misfit_reason(patch_size, stride, camera.height, camera.width, top_l)
         if reason is not None:
-            valid = [
-                (p, s)
-                for p in range(1, LARGEST_LISTED_PATCH + 1)
-                for s in range(1, p + 1)
-                if misfit_reason(p, s, camera.height, camera.width, top_l) is None
-            ]
+            valid = valid_settings(camera.height, camera.width, top_l)
             raise ValueError(
                 f"table2 setting (patch size {patch_size}, stride {stride}): {reason}. Valid (patch "
                 f"size, stride) on the {camera.height}x{camera.width} camera with top_l = {top_l}, "
