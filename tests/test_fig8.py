@@ -35,6 +35,7 @@ def _timings():
         "variants": variants,
         "machine": "test",
         "started": "now",
+        "compile": "persistent compilation cache off",
         "brute_p2": {
             "forward_pass_s": 2.0,
             "hybrid_forward_pass_s": 0.001,

@@ -86,7 +86,7 @@ def frames_per_iteration(config: configs.TrainConfig) -> int:
     return (config.es.population_size * config.es.n_episodes + config.run.eval_episodes) * length
 
 
-def time_iterations(config: configs.TrainConfig, iterations: int) -> dict[str, float]:
+def time_iterations(config: configs.TrainConfig, iterations: int) -> dict[str, float | int]:
     """Trains ``config`` for ``iterations`` in a scratch directory: the median seconds of the
     iterations after the first (steady state) and the first's compile seconds."""
     from iap_mjx.es import train
@@ -251,7 +251,7 @@ def write_results(path: Path, markdown: str, png: Path, *, overrides: tuple[str,
         f"## Figure 8: wall-clock curves of brute force, IAP ReLU and IAP hybrid (cartpole-swingup, static medium)"
         f"\n\nCommand: `{command_line}`. One seed per curve. Seconds per iteration: every method timed in one "
         f"process on {timings['machine']}, {timings['started']}, one after another with the machine alone "
-        f"(`{TIMINGS_FILE}`; compile seconds with the {timings.get('compile', 'persistent compilation cache on')}); "
+        f"(`{TIMINGS_FILE}`; compile seconds with the {timings['compile']}); "
         f"the training runs' own timings are not used.\n\n![fig8]({image})\n\n{markdown}\n"
     )
     write_results_section(path, "fig8", body)
