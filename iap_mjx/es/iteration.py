@@ -48,15 +48,12 @@ def _metrics(
     fitness: jax.Array,
     bad: jax.Array,
     members: EpisodeResult,
-    eval_returns: jax.Array,
-    episode_metrics: dict[str, jax.Array],
-    member_episodes: int,
+    centre: EpisodeResult,
 ) -> dict[str, jax.Array]:
     """An iteration's ``()`` metrics (``metrics.csv``'s columns) from the population's ``(P,)``
     fitness (NaN for a member with a bad episode) and ``(P, n_episodes)`` bad flags, the
-    members' episodes (``members``), the centre's ``(eval_episodes,)`` evaluation returns,
-    every episode's env statistics (``episode_metrics``, ``(member_episodes + eval_episodes,)``
-    each: the centre's evaluation episodes last) and the strategy after the update."""
+    members' episodes (``members``), the centre's ``(eval_episodes,)`` evaluation episodes
+    (``centre``: their returns and env statistics) and the strategy after the update."""
     eval_episodes = parts.config.run.eval_episodes
     finite = jnp.isfinite(fitness)
     metrics = {
@@ -69,12 +66,12 @@ def _metrics(
         "params_norm": jnp.linalg.norm(parts.strategy.mean(strategy_state)),
     }
     if eval_episodes:
-        metrics["eval_return"] = jnp.mean(eval_returns)
-        metrics["eval_return_std"] = jnp.std(eval_returns)
+        metrics["eval_return"] = jnp.mean(centre.ret)
+        metrics["eval_return_std"] = jnp.std(centre.ret)
     for name, values in members.metrics.items():  # the env's per-episode statistics, if any
         metrics[f"{name}_mean"] = jnp.mean(values)
         if eval_episodes:
-            metrics[f"eval_{name}"] = jnp.mean(episode_metrics[name][member_episodes:])
+            metrics[f"eval_{name}"] = jnp.mean(centre.metrics[name])
     if isinstance(parts.strategy, OpenES):
         metrics["sigma"] = parts.strategy.sigma_at(state.iteration)
     return metrics
@@ -112,7 +109,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         keys = jnp.concatenate([member_keys, _eval_keys(state, eval_episodes)])  # (P * n + E, 2)
         results = parts.rollout(episode_params, keys, _stats_or_none(parts, state.obs_stats))
         members = jax.tree_util.tree_map(lambda x: x[:member_episodes], results)
-        eval_returns = results.ret[member_episodes:]  # (E,)
+        centre_episodes = jax.tree_util.tree_map(lambda x: x[member_episodes:], results)  # (E,) each
         returns = members.ret.reshape(population_size, n_episodes)  # (P, n)
         bad = members.bad.reshape(population_size, n_episodes)  # (P, n): 1.0 where the physics diverged
         # (P,): a member with a diverged episode gets NaN, which the fitness shaping ranks lowest
@@ -121,9 +118,7 @@ def make_iteration(parts: Components) -> Callable[[TrainState], tuple[TrainState
         obs_stats = state.obs_stats
         if es.normalize_observations:
             obs_stats = merge_episodes(obs_stats, members.steps, members.obs_sum, members.obs_sq_sum, members.bad)
-        metrics = _metrics(
-            parts, state, strategy_state, fitness, bad, members, eval_returns, results.metrics, member_episodes
-        )
+        metrics = _metrics(parts, state, strategy_state, fitness, bad, members, centre_episodes)
         new_state = TrainState(strategy_state, obs_stats, state.key, state.iteration + 1)
         return new_state, metrics
 
