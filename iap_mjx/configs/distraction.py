@@ -207,7 +207,7 @@ class DistractionConfig:
         if not isinstance(self.difficulty, str) or self.difficulty not in DIFFICULTY_SCALE:
             raise ValueError(
                 f"distraction = {self.difficulty!r} is not a difficulty; valid: "
-                f"{', '.join(DIFFICULTIES)} (or None for no distraction)."
+                f"{', '.join(DIFFICULTIES)}, or none (None from Python) for no distraction."
             )
         require_bool("dynamic", self.dynamic)
         kinds = parse_kinds(self.kinds)
