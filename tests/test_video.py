@@ -376,3 +376,25 @@ def test_the_recorded_scene_is_the_state_each_frame_shows():
     assert "scene" not in jax.eval_shape(
         recording.episode_program(env, policy, steps=2, scene=False), params, None, jax.random.PRNGKey(0)
     )
+
+
+@pytest.mark.parametrize(
+    ("option", "name", "valid"), [("--out", "episode.avi", ".mp4 or .gif"), ("--strip", "strip.bmp", ".png or .jpg")]
+)
+def test_cli_video_refuses_a_file_type_it_cannot_write_before_the_episode_runs(
+    tmp_path, monkeypatch, capsys, option, name, valid
+):
+    """A video or strip name the writers cannot take exits 2 naming the valid suffixes, before
+    any episode is recorded (compiling one takes tens of seconds)."""
+    from pathlib import Path
+
+    from iap_mjx import cli
+
+    def no_episode(*args, **kwargs):
+        raise AssertionError("an episode was recorded")
+
+    monkeypatch.setattr(recording, "record_episode", no_episode)
+    run_dir = Path(__file__).resolve().parent.parent / "pretrained" / "dcs" / "cartpole-swingup-seed0"
+    assert cli.main(["video", str(run_dir), option, str(tmp_path / name)]) == 2
+    assert valid in capsys.readouterr().err
+    assert not (tmp_path / name).exists()

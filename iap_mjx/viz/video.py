@@ -30,9 +30,20 @@ logger = logging.getLogger(__name__)
 STRIP_SCENE_SCALE = 6  # a strip's inset view: the course's 24x32 camera at 144x192, its caption legible
 
 
+VIDEO_SUFFIXES = (".mp4", ".gif")
+STRIP_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def check_suffix(path: str | Path, suffixes: tuple[str, ...], what: str) -> None:
+    """``ValueError`` unless ``path`` ends with one of ``suffixes``: checked before an episode
+    runs, so a name the writer cannot take fails at once, not after the episode compiles."""
+    if Path(path).suffix.lower() not in suffixes:
+        raise ValueError(f"{what} {str(path)!r}: the file name must end with {' or '.join(suffixes)}")
+
+
 def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: int = 30) -> Path:
-    """Writes ``frames`` (``(H, W, 3)`` uint8 each, all one size) as MP4 (``.mp4``) or GIF (any
-    other suffix) and returns the path.
+    """Writes ``frames`` (``(H, W, 3)`` uint8 each, all one size) as MP4 (``.mp4``) or GIF
+    (``.gif``) and returns the path.
 
     MP4s are encoded in-process by PyAV's bundled FFmpeg libraries (no ``ffmpeg`` subprocess:
     forking a process that runs JAX's threads can deadlock), one frame at a time as they come
@@ -41,10 +52,11 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: int = 30
     """
     import imageio.v3 as iio
 
+    check_suffix(path, VIDEO_SUFFIXES, "video")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     count = 0
-    if path.suffix == ".mp4":
+    if path.suffix.lower() == ".mp4":
         with iio.imopen(path, "w", plugin="pyav") as file:
             file.init_video_stream("libx264", fps=fps)
             for frame in frames:
@@ -77,6 +89,7 @@ def episode_video(
     scene at ``recording.SCENE_VIDEO_SIZE`` with the observation inset at 4x
     (:func:`~iap_mjx.viz.drawing.draw_steps`); a state env's camera. Returns ``(path, episode
     return)``, the return counting the live steps only, as training does."""
+    check_suffix(path, VIDEO_SUFFIXES, "video")
     record = recording.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = recording.live_returns(record)
     scene, views = "scene" in record, "frames" in record
@@ -122,6 +135,7 @@ def episode_strip(
 
     require_int("frames", frames)
     require_int("columns", columns)
+    check_suffix(path, STRIP_SUFFIXES, "strip")
     record = recording.record_episode(env, policy, params, key, steps=steps, obs_stats=obs_stats, program=program)
     returns = recording.live_returns(record)
     picks = np.unique(np.linspace(0, recording.last_live_step(record), frames).round().astype(int))
