@@ -8,6 +8,7 @@ import os
 import shlex
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -105,6 +106,66 @@ def test_interrupt_exits_130_with_resume_hint(monkeypatch, tmp_path, capsys):
         ["iterations=3", "es.sigma=0.1"],
         str(tmp_path / "a b"),
     )
+
+
+def test_train_refuses_a_run_directory_of_another_config_before_compiling_anything(monkeypatch, tmp_path, capsys):
+    """A run directory holding another config's checkpoint (here a shipped cartpole run, trained
+    again as cheetah) exits 2 naming what differs, before the video's background compile starts:
+    a process leaving while XLA compiles in that thread aborts (exit status 134)."""
+    import shutil
+
+    from iap_mjx import es
+    from iap_mjx.viz import artifacts
+
+    def refused(*args, **kwargs):
+        raise AssertionError("started after the run directory was refused")
+
+    monkeypatch.setattr(artifacts, "compile_video_in_background", refused)
+    monkeypatch.setattr(es, "train", refused)
+    run_dir = tmp_path / "run"
+    shutil.copytree(Path(__file__).resolve().parent.parent / "pretrained" / "dcs" / "cartpole-swingup-seed0", run_dir)
+    assert cli.main(["train", "cheetah-run-pixels-quick", "--run-dir", str(run_dir)]) == 2
+    err = capsys.readouterr().err
+    assert "holds a checkpoint of a different config" in err and "env.name: checkpoint 'cartpole-swingup'" in err
+
+
+@pytest.mark.parametrize("extra", [["--num-processes", "2"], ["--process-id", "1"]])
+def test_multi_process_options_without_a_coordinator_are_refused(monkeypatch, tmp_path, capsys, extra):
+    from iap_mjx import es
+
+    monkeypatch.setattr(es, "train", lambda *args, **kwargs: pytest.fail("trained"))
+    assert cli.main(["train", "cheetah-run-state", "--run-dir", str(tmp_path / "run"), *extra]) == 2
+    assert "give --coordinator too" in capsys.readouterr().err
+
+
+def test_a_command_stopping_early_waits_for_a_background_compile(monkeypatch, tmp_path, capsys):
+    """Interrupted while the video compiles beside training, ``train`` returns only once that
+    compile has ended (the process then exits cleanly: no daemon thread inside XLA)."""
+    import concurrent.futures
+    import threading
+
+    from iap_mjx import es
+    from iap_mjx.viz import artifacts
+
+    future: concurrent.futures.Future = concurrent.futures.Future()
+    done_at: list[float] = []
+
+    def compile_later(*args, **kwargs):
+        def finish():
+            done_at.append(time.monotonic())
+            future.set_result("program")
+
+        threading.Timer(0.5, finish).start()
+        return future
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(artifacts, "compile_video_in_background", compile_later)
+    monkeypatch.setattr(es, "train", interrupted)
+    assert cli.main(["train", "cheetah-run-pixels-quick", "--run-dir", str(tmp_path / "run")]) == 130
+    assert future.done() and done_at and time.monotonic() >= done_at[0]
+    assert "waiting for the video's background compile" in capsys.readouterr().err
 
 
 def test_interrupted_reproduce_exits_130_saying_how_to_resume(monkeypatch, tmp_path, capsys):

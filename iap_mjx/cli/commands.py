@@ -8,6 +8,7 @@ them into the ``iap-mjx`` parser. JAX is imported inside the commands, after
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import dataclasses
 import json
 import shlex
@@ -93,6 +94,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         config = configs.apply_overrides(configs.get(args.preset), args.overrides)
     except ValueError as error:
         return usage_error(error)
+    if not args.coordinator and (args.num_processes != 1 or args.process_id != 0):
+        return usage_error(
+            ValueError("--num-processes and --process-id join several processes: give --coordinator too")
+        )
     if args.coordinator:
         from iap_mjx.es import distributed
 
@@ -103,24 +108,37 @@ def cmd_train(args: argparse.Namespace) -> int:
     import jax
 
     from iap_mjx import es
+    from iap_mjx.es.bookkeeping import check_resumable
     from iap_mjx.viz import artifacts
 
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(args.preset)
+    video_program = None
     try:
         primary = jax.process_index() == 0  # several processes share one run directory: one writes
         env, policy = es.make_env_and_policy(config)  # built once: the run trains and films these
+        check_resumable(config, run_dir)  # a run directory of another config: refused before any compile
         print(f"run directory: {run_dir}", file=sys.stderr)  # named once every setting is checked
         video_program = artifacts.compile_video_in_background(env, policy) if primary else None
         result = es.train(config, run_dir=run_dir, progress=not args.no_progress, env=env, policy=policy)
     except ValueError as error:
+        _settle(video_program)
         return usage_error(error)
     except KeyboardInterrupt:
+        _settle(video_program)
         return interrupted(args, run_dir)
     if not primary:
         return 0
     written = artifacts.write_run_artifacts(result, run_dir, video_program)
     print(json.dumps(train_summary(result.history, run_dir, config.run.iterations, written)))
     return 0
+
+
+def _settle(future: concurrent.futures.Future | None) -> None:
+    """Waits for a background compile still running before the command returns: the process
+    must not exit with XLA compiling in a daemon thread, which aborts it (exit status 134)."""
+    if future is not None and not future.done():
+        print("waiting for the video's background compile to end before exiting", file=sys.stderr)
+        concurrent.futures.wait([future])
 
 
 def interrupted(args: argparse.Namespace, run_dir: Path) -> int:

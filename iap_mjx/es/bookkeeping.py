@@ -66,13 +66,21 @@ def _check_resumable(config: TrainConfig, stored: TrainConfig, run_dir) -> None:
         )
 
 
+def check_resumable(config: TrainConfig, run_dir: str | Path | None) -> None:
+    """``ValueError`` if ``run_dir`` holds a checkpoint that ``config`` cannot resume (what may
+    differ: :func:`_check_resumable`); nothing to check in a directory without one. Reads files
+    only, so a caller can refuse a run before anything compiles."""
+    if run_dir is not None and checkpoint.latest_step(run_dir) is not None:
+        _check_resumable(config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
+
+
 def start_state(parts: Components, run_dir: str | Path | None) -> tuple[TrainState, int]:
     """The state a run starts from and its iterations done: ``run_dir``'s latest checkpoint
     (its config checked against ours), else the state before iteration 0."""
     state = init_state(parts)
     if run_dir is None or checkpoint.latest_step(run_dir) is None:
         return state, 0
-    _check_resumable(parts.config, TrainConfig.from_dict(checkpoint.load_config(run_dir)), run_dir)
+    check_resumable(parts.config, run_dir)
     state = restore_state(parts, run_dir, state)
     done = int(distributed.to_host(state.iteration))
     logger.info("resuming training after iteration %d", done)

@@ -75,8 +75,9 @@ def compile_video_in_background(env: Env, policy: Policy) -> concurrent.futures.
     Called before training, the video's compile runs beside the ES iteration's (XLA compiles
     on one core, and a machine has more), so the video at the end of a run costs its
     rollout and encoding only (and, for an env with a scene, the scene renderer, compiled when
-    the episode's length is known: ``drawing.draw_steps``). A daemon thread: an interrupted run
-    does not wait for it.
+    the episode's length is known: ``drawing.draw_steps``). A daemon thread, which the process
+    must not exit beside while it compiles (XLA aborts it): a command that stops early waits for
+    the future first (``iap_mjx.cli.commands``).
     """
     if not recording.has_pixels(env):
         return None
