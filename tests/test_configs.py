@@ -61,10 +61,14 @@ def test_invalid_values_fail_naming_the_field(make, field):
     [
         (lambda: EnvConfig(episode_length=True), r"env\.episode_length must be an int >= 1 or None, got True"),
         (lambda: EnvConfig(camera_id=False), r"env\.camera_id must be an int >= 0, got False"),
+        (
+            lambda: EnvConfig(frame_stack=2, height=64),
+            r"env: height=64, frame_stack=2 set the camera of a pixel obs_mode, but obs_mode is 'state'",
+        ),
         (lambda: QuadrupedConfig(action_repeat=2), r"env\.action_repeat must be 1 .*, got 2"),
     ],
 )
-def test_env_settings_refuse_bools_and_a_quadruped_action_repeat(make, message):
+def test_bad_env_settings_are_refused_naming_them(make, message):
     with pytest.raises(ValueError, match=message):
         make()
     assert QuadrupedConfig(action_repeat=1).action_repeat == 1

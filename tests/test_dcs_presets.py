@@ -18,6 +18,7 @@ from dm_control import suite
 
 from iap_mjx import configs, envs, policies
 from iap_mjx.configs.distraction import TASKS
+from iap_mjx.configs.env import CAMERA_SETTINGS
 from iap_mjx.configs.presets import ACTION_REPEAT
 
 SUITE = {
@@ -155,7 +156,10 @@ def test_quick_preset_episode_is_distracted_deterministic_and_leaves_physics_alo
     env = envs.make(config.env.name, **overrides)
     plain = envs.make(
         config.env.name,
-        **{**{k: v for k, v in overrides.items() if k not in DISTRACTION_SETTINGS}, "obs_mode": "state"},
+        **{
+            **{k: v for k, v in overrides.items() if k not in DISTRACTION_SETTINGS + CAMERA_SETTINGS},
+            "obs_mode": "state",
+        },
     )
     repeat = env.config.action_repeat
     assert plain.config.action_repeat == repeat == SUITE[config.env.name]

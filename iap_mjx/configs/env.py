@@ -14,6 +14,7 @@ from iap_mjx.checks import is_int, require_choice, require_int, require_number
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
 PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
+CAMERA_SETTINGS = ("camera_id", "height", "width", "frame_stack")  # EnvConfig's: pixel modes only
 """The observation modes ``iap_mjx.envs.pixels`` renders."""
 DEPTH_MAX = 4.0
 """Metres of depth that ``"depth+state"`` maps onto ``[0, 1]`` unless ``depth_max`` says
@@ -81,7 +82,8 @@ class EnvConfig:
         is ended as a bad state.
       obs_mode: ``"state"`` (the env's own observation) or a pixel mode handled by
         ``iap_mjx.envs.pixels``.
-      camera_id, height, width, frame_stack: the camera settings for pixel modes.
+      camera_id, height, width, frame_stack: the camera settings for pixel modes (setting one
+        with ``obs_mode="state"`` is an error, not silently ignored).
       depth_max: ``"depth+state"`` only: its depth is ``min(depth, depth_max) / depth_max``,
         in ``[0, 1]`` (metres along the optical axis, 1 at ``depth_max`` and beyond);
         ``None`` means :data:`DEPTH_MAX` (4 m). Setting it with another ``obs_mode`` is an
@@ -135,7 +137,21 @@ class EnvConfig:
         require_choice("env.obs_mode", self.obs_mode, OBS_MODES)
         require_int("env.camera_id", self.camera_id, 0)
         check_depth_max(self.depth_max, self.obs_mode, "env.")
+        self._check_camera()
         self._check_distraction()
+
+    def _check_camera(self) -> None:
+        """The camera settings belong to the pixel modes: set with ``obs_mode="state"`` they
+        would change nothing, so they are an error, not silently ignored."""
+        if self.obs_mode != "state":
+            return
+        defaults = {field.name: field.default for field in dataclasses.fields(self)}  # a subclass's own
+        given = [f"{name}={getattr(self, name)!r}" for name in CAMERA_SETTINGS if getattr(self, name) != defaults[name]]
+        if given:
+            raise ValueError(
+                f"env: {', '.join(given)} set the camera of a pixel obs_mode, but obs_mode is 'state'; "
+                f"set env.obs_mode to one of {', '.join(PIXEL_MODES)}, or leave them unset."
+            )
 
     def _check_distraction(self) -> None:
         """The settings ``DistractionConfig`` cannot check alone: none without a distraction,
