@@ -111,11 +111,34 @@ def test_overrides_parse_coerce_and_route():
         ("bogus.x=1", "unknown section"),
         ("es.population_size", "key=value"),
         ("es.population_size=33", r"es\.population_size"),
+        ("es.sigma_final=0.05", r"es\.sigma_final is the end of a sigma_schedule"),
     ],
 )
 def test_bad_overrides_fail_with_the_field(override, message):
     with pytest.raises(ValueError, match=message):
         apply_overrides(configs.get("cheetah-run-state"), [override])
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ("es.population_size=33", "es.antithetic=false"),
+        ("es.sigma_final=0.05", "es.sigma_schedule=linear"),
+        ("policy.top_l=5", "policy.patch_size=2", "env.height=64"),
+    ],
+)
+def test_overrides_that_depend_on_each_other_apply_in_either_order(overrides):
+    """Each section is validated once with all its overrides: one valid only beside another
+    does not fail for coming first."""
+    base = configs.get("cheetah-run-pixels")
+    forward = apply_overrides(base, overrides)
+    assert forward == apply_overrides(base, overrides[::-1]) != base
+
+
+def test_an_override_given_twice_keeps_its_last_value():
+    base = configs.get("cheetah-run-pixels")
+    config = apply_overrides(base, ["es.sigma=0.2", "policy.top_l=5", "es.sigma=0.1", "policy.top_l=7"])
+    assert config.es.sigma == 0.1 and dict(config.policy.options)["top_l"] == 7
 
 
 @pytest.mark.parametrize(

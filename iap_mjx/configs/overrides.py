@@ -81,24 +81,30 @@ def override_path(item: str) -> str:
 
 
 def apply_overrides(config: TrainConfig, overrides: Iterable[str]) -> TrainConfig:
-    """Returns ``config`` with every ``key=value`` in ``overrides`` applied, validated."""
+    """Returns ``config`` with every ``key=value`` in ``overrides`` applied, validated.
+
+    The overrides are validated together, each section once with all of its changes (a key
+    given twice: the last wins), so their order does not matter where settings depend on each
+    other (``es.antithetic=false es.population_size=3`` in either order)."""
+    changes: dict[str, dict[str, Any]] = {}
     for item in overrides:
         section_name, name, text = _parse(item, config)
         section = getattr(config, section_name)
         fields = {f.name for f in dataclasses.fields(section)}
         value = parse_value(text)
+        changed = changes.setdefault(section_name, {})
         if name in fields:
-            section = dataclasses.replace(section, **{name: _coerce(getattr(section, name), value)})
+            changed[name] = _coerce(getattr(section, name), value)
         elif section_name in _OPEN_SECTIONS:
             bag = _OPEN_SECTIONS[section_name]
-            pairs = dict(getattr(section, bag))
+            pairs = dict(changed.get(bag, getattr(section, bag)))
             pairs[name] = value
-            section = dataclasses.replace(section, **{bag: tuple(sorted(pairs.items()))})
+            changed[bag] = tuple(sorted(pairs.items()))
         else:
             path = f"{section_name}.{name}"
             raise ValueError(f"override {path!r}: {section_name} has no field {name!r}; valid: {sorted(fields)}")
-        config = dataclasses.replace(config, **{section_name: section})
-    return config
+    sections = {name: dataclasses.replace(getattr(config, name), **changed) for name, changed in changes.items()}
+    return dataclasses.replace(config, **sections) if sections else config
 
 
 CONDITION_POLICY_SETTINGS = ("policy.blind",)

@@ -144,6 +144,8 @@ class ESConfig:
         require_number("es.sigma", self.sigma, 0, low_open=True)
         require_choice("es.sigma_schedule", self.sigma_schedule, SIGMA_SCHEDULES)
         require_number("es.sigma_final", self.sigma_final, 0, low_open=True)
+        if self.sigma_schedule == "constant" and self.sigma_final != ESConfig.sigma_final:
+            _fail("es", "sigma_final", self.sigma_final, "is the end of a sigma_schedule: set es.sigma_schedule too")
         require_choice("es.optimizer", self.optimizer, OPTIMIZER_NAMES)
         require_number("es.learning_rate", self.learning_rate, 0, low_open=True)
         require_number("es.weight_decay", self.weight_decay, 0)
