@@ -96,7 +96,7 @@ def test_unknown_setting_lists_valid_ones():
     assert "height" in str(error.value) and "action_repeat" in str(error.value)
     with pytest.raises(ValueError, match="heigth"):
         envs.make("cheetah-run", heigth=64)
-    assert envs.check("cheetah-run", height=64).height == 64
+    assert envs.check("cheetah-run", obs_mode="pixels", height=64).height == 64
 
 
 # The done/bad-state machinery is shared by all tasks (iap_mjx/envs/dmc.py); it is tested on
