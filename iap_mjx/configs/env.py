@@ -14,8 +14,9 @@ from iap_mjx.checks import is_int, require_choice, require_int, require_number
 from iap_mjx.configs.distraction import DIFFICULTIES, DistractionConfig
 
 PIXEL_MODES = ("pixels", "pixels_depth", "pixels+state", "depth+state")
-CAMERA_SETTINGS = ("camera_id", "height", "width", "frame_stack")  # EnvConfig's: pixel modes only
 """The observation modes ``iap_mjx.envs.pixels`` renders."""
+CAMERA_SETTINGS = ("camera_id", "height", "width", "frame_stack")
+"""``EnvConfig``'s camera settings: the pixel modes' only."""
 DEPTH_MAX = 4.0
 """Metres of depth that ``"depth+state"`` maps onto ``[0, 1]`` unless ``depth_max`` says
 otherwise: on ``quadruped-gates`` the next gate (at most 2.8 m past the one just passed) and
