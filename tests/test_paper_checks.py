@@ -3,7 +3,7 @@ read (no evaluation episodes) or that it sets itself per run (what it sweeps).""
 
 import pytest
 
-from iap_mjx.paper import fig1_fig6, fig7, fig8, fig11, table1, table2
+from iap_mjx.paper import fig1_fig6, fig7, fig8, fig11, gates, table1, table2
 from iap_mjx.paper.report_runs import check_evaluated, check_not_swept
 
 NO_EVALUATION = ("run.eval_episodes=0",)
@@ -14,6 +14,7 @@ CHECKS = {
     "fig7": lambda overrides: fig7.check(overrides),
     "fig8": lambda overrides: fig8.check(overrides),
     "fig11": lambda overrides: fig11.check(overrides),
+    "gates": lambda overrides: gates.check(overrides),
     "table1": lambda overrides: table1.check(("cartpole-swingup",), overrides),
     "table2": lambda overrides: table2.check(((4, 4), (2, 2)), overrides, 0),
 }

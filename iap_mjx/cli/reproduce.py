@@ -315,12 +315,45 @@ def _add_fig10(figures: Any) -> None:
     _add_results(parser)
 
 
+def _gates(args: argparse.Namespace) -> str:
+    from iap_mjx.paper import gates
+
+    return gates.reproduce_gates(
+        args.out,
+        seeds=args.seeds,
+        overrides=tuple(args.overrides),
+        episodes=args.episodes,
+        frames=args.frames,
+        train=not args.report_only,
+        results=args.results,
+        export=args.export,
+    )
+
+
+def _add_gates(figures: Any) -> None:
+    parser = _figure(
+        figures,
+        "gates",
+        "beyond the paper: the quadruped's gates corridor seen through depth",
+        "trains quadruped-gates-iap and -blind on --seeds seeds, evaluates each finished run on "
+        "--episodes corridors not seen in training (gates passed, contacts, falls, distance; IAP "
+        "also with its eyes closed), and draws IAP seed 0's depth patches along one corridor",
+        _gates,
+    )
+    parser.add_argument("--seeds", type=arguments.count, default=1, help="training seeds per preset (default 1)")
+    _add_episodes(parser, "per run, each on a corridor not seen in training")
+    parser.add_argument("--frames", type=arguments.count, default=6, help="frames of the strip (default 6)")
+    _add_results(parser)
+    _add_export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped-gates)")
+    _add_report_only(parser)
+
+
 def add_commands(commands: Any) -> None:
     """Adds ``reproduce`` and its one subcommand per figure to the ``iap-mjx`` subparsers."""
     repro = commands.add_parser(
         "reproduce",
         help="the paper's Figure 1, 6 (inference time vs return), 7 (patch sweep), 8 (wall-clock), "
-        "Table 1, or the quadruped's Figures 10, 11 and Table 2",
+        "Table 1, the quadruped's Figures 10, 11 and Table 2, or its gates corridor (beyond the paper)",
         description="Trains, evaluates and reports one of the paper's figures or tables; "
         "`iap-mjx reproduce FIGURE -h` lists that figure's options. Rerunning a command resumes "
         "it: finished runs are skipped, the others continue from their last checkpoint.",
@@ -333,3 +366,4 @@ def add_commands(commands: Any) -> None:
     _add_fig11(figures)
     _add_table2(figures)
     _add_fig10(figures)
+    _add_gates(figures)

@@ -10,5 +10,8 @@ its RESULTS.md section (``fig1_fig6``: PNG and JSON only):
 - :mod:`~iap_mjx.paper.fig10`, :mod:`~iap_mjx.paper.fig11`, :mod:`~iap_mjx.paper.table2`: the
   quadruped's course: what its IAP high level selects, IAP against a CNN and a blind policy,
   and the patch size and stride;
+- :mod:`~iap_mjx.paper.gates`: beyond the paper, the quadruped's gates corridor seen through
+  depth, IAP against the blind control;
+- :mod:`~iap_mjx.paper.courses`: the course reports' rows, summaries, eyes-closed table and figure;
 - :mod:`~iap_mjx.paper.evaluations`: evaluations of a checkpoint kept beside it.
 """

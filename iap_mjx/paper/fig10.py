@@ -71,6 +71,30 @@ def strip_name(policy: AttendingPolicy) -> str:
     return f"fig10-p{attention.patch_size}-s{attention.effective_stride}.png"
 
 
+def draw_strip(run_dir: Path, env: Env, policy: AttendingPolicy, path: Path, *, frames: int) -> tuple[Path, float]:
+    """The PNG strip at ``path`` of one episode of the run's latest centre (``env`` and
+    ``policy``: :func:`check`'s, built once): the episode of ``PRNGKey(EVAL_SEED)``, ``frames``
+    frames over it, the scene with the camera inset at ``video.STRIP_SCENE_SCALE``x and the
+    selected patches in red; returns the path and the episode's return."""
+    import jax
+
+    from iap_mjx import es
+    from iap_mjx.viz import video
+
+    result = es.load_run(run_dir, env=env, policy=policy)  # the ones check built
+    return video.episode_strip(
+        env,
+        policy,
+        result.params,
+        path,
+        key=jax.random.PRNGKey(EVAL_SEED),
+        steps=env.episode_length,
+        frames=frames,
+        obs_stats=result.obs_stats,
+        scale=video.STRIP_SCENE_SCALE,
+    )
+
+
 def reproduce_fig10(
     out_dir: str | Path,
     *,
@@ -81,9 +105,6 @@ def reproduce_fig10(
     """Writes one strip per run (default: :func:`default_runs` in ``out_dir``) into ``out_dir``
     and returns markdown with each image and its caption; ``results``: a markdown file whose
     ``fig10`` section is rewritten with it."""
-    import jax
-
-    from iap_mjx import es
     from iap_mjx.viz import video
 
     require_int("frames", frames)
@@ -95,18 +116,7 @@ def reproduce_fig10(
     out_dir.mkdir(parents=True, exist_ok=True)
     parts = []
     for (run_dir, (_, env, policy)), name in zip(checked.items(), names):
-        result = es.load_run(run_dir, env=env, policy=policy)  # the ones check built
-        path, episode_return = video.episode_strip(
-            env,
-            policy,
-            result.params,
-            out_dir / name,
-            key=jax.random.PRNGKey(EVAL_SEED),
-            steps=env.episode_length,
-            frames=frames,
-            obs_stats=result.obs_stats,
-            scale=video.STRIP_SCENE_SCALE,
-        )
+        path, episode_return = draw_strip(run_dir, env, policy, out_dir / name, frames=frames)
         attention = policy.layer.config
         parts.append(
             (

@@ -42,8 +42,8 @@ from iap_mjx.checks import require_int
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.envs.quadruped import QuadrupedWalls
 from iap_mjx.files import write_json
-from iap_mjx.paper.evaluations import evaluate_course, seed_means
-from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
+from iap_mjx.paper import courses
+from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set
 from iap_mjx.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -68,33 +68,6 @@ def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
         checked[label] = config
     check_evaluated("fig11", checked.values())
     return checked
-
-
-def run_row(
-    label: str,
-    config: configs.TrainConfig,
-    seed: int,
-    out_dir: Path,
-    *,
-    train: bool,
-    episodes: int,
-    export: Path | None = None,
-) -> dict[str, Any] | None:
-    """One run: its curve, env steps, seconds and (finished) its evaluation on fresh courses, a
-    seeing policy's also with its eyes closed (``"eyes_closed"``); with ``export``, its newest
-    checkpoint and files are copied to ``export/<preset>-seed<k>``."""
-    name = f"{POLICIES[label]}-seed{seed}"
-
-    def evaluate(run_dir: Path, step: int) -> dict[str, Any]:
-        courses = {"course": evaluate_course(run_dir, step, episodes=episodes)}
-        if label in SEEING:
-            courses["eyes_closed"] = evaluate_course(run_dir, step, episodes=episodes, eyes_closed=True)
-        return courses
-
-    reported = reported_run(
-        config, seed, out_dir / name, train=train, evaluate=evaluate, export=None if export is None else export / name
-    )
-    return None if reported is None else {"policy": label, "preset": POLICIES[label], **reported[0]}
 
 
 def reproduce_fig11(
@@ -130,12 +103,26 @@ def reproduce_fig11(
         row
         for seed in range(seeds)
         for label, config in checked.items()
-        if (row := run_row(label, config, seed, out_dir, train=train, episodes=episodes, export=export)) is not None
+        if (
+            row := courses.course_row(
+                label,
+                POLICIES[label],
+                config,
+                seed,
+                out_dir,
+                seeing=label in SEEING,
+                train=train,
+                episodes=episodes,
+                export=export,
+            )
+        )
+        is not None
     ]
     if not rows:
         raise ValueError(f"no fig11 runs in {out_dir} to report")
     summaries = {
-        label: summarise([row for row in rows if row["policy"] == label], parameters[label]) for label in POLICIES
+        label: courses.summarise([row for row in rows if row["policy"] == label], parameters[label], STATISTICS)
+        for label in POLICIES
     }
     write_json(out_dir / "fig11.json", {"parameters": parameters, "summaries": summaries, "rows": rows})
     png = plot(rows, summaries, out_dir / "fig11.png")
@@ -145,25 +132,6 @@ def reproduce_fig11(
             Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes, section=section
         )
     return markdown
-
-
-def summarise(rows: list[dict[str, Any]], parameters: int) -> dict[str, Any]:
-    """One policy's runs: its parameters, the per-seed means of the finished runs' evaluation
-    episodes (``"return"`` and each statistic: lists over finished seeds; a seeing policy's
-    also with its eyes closed, ``"eyes_closed"``, the same seeds in the same order), how many
-    finished, and the furthest run's iterations and env steps."""
-    done = [row for row in rows if row["finished"]]
-    names = ("return", *STATISTICS)
-    summary = {
-        "parameters": parameters,
-        "finished": len(done),
-        "iterations": max((row["iterations"] for row in rows), default=0),
-        "env_steps": max((row["env_steps"] for row in rows), default=0),
-        **seed_means(rows, "course", names),
-    }
-    if all("eyes_closed" in row for row in done):
-        summary["eyes_closed"] = seed_means(rows, "eyes_closed", names)
-    return summary
 
 
 def bars(summaries: dict[str, dict[str, Any]], *, seeds: int) -> list[str]:
@@ -212,66 +180,25 @@ def table(summaries: dict[str, dict[str, Any]], *, seeds: int) -> str:
             f"{mean_std(summary['wall_contacts'])} | {mean_std(summary['distance'], 2)} | "
             f"{summary['finished']} of {seeds} | {summary['iterations']} | {summary['env_steps']:,} |"
         )
-    return "\n".join([*lines, "", *eyes_closed_table(summaries), *bars(summaries, seeds=seeds)])
-
-
-def eyes_closed_table(summaries: dict[str, dict[str, Any]]) -> list[str]:
-    """Markdown lines (ending in a blank one; none before a seeing run has finished): each seeing
-    policy's final return and walls passed with its eyes open and closed on the same courses,
-    mean ± std over its finished seeds, and per seed what closing them changes."""
-    seeing = [label for label in SEEING if summaries[label]["finished"]]
-    if not seeing:
-        return []
-    lines = [
-        "With their eyes closed: the same final checkpoints on the same courses, the high level given a zeroed "
-        "image (the condition `policy.blind=true`, as the blind control sees it):",
-        "",
-        "| policy | final return, eyes open | eyes closed | walls passed per episode, eyes open | eyes closed | "
-        "walls passed, open minus closed, per seed |",
-        "|---|---:|---:|---:|---:|---|",
-    ]
-    for label in seeing:
-        summary, closed = summaries[label], summaries[label]["eyes_closed"]
-        gains = ", ".join(
-            f"{open_ - shut:+.2f}" for open_, shut in zip(summary["walls_passed"], closed["walls_passed"])
-        )
-        lines.append(
-            f"| {label} | {mean_std(summary['return'])} | {mean_std(closed['return'])} | "
-            f"{mean_std(summary['walls_passed'], 2)} | {mean_std(closed['walls_passed'], 2)} | {gains} |"
-        )
-    return [*lines, ""]
+    eyes_closed = courses.eyes_closed_table(summaries, SEEING, "walls_passed", "walls passed")
+    return "\n".join([*lines, "", *eyes_closed, *bars(summaries, seeds=seeds)])
 
 
 def plot(rows: list[dict[str, Any]], summaries: dict[str, dict[str, Any]], path: Path) -> Path:
-    """Left: each policy's evaluation return per ES iteration, mean and band over its seeds,
-    the parameter counts in the legend and title. Right: walls passed per episode on fresh
-    courses, mean ± std over finished seeds."""
-    from iap_mjx.viz.curves import plot_mean_band, save_png, subplots
-
-    fig, (curves, walls) = subplots(1, 2, figsize=(11, 4), gridspec_kw={"width_ratios": (2, 1)})
-    for label, summary in summaries.items():
-        runs = [row["curve"] for row in rows if row["policy"] == label]
-        if runs:
-            plot_mean_band(curves, runs, f"{label} ({summary['parameters']:,} parameters, {len(runs)} seeds)")
-    curves.set_xlabel("ES iteration (the centre at its start)")
-    curves.set_ylabel("evaluation return (m along the course)")
-    curves.set_title(
+    """Each policy's curves, the parameter counts in the title, and walls passed per episode on
+    fresh courses (:func:`iap_mjx.paper.courses.plot`)."""
+    title = (
         f"quadruped-walls: IAP {summaries['IAP']['parameters']:,} parameters, CNN {summaries['CNN']['parameters']:,}"
     )
-    curves.legend(fontsize="small")
-    labels = list(summaries)
-    walls.bar(
-        labels,
-        [np.mean(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0 for label in labels],
-        yerr=[
-            np.std(summaries[label]["walls_passed"]) if summaries[label]["walls_passed"] else 0.0 for label in labels
-        ],
-        capsize=4,
-        color=["tab:blue", "tab:orange", "tab:gray"],
+    return courses.plot(
+        rows,
+        summaries,
+        path,
+        title=title,
+        statistic="walls_passed",
+        what="walls passed",
+        colours=("tab:blue", "tab:orange", "tab:gray"),
     )
-    walls.set_ylabel("walls passed per episode (fresh courses)")
-    walls.set_title("finished runs, mean ± std over seeds")
-    return save_png(fig, path)
 
 
 def write_results(
