@@ -33,4 +33,5 @@ restore "$EXPORT/quadruped-turn" "$OUT/fig11-turn" "" "quadruped-walls-*"   # fi
 restore "$EXPORT/quadruped-turn" "$OUT/turn" "" "quadruped-turn-*"            # the run its low level came from
 restore "$EXPORT/quadruped-shared" "$OUT/fig11-shared"  # Figure 11 on shared courses (seed 0 began as a tuning run)
 restore "$EXPORT/quadruped-400" "$OUT/fig11-400"         # Figure 11's runs continued to 400 iterations
+restore "$EXPORT/quadruped-gates" "$OUT/gates"          # the gates corridor (reproduce gates)
 restore "$EXPORT/dcs-fs2" "$OUT/table1-fs2" dcs-         # Table 1 at its second setting (table1-fs2)

@@ -43,7 +43,7 @@ def test_start_skips_the_steps_before_it(tmp_path):
     skipped = ("fig7", "table2", "--tasks reacher-easy,ball_in_cup-catch,walker-walk")  # table1-rest's
     assert not any(word in call for call in calls for word in skipped)
     second = [i for i, call in enumerate(calls) if "--out " + str(tmp_path / "out" / "table1-fs2") in call]
-    gates = [i for i, call in enumerate(calls) if call.startswith("iap-mjx train quadruped-gates-blind")]
+    gates = [i for i, call in enumerate(calls) if call.startswith("iap-mjx reproduce gates ")]
     assert len(second) == 2 and len(gates) == 1 and gates[0] < second[0]  # gates, then Table 1's second setting
     assert "env.frame_stack=2 policy.with_patches=true" in calls[second[0]] and "--policy cnn" in calls[second[1]]
     assert "--section fig11-turn" in calls[-1]  # the last step ran: step fig11-turn's command again
