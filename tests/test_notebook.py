@@ -1,4 +1,5 @@
-"""The quickstart notebook runs top to bottom and shows a curve and a video.
+"""The quickstart notebook runs top to bottom and shows a curve, a video, distracted frames and a
+shipped trained policy's strip.
 
 Its budget (8 members, 60-step episodes, 2 evaluation episodes) is ``tests/test_first_run.py``'s,
 which runs first: the notebook's ES iteration and video load from the compilation cache.
@@ -49,6 +50,16 @@ def test_quickstart_notebook_executes(tmp_path, monkeypatch):
     ]
     (probe,) = notebook.cells[-1].outputs
     assert probe["text"].strip() == "True"  # Shardy, JAX's default, as a user's kernel runs it
-    assert len(images) == 3  # the reward curve, the episode, distracted first frames
+    assert len(images) == 4  # the reward curve, the episode, distracted first frames, the trained policy
     assert (tmp_path / "runs" / "notebook" / "episode.gif").stat().st_size > 1000
     assert (tmp_path / "runs" / "notebook" / "distracted.png").stat().st_size > 1000
+    # the shipped cheetah runs on a held-out background: its 20 evaluation episodes there score
+    # 75-299 (eval.json), an untrained policy 1-2 (RESULTS.md, the first run's first evaluation)
+    (returned,) = [line for line in _stdout(notebook.cells[-2]) if line.startswith("return over the episode")]
+    assert float(returned.split(": ")[1]) > 20
+    assert (tmp_path / "runs" / "notebook" / "trained-held-out.png").stat().st_size > 1000
+
+
+def _stdout(cell) -> list[str]:
+    """The lines a code cell printed."""
+    return [line for output in cell.outputs if output.get("name") == "stdout" for line in output["text"].splitlines()]
