@@ -55,7 +55,7 @@ def episodes(monkeypatch):
     def load_run(run_dir, *, env=None, policy=None):
         assert env is not None and policy is not None  # the ones fig10's check built, not built again
         config = configs.TrainConfig.from_dict(checkpoint.load_config(run_dir))
-        return types.SimpleNamespace(config=config, params="params", obs_stats=None)
+        return types.SimpleNamespace(config=config, env=env, policy=policy, params="params", obs_stats=None)
 
     def record_episode(env, policy, params, key, *, steps, obs_stats=None, program=None):
         assert params == "params" and steps == STEPS

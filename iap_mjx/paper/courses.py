@@ -19,9 +19,55 @@ from typing import Any
 import numpy as np
 
 from iap_mjx import configs
+from iap_mjx.files import write_json
 from iap_mjx.paper.evaluations import evaluate_course, seed_means
-from iap_mjx.paper.report_runs import reported_run
+from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set, reported_run
 from iap_mjx.sections import mean_std
+
+
+def check(report: str, presets: dict[str, str], overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
+    """``{label: config}``: each of ``presets`` (``{label: preset}``) with ``overrides``,
+    validated (env settings included) before anything compiles; ``report`` names the report in
+    the errors."""
+    from iap_mjx import envs
+
+    check_seed_not_set(report, overrides)
+    checked = {}
+    for label, preset in presets.items():
+        config = configs.apply_overrides(configs.get(preset), overrides)
+        envs.check_spec(config.env)
+        checked[label] = config
+    check_evaluated(report, checked.values())
+    return checked
+
+
+def report(
+    name: str,
+    checked: dict[str, configs.TrainConfig],
+    presets: dict[str, str],
+    seeing: tuple[str, ...],
+    statistics: tuple[str, ...],
+    out_dir: Path,
+    *,
+    seeds: int,
+    train: bool,
+    episodes: int,
+    export: Path | None,
+) -> tuple[list[dict[str, Any]], dict[str, dict[str, Any]]]:
+    """Report ``name``'s runs (:func:`course_rows`) and its per-policy summaries
+    (:func:`summaries` of ``statistics``, each policy's parameter count counted from its built
+    policy), also written to ``<out_dir>/<name>.json``; ``ValueError`` if no run has anything
+    to report yet."""
+    from iap_mjx import policies
+
+    parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = course_rows(checked, presets, seeing, out_dir, seeds=seeds, train=train, episodes=episodes, export=export)
+    if not rows:
+        raise ValueError(f"no {name} runs in {out_dir} to report")
+    summarised = summaries(rows, parameters, statistics)
+    write_json(out_dir / f"{name}.json", {"parameters": parameters, "summaries": summarised, "rows": rows})
+    return rows, summarised
 
 
 def course_row(
@@ -53,6 +99,49 @@ def course_row(
         config, seed, out_dir / name, train=train, evaluate=evaluate, export=None if export is None else export / name
     )
     return None if reported is None else {"policy": label, "preset": preset, **reported[0]}
+
+
+def course_rows(
+    checked: dict[str, configs.TrainConfig],
+    presets: dict[str, str],
+    seeing: tuple[str, ...],
+    out_dir: Path,
+    *,
+    seeds: int,
+    train: bool,
+    episodes: int,
+    export: Path | None,
+) -> list[dict[str, Any]]:
+    """:func:`course_row` of every policy (``checked``: :func:`check`'s) on seeds
+    ``0..seeds-1``, seed by seed so that the policies compare early; the runs with nothing to
+    report yet are left out."""
+    rows = []
+    for seed in range(seeds):
+        for label, config in checked.items():
+            row = course_row(
+                label,
+                presets[label],
+                config,
+                seed,
+                out_dir,
+                seeing=label in seeing,
+                train=train,
+                episodes=episodes,
+                export=export,
+            )
+            if row is not None:
+                rows.append(row)
+    return rows
+
+
+def summaries(
+    rows: list[dict[str, Any]], parameters: dict[str, int], statistics: tuple[str, ...]
+) -> dict[str, dict[str, Any]]:
+    """:func:`summarise` of each policy of ``parameters`` (``{label: parameter count}``)."""
+    return {
+        label: summarise([row for row in rows if row["policy"] == label], count, statistics)
+        for label, count in parameters.items()
+    }
 
 
 def summarise(rows: list[dict[str, Any]], parameters: int, statistics: tuple[str, ...]) -> dict[str, Any]:

@@ -74,25 +74,13 @@ def strip_name(policy: AttendingPolicy) -> str:
 def draw_strip(run_dir: Path, env: Env, policy: AttendingPolicy, path: Path, *, frames: int) -> tuple[Path, float]:
     """The PNG strip at ``path`` of one episode of the run's latest centre (``env`` and
     ``policy``: :func:`check`'s, built once): the episode of ``PRNGKey(EVAL_SEED)``, ``frames``
-    frames over it, the scene with the camera inset at ``video.STRIP_SCENE_SCALE``x and the
-    selected patches in red; returns the path and the episode's return."""
-    import jax
-
+    frames over it, the scene with the camera inset (``iap_mjx.viz.video.STRIP_SCENE_SCALE``x)
+    and the selected patches in red; returns the path and the episode's return."""
     from iap_mjx import es
-    from iap_mjx.viz import video
+    from iap_mjx.viz import artifacts
 
     result = es.load_run(run_dir, env=env, policy=policy)  # the ones check built
-    return video.episode_strip(
-        env,
-        policy,
-        result.params,
-        path,
-        key=jax.random.PRNGKey(EVAL_SEED),
-        steps=env.episode_length,
-        frames=frames,
-        obs_stats=result.obs_stats,
-        scale=video.STRIP_SCENE_SCALE,
-    )
+    return artifacts.write_strip(result, path, seed=EVAL_SEED, frames=frames)
 
 
 def reproduce_fig10(

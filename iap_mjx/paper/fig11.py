@@ -41,9 +41,7 @@ from iap_mjx import configs
 from iap_mjx.checks import require_int
 from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.envs.quadruped import QuadrupedWalls
-from iap_mjx.files import write_json
 from iap_mjx.paper import courses
-from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set
 from iap_mjx.sections import check_section_name, mean_std, reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -58,16 +56,7 @@ SECTION = "fig11"  # the RESULTS.md section and experiments/ folder written by d
 
 def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
     """Every policy's config, validated (env settings included) before anything compiles."""
-    from iap_mjx import envs
-
-    check_seed_not_set("fig11", overrides)
-    checked = {}
-    for label, preset in POLICIES.items():
-        config = configs.apply_overrides(configs.get(preset), overrides)
-        envs.check_spec(config.env)
-        checked[label] = config
-    check_evaluated("fig11", checked.values())
-    return checked
+    return courses.check("fig11", POLICIES, overrides)
 
 
 def reproduce_fig11(
@@ -92,39 +81,20 @@ def reproduce_fig11(
     require_int("episodes", episodes)
     require_int("seeds", seeds)
     check_section_name(section, "fig11-turn")
-    from iap_mjx import policies
-
     checked = check(tuple(overrides))
-    parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    export = None if export is None else Path(export)
-    rows = [
-        row
-        for seed in range(seeds)
-        for label, config in checked.items()
-        if (
-            row := courses.course_row(
-                label,
-                POLICIES[label],
-                config,
-                seed,
-                out_dir,
-                seeing=label in SEEING,
-                train=train,
-                episodes=episodes,
-                export=export,
-            )
-        )
-        is not None
-    ]
-    if not rows:
-        raise ValueError(f"no fig11 runs in {out_dir} to report")
-    summaries = {
-        label: courses.summarise([row for row in rows if row["policy"] == label], parameters[label], STATISTICS)
-        for label in POLICIES
-    }
-    write_json(out_dir / "fig11.json", {"parameters": parameters, "summaries": summaries, "rows": rows})
+    rows, summaries = courses.report(
+        "fig11",
+        checked,
+        POLICIES,
+        SEEING,
+        STATISTICS,
+        out_dir,
+        seeds=seeds,
+        train=train,
+        episodes=episodes,
+        export=None if export is None else Path(export),
+    )
     png = plot(rows, summaries, out_dir / "fig11.png")
     markdown = table(summaries, seeds=seeds)
     if results is not None:

@@ -36,7 +36,6 @@ from iap_mjx.configs.training import EVAL_SEED
 from iap_mjx.envs.quadruped_gates import QuadrupedGates
 from iap_mjx.files import write_json
 from iap_mjx.paper import courses
-from iap_mjx.paper.report_runs import built_policies, check_evaluated, check_seed_not_set
 from iap_mjx.sections import mean_std, reproduce_command, tracked_copy, write_results_section
 
 logger = logging.getLogger(__name__)
@@ -51,16 +50,7 @@ STRIP = "gates-strip"  # the strip's PNG and JSON in the output folder
 
 def check(overrides: tuple[str, ...]) -> dict[str, configs.TrainConfig]:
     """Every policy's config, validated (env settings included) before anything compiles."""
-    from iap_mjx import envs
-
-    check_seed_not_set(SECTION, overrides)
-    checked = {}
-    for label, preset in POLICIES.items():
-        config = configs.apply_overrides(configs.get(preset), overrides)
-        envs.check_spec(config.env)
-        checked[label] = config
-    check_evaluated(SECTION, checked.values())
-    return checked
+    return courses.check(SECTION, POLICIES, overrides)
 
 
 def reproduce_gates(
@@ -84,44 +74,25 @@ def reproduce_gates(
     require_int("episodes", episodes)
     require_int("seeds", seeds)
     require_int("frames", frames)
-    from iap_mjx import policies
-
     checked = check(tuple(overrides))
-    parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    export = None if export is None else Path(export)
-    rows = [
-        row
-        for seed in range(seeds)
-        for label, config in checked.items()
-        if (
-            row := courses.course_row(
-                label,
-                POLICIES[label],
-                config,
-                seed,
-                out_dir,
-                seeing=label in SEEING,
-                train=train,
-                episodes=episodes,
-                export=export,
-            )
-        )
-        is not None
-    ]
-    if not rows:
-        raise ValueError(f"no gates runs in {out_dir} to report")
-    summaries = {
-        label: courses.summarise([row for row in rows if row["policy"] == label], parameters[label], STATISTICS)
-        for label in POLICIES
-    }
-    write_json(out_dir / "gates.json", {"parameters": parameters, "summaries": summaries, "rows": rows})
+    rows, summaries = courses.report(
+        "gates",
+        checked,
+        POLICIES,
+        SEEING,
+        STATISTICS,
+        out_dir,
+        seeds=seeds,
+        train=train,
+        episodes=episodes,
+        export=None if export is None else Path(export),
+    )
     png = courses.plot(
         rows,
         summaries,
         out_dir / "gates.png",
-        title=f"quadruped-gates from depth: IAP and blind, {parameters['IAP']:,} parameters each",
+        title=f"quadruped-gates from depth: IAP and blind, {summaries['IAP']['parameters']:,} parameters each",
         statistic="gates_passed",
         what="gates passed",
         colours=("tab:blue", "tab:gray"),
