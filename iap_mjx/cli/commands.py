@@ -289,7 +289,7 @@ def _add_train(commands: Any) -> None:
         "train",
         help="train a preset",
         description="Train PRESET with key=value overrides (e.g. es.population_size=128 "
-        "iterations=50 policy.hidden_sizes=64,64). Re-running with the same "
+        "run.iterations=50 es.sigma=0.05). Re-running with the same "
         "--run-dir resumes from its latest checkpoint; Ctrl-C saves one.",
     )
     train.add_argument("preset", help="a name from `iap-mjx presets`")
