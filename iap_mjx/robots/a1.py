@@ -145,9 +145,20 @@ def _leg(leg: str) -> str:
       </body>"""
 
 
-def robot_xml() -> tuple[str, str, str, str]:
-    """The robot's ``<default>``, ``<body>`` (named ``trunk``, free joint), actuators and
-    sensors, as MJCF fragments to splice into a world (see :func:`world_xml`)."""
+TRACK_CAMERA = 'pos="-0.6 -1.6 0.7" xyaxes="0.94 -0.34 0 0.12 0.34 0.93" fovy="50"'
+"""The ``track`` camera (videos and strips; no policy sees it): its offset from the robot's
+centre of mass and its world-fixed orientation (``mode="trackcom"``), behind the robot on its
+right and above it, the platform's edge and the walls ahead in view."""
+CORRIDOR_TRACK_CAMERA = 'pos="-1.8 -0.2 1.3" xyaxes="0.06 -1 0 0.38 0.02 0.93" fovy="55"'
+"""The ``track`` camera in the gates corridor: behind the robot and high, looking down the
+corridor over the robot to the gate ahead; from the side, as :data:`TRACK_CAMERA` sits, the
+corridor's side wall would hide the robot and the gates."""
+
+
+def robot_xml(track_camera: str = TRACK_CAMERA) -> tuple[str, str, str, str]:
+    """The robot's ``<default>``, ``<body>`` (named ``trunk``, free joint; its ``track`` camera
+    placed by ``track_camera``, MJCF attributes), actuators and sensors, as MJCF fragments to
+    splice into a world (see :func:`world_xml`)."""
     sx, sy, sz = TRUNK_HALF_SIZE
     ix, iy, iz = TRUNK_INERTIA
     defaults = f"""
@@ -168,7 +179,7 @@ def robot_xml() -> tuple[str, str, str, str]:
       <geom name="trunk" type="box" size="{sx:g} {sy:g} {sz:g}" rgba="0.85 0.55 0.15 1"/>
       <site name="imu" pos="0 0 0"/>
       <camera name="eye" pos="{sx + 0.01:g} 0 0.02" xyaxes="0 -1 0 0 0 1" fovy="70"/>
-      <camera name="track" mode="trackcom" pos="-0.6 -1.6 0.7" xyaxes="0.94 -0.34 0 0.12 0.34 0.93" fovy="50"/>
+      <camera name="track" mode="trackcom" {track_camera}/>
       {"".join(_leg(leg) for leg in LEGS)}
     </body>"""
     actuators = "\n".join(
@@ -281,7 +292,9 @@ def corridor_xml(
     contacts.append(
         _mocap_box("clutter_contact", (1.5, 0.0, clutter_half_size[2]), clutter_half_size, CLUTTER_RGB, colliding=True)
     )
-    return _model_xml(0.0, (GROUND_BIT, 0), "\n".join([sides, *gates, *clutter, *contacts]))
+    return _model_xml(
+        0.0, (GROUND_BIT, 0), "\n".join([sides, *gates, *clutter, *contacts]), track_camera=CORRIDOR_TRACK_CAMERA
+    )
 
 
 def _mocap_box(
@@ -309,10 +322,11 @@ def _mocap_box(
     )
 
 
-def _model_xml(floor_z: float, floor_bits: tuple[int, int], world: str) -> str:
+def _model_xml(floor_z: float, floor_bits: tuple[int, int], world: str, *, track_camera: str = TRACK_CAMERA) -> str:
     """The whole MJCF around ``world`` (MJCF lines of the world's geoms and bodies, spliced
-    between the floor plane at ``floor_z`` with contact bits ``floor_bits`` and the robot)."""
-    defaults, body, actuators, sensors = robot_xml()
+    between the floor plane at ``floor_z`` with contact bits ``floor_bits`` and the robot, its
+    ``track`` camera placed by ``track_camera``)."""
+    defaults, body, actuators, sensors = robot_xml(track_camera)
     return f"""
 <mujoco model="a1_class_quadruped">
   <compiler angle="radian" autolimits="true"/>
