@@ -70,7 +70,7 @@ def report(
     return rows, summarised
 
 
-def course_row(
+def _course_row(
     label: str,
     preset: str,
     config: configs.TrainConfig,
@@ -112,13 +112,13 @@ def course_rows(
     episodes: int,
     export: Path | None,
 ) -> list[dict[str, Any]]:
-    """:func:`course_row` of every policy (``checked``: :func:`check`'s) on seeds
+    """:func:`_course_row` of every policy (``checked``: :func:`check`'s) on seeds
     ``0..seeds-1``, seed by seed so that the policies compare early; the runs with nothing to
     report yet are left out."""
     rows = []
     for seed in range(seeds):
         for label, config in checked.items():
-            row = course_row(
+            row = _course_row(
                 label,
                 presets[label],
                 config,

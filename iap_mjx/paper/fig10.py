@@ -52,7 +52,7 @@ def check(run_dirs: tuple[Path, ...]) -> dict[Path, tuple[configs.TrainConfig, E
     checked = {}
     for run_dir in run_dirs:
         if checkpoint.latest_step(run_dir) is None:
-            raise ValueError(f"{run_dir}: no checkpoint (train it first: iap-mjx reproduce table2)")
+            raise ValueError(f"{run_dir}: no checkpoint (train it first)")
         config = trained_config(run_dir)  # as es.load_run reads it below
         env, policy = make_env_and_policy(config)
         if config.policy.kind != "hierarchical" or not attends(policy):
