@@ -17,7 +17,7 @@ def fake_run(
     """Iterations ``1..iterations`` with evaluation returns ``returns[i - 1]`` (and the
     population's best ``population_max[i - 1]``, default the same), 2 s each after a 30 s
     compile, 1000 env steps per iteration; then checkpoint ``iterations``."""
-    writer = MetricsWriter(run_dir, None, tensorboard=False)
+    writer = MetricsWriter(run_dir, 0, tensorboard=False)
     best = returns if population_max is None else population_max
     for i in range(1, iterations + 1):
         writer.write(

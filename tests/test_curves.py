@@ -7,7 +7,7 @@ from iap_mjx.viz import curves
 
 
 def test_curve_from_the_runs_history(tmp_path, monkeypatch):
-    writer = MetricsWriter(tmp_path, resume_from=None, tensorboard=False)
+    writer = MetricsWriter(tmp_path, resume_from=0, tensorboard=False)
     for i, eval_return in ((1, 1.5), (2, None), (3, 3.5)):
         row = {"iteration": i, "return_mean": float(i), "return_max": i + 1.0, "return_min": i - 0.5}
         if eval_return is not None:

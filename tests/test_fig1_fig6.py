@@ -69,7 +69,7 @@ def test_report_only_reads_rows_up_to_the_last_checkpoint_and_trains_nothing(tmp
     config = configs.get("cheetah-run-pixels")
     run_dir = tmp_path / "cheetah-run-pixels-seed0"
     assert report_runs.trained_curve(config, 0, run_dir, train=False) is None  # nothing there yet
-    writer = MetricsWriter(run_dir, None, tensorboard=False)
+    writer = MetricsWriter(run_dir, 0, tensorboard=False)
     for i in range(1, 5):  # iteration 4 ran but the run was killed before its checkpoint
         writer.write({"iteration": i, "eval_return": 10.0 * i, "run_s": 2.0, "compile_s": 30.0})
     checkpoint.save(run_dir, 3, {"x": np.zeros(2)}, config.to_dict())

@@ -20,7 +20,7 @@ ITERATIONS = ("run.iterations=3",)
 def _fake_run(out, kernel, patch, returns):
     config = configs.apply_overrides(configs.get(fig8.PRESET), (*ITERATIONS, *fig8.variant_overrides(kernel, patch)))
     run_dir = out / f"{fig8.variant_name(kernel, patch)}-seed0"
-    writer = MetricsWriter(run_dir, None, tensorboard=False)
+    writer = MetricsWriter(run_dir, 0, tensorboard=False)
     for i, value in enumerate(returns, start=1):
         writer.write({"iteration": i, "eval_return": value, "run_s": 99.0, "compile_s": 99.0, "env_steps": 1000 * i})
     checkpoint.save(run_dir, len(returns), {"x": np.zeros(2)}, config.to_dict())

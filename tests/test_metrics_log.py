@@ -12,7 +12,7 @@ def rows(n):
 
 
 def test_truncated_last_line_is_dropped_and_resume_rewrites_the_files(tmp_path):
-    writer = MetricsWriter(tmp_path, None, tensorboard=False)
+    writer = MetricsWriter(tmp_path, 0, tensorboard=False)
     for row in rows(4):
         writer.write(row)
     writer.close()
@@ -44,7 +44,7 @@ def test_an_envs_episode_statistics_get_their_columns_and_keep_them_on_resume(tm
     at = COLUMNS.index("contact_saturated_episodes") + 1
     assert columns[at : at + 4] == ("walls_passed_mean", "eval_walls_passed", "distance_mean", "eval_distance")
     assert tuple(c for c in columns if c not in columns[at : at + 4]) == COLUMNS and metric_columns() == COLUMNS
-    writer = MetricsWriter(tmp_path, None, tensorboard=False, columns=columns)
+    writer = MetricsWriter(tmp_path, 0, tensorboard=False, columns=columns)
     for i in (1, 2):
         writer.write({"iteration": i, "walls_passed_mean": 0.5 * i, "eval_distance": 1.5})
     writer.close()

@@ -189,7 +189,7 @@ class Reporter:
             write_config(run_dir, config.to_dict())
         columns = metric_columns(episode_metric_names(parts.env))
         writer = (
-            MetricsWriter(run_dir, start if start else None, config.run.tensorboard, columns=columns)
+            MetricsWriter(run_dir, start, config.run.tensorboard, columns=columns)
             if run_dir is not None and primary
             else None
         )

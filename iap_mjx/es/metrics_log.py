@@ -132,24 +132,22 @@ def parse_evaluation_key(key: str) -> tuple[str, int, int, int]:
 
 
 class MetricsWriter:
-    """Appends rows to the run's metrics files; on resume, drops rows past the checkpoint
-    (``resume_from``; ``None``: a fresh start, no row kept) and keeps the others in ``kept``."""
+    """Appends rows to the run's metrics files; drops the rows past iteration ``resume_from``
+    (a resumed run's checkpoint; 0 on a fresh start, where no row is kept, as iterations count
+    from 1) and keeps the others in ``kept``."""
 
-    def __init__(
-        self, run_dir: str | Path, resume_from: int | None, tensorboard: bool, columns: tuple[str, ...] = COLUMNS
-    ):
+    def __init__(self, run_dir: str | Path, resume_from: int, tensorboard: bool, columns: tuple[str, ...] = COLUMNS):
         self.columns = tuple(columns)
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        self.kept = read_history(self.run_dir, up_to=resume_from if resume_from is not None else -1)
+        self.kept = read_history(self.run_dir, up_to=resume_from)
         self._rewrite(self.kept)
         self._tb = None
         if tensorboard:
             from tensorboardX import SummaryWriter
 
-            self._tb = SummaryWriter(
-                str(self.run_dir / "tensorboard"), purge_step=(resume_from + 1 if resume_from is not None else None)
-            )
+            # TensorBoard hides the events at steps past the checkpoint, written before the kill
+            self._tb = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=resume_from + 1)
 
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         """Both files anew, each written aside and renamed over the old one: a kill mid-write
