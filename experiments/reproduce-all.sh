@@ -132,7 +132,7 @@ if step fig11-400; then
 fi
 # beyond the paper (issue 24): the gates corridor seen through depth, IAP and the blind control,
 # one seed each, evaluated on 20 unseen corridors (IAP also eyes closed), and IAP's strip of depth
-# frames with the selected patches; before Table 1's second setting: two runs (about 1.5 hours)
+# frames with the selected patches; before Table 1's second setting: two runs (about 2 hours)
 # against that table's eighteen (about a day), and the last runs issue 24 asks for
 if step gates; then
     run reproduce gates --seeds 1 --episodes 20 --out "$OUT/gates" --export "$EXPORT/quadruped-gates"
