@@ -22,7 +22,7 @@ from test_es_envs import PointMass
 
 from iap_mjx.configs import EnvSpec, ESConfig, PolicySpec, RunConfig, TrainConfig
 from iap_mjx.es import train
-from iap_mjx.es.results import evaluate_run
+from iap_mjx.es.results import evaluate_run, evaluate_run_episodes
 
 TESTS = Path(__file__).resolve().parent
 
@@ -135,6 +135,41 @@ def test_evaluate_run_repeats_the_trainings_own_evaluation(tmp_path):
     assert returns.std() == pytest.approx(rows[3]["eval_return_std"], rel=1e-4, abs=1e-5)
     other = evaluate_run(tmp_path, episodes=config.run.eval_episodes, seed=config.run.seed + 1, env=env)
     assert abs(other.mean() - rows[3]["eval_return"]) > 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class StartPointMass(PointMass):
+    """``PointMass`` that reports each episode's start ``x`` (drawn from the episode's key
+    alone, whatever the policy) as an episode metric."""
+
+    episode_metrics = ("start_x",)
+
+    def reset(self, key):
+        state = super().reset(key)
+        return state.replace(metrics={"start_x": state.data["pos"][0]})
+
+    def step(self, state, action):
+        return super().step(state, action).replace(metrics=state.metrics)
+
+
+def test_evaluate_run_episodes_of_another_checkpoint(tmp_path):
+    """``episodes_of=k`` draws the episodes of checkpoint ``k``'s evaluation, whichever checkpoint's
+    parameters play them: the checkpoint after 6 iterations on the episodes of the one after 3
+    starts every episode where the checkpoint after 3 does, and not where its own do."""
+    import shutil
+
+    env = StartPointMass()
+    config = small_config()
+    train(config, env=env, run_dir=tmp_path, progress=False)
+    late = evaluate_run_episodes(tmp_path, episodes=5, env=env)
+    late_on_early = evaluate_run_episodes(tmp_path, episodes=5, env=env, episodes_of=3)
+    shutil.rmtree(tmp_path / "checkpoints" / "6")  # the latest is now the checkpoint after 3
+    early = evaluate_run_episodes(tmp_path, episodes=5, env=env)
+    np.testing.assert_array_equal(late_on_early["start_x"], early["start_x"])
+    assert not np.any(late["start_x"] == early["start_x"])
+    assert not np.allclose(late_on_early["return"], early["return"])  # other parameters, same starts
+    with pytest.raises(ValueError, match="episodes_of must be an int >= 0"):
+        evaluate_run_episodes(tmp_path, episodes=5, env=env, episodes_of=-1)
 
 
 def test_nan_episodes_are_counted_and_do_not_poison_the_update():

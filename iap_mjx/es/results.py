@@ -154,11 +154,12 @@ def evaluate_run(
     overrides: Sequence[str] = (),
     env: Env | None = None,
     policy: Policy | None = None,
+    episodes_of: int | None = None,
 ) -> np.ndarray:
     """The ``(episodes,)`` returns of :func:`evaluate_run_episodes` (same arguments)."""
-    return evaluate_run_episodes(run_dir, episodes=episodes, seed=seed, overrides=overrides, env=env, policy=policy)[
-        "return"
-    ]
+    return evaluate_run_episodes(
+        run_dir, episodes=episodes, seed=seed, overrides=overrides, env=env, policy=policy, episodes_of=episodes_of
+    )["return"]
 
 
 def evaluate_run_episodes(
@@ -169,6 +170,7 @@ def evaluate_run_episodes(
     overrides: Sequence[str] = (),
     env: Env | None = None,
     policy: Policy | None = None,
+    episodes_of: int | None = None,
 ) -> dict[str, np.ndarray]:
     """A run's latest checkpointed centre params evaluated on fresh seeds, not the training
     seeds: ``{"return": (episodes,), name: (episodes,) ...}``, one entry for each of the env's
@@ -178,7 +180,9 @@ def evaluate_run_episodes(
     The episodes' keys are split from ``fold_in(fold_in(PRNGKey(seed), EVAL_STREAM),
     iteration)``, ``iteration`` the checkpoint's, as the training's own evaluation draws them.
     Runs evaluated with one ``seed`` at one iteration (Figure 11's finished runs) see the same
-    episodes; another checkpoint of the same run sees others. The default ``seed`` is the
+    episodes; another checkpoint of the same run sees others, unless ``episodes_of`` names the
+    iteration whose episodes to draw instead (checkpoints of 200 and 400 iterations, both
+    evaluated with ``episodes_of=200``, are compared on the same episodes). The default ``seed`` is the
     paper's tables' (:data:`EVAL_SEED`), so a finished run's evaluation here repeats the one
     its ``eval.json`` keeps. A video's ``--seed k`` episode (``PRNGKey(k)`` itself) is none of
     them.
@@ -196,6 +200,7 @@ def evaluate_run_episodes(
         that do not fit the policy on the condition's observations.
     """
     require_int("episodes", episodes)
+    require_int("episodes_of", episodes_of, 0, none_ok=True)
     check_condition(overrides)  # before the run is read: a setting no condition may change
     config = apply_condition(trained_config(run_dir), overrides)
     if env is None:
@@ -210,6 +215,8 @@ def evaluate_run_episodes(
             raise
         raise ValueError(f"{error}; here the condition {' '.join(overrides)}: {_KEEP_SHAPES}") from None
     state = state.replace(key=jax.random.PRNGKey(seed))
+    if episodes_of is not None:  # the centre's parameters do not depend on the iteration count; the keys do
+        state = state.replace(iteration=jnp.asarray(episodes_of, state.iteration.dtype))
     # replicated out: the episodes are sharded over the devices, and ``distributed.to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
     results = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=parts.replicated)(state)
