@@ -14,7 +14,10 @@ sides and gaps) are drawn per episode from the episode's reset key
 (``QuadrupedWalls._place_world``), and the evaluation's keys derive from
 :data:`iap_mjx.configs.training.EVAL_SEED`, which no training run uses; a course is a draw of
 continuous positions, so none of them is, but for probability zero, a course trained on.
-Evaluations are stored in the run directory (``eval.json``,
+The keys also fold in the checkpoint's iteration, as the training's own evaluations do: runs of
+one budget share their courses, and two budgets' reports (``run.iterations=200`` and ``400``)
+are on different ones; ``iap_mjx.es.evaluate_run_episodes(..., episodes_of=200)`` plays a later
+checkpoint on the earlier courses (``experiments/fig11_same_courses.py``). Evaluations are stored in the run directory (``eval.json``,
 :func:`iap_mjx.paper.evaluations.evaluate_course`), so a report reads them instead of evaluating
 again.
 
