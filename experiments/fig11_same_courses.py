@@ -6,7 +6,7 @@ courses than the 200-iteration report did. The rule in RESULTS.md (``fig11-analy
 the same courses at both budgets: this script evaluates each run's latest checkpoint on the
 episodes of iteration ``--episodes-of`` (``es.evaluate_run_episodes(..., episodes_of=...)``),
 eyes open and, for the seeing policies, closed (``policy.blind=true``), prints Figure 11's table
-and bars on them (``iap_mjx.paper.fig11.table``) and, with ``--out``, writes the per-episode
+and bars on them (``courses.summaries`` and ``fig11.table``, as the report) and, with ``--out``, writes the per-episode
 numbers as JSON.
 
     python experiments/fig11_same_courses.py pretrained/quadruped-400 --out experiments/fig11-400/same-courses.json
@@ -30,7 +30,7 @@ from iap_mjx import es  # noqa: E402
 from iap_mjx.configs.training import EVAL_SEED  # noqa: E402
 from iap_mjx.es import checkpoint  # noqa: E402
 from iap_mjx.es.metrics_log import read_history  # noqa: E402
-from iap_mjx.paper import fig11  # noqa: E402
+from iap_mjx.paper import courses, fig11  # noqa: E402
 
 STATISTICS = ("return", *fig11.STATISTICS)
 
@@ -54,33 +54,26 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="a JSON file for the per-episode numbers")
     args = parser.parse_args()
 
-    episodes, summaries = {}, {}
+    rows, parameters = [], {}
     for label, preset in fig11.POLICIES.items():
-        per_seed = {name: [] for name in STATISTICS}
-        closed_per_seed = {name: [] for name in STATISTICS}
         for seed in range(args.seeds):
             run = args.runs / f"{preset}-seed{seed}"
-            opened = evaluate(run, episodes=args.episodes, episodes_of=args.episodes_of, eyes_closed=False)
-            episodes[f"{run.name}/course"] = opened
-            for name in STATISTICS:
-                per_seed[name].append(float(np.mean(opened[name])))
+            last = read_history(run)[-1]
+            parameters[label] = int(last["parameters"])
+            row = {"policy": label, "run": run.name, "finished": True, "iterations": checkpoint.latest_step(run)}
+            row["env_steps"] = int(last["env_steps"])
+            row["course"] = evaluate(run, episodes=args.episodes, episodes_of=args.episodes_of, eyes_closed=False)
             if label in fig11.SEEING:
-                closed = evaluate(run, episodes=args.episodes, episodes_of=args.episodes_of, eyes_closed=True)
-                episodes[f"{run.name}/course-eyes-closed"] = closed
-                for name in STATISTICS:
-                    closed_per_seed[name].append(float(np.mean(closed[name])))
-        last = read_history(run)[-1]
-        summaries[label] = {
-            "parameters": int(last["parameters"]),
-            "finished": args.seeds,
-            "iterations": checkpoint.latest_step(run),
-            "env_steps": int(last["env_steps"]),
-            **per_seed,
-            **({"eyes_closed": closed_per_seed} if label in fig11.SEEING else {}),
-        }
+                row["eyes_closed"] = evaluate(
+                    run, episodes=args.episodes, episodes_of=args.episodes_of, eyes_closed=True
+                )
+            rows.append(row)
+    summaries = courses.summaries(rows, parameters, fig11.STATISTICS)
     print(f"Courses of iteration {args.episodes_of} ({args.episodes} episodes, seed {EVAL_SEED}):\n")
     print(fig11.table(summaries, seeds=args.seeds))
     if args.out is not None:
+        names = {"course": "course", "eyes_closed": "course-eyes-closed"}  # the JSON's names: eval.json's
+        episodes = {f"{row['run']}/{name}": row[entry] for row in rows for entry, name in names.items() if entry in row}
         args.out.write_text(json.dumps({"episodes_of": args.episodes_of, "episodes": episodes}, indent=1) + "\n")
 
 
