@@ -11,11 +11,16 @@ after another:
 - the hierarchical policies (``quadruped-walls-iap``, ``-cnn``, ``-blind``): the camera
   (24x32), the high level every step, the latent held, the low level.
 
+With ``--course gates`` the same on the gates corridor (``quadruped-gates``, beyond the paper): the
+low level alone on the corridor is the baseline, beside ``quadruped-gates-iap`` (depth patches) and
+``quadruped-gates-blind``; it writes the ``hierarchy-gates`` section.
+
 Steady state is the median over the iterations after the first; compile is the first
 iteration's, with the persistent compilation cache off (every program compiled). Ratios are
 taken between programs of the same run.
 
     python benchmarks/hierarchy.py                 # ~10 min; writes the hierarchy section of BENCHMARKS.md
+    python benchmarks/hierarchy.py --course gates  # ~7 min; the hierarchy-gates section
     python benchmarks/hierarchy.py --no-write      # print only
 """
 
@@ -36,13 +41,30 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import report  # noqa: E402
 
 BASELINE = "low level alone, course"
-PROGRAMS = (
-    ("low level alone, flat", "quadruped-flat-pmtg", ()),
-    (BASELINE, "quadruped-flat-pmtg", ("env.name=quadruped-walls",)),
-    ("hierarchical, IAP high level", "quadruped-walls-iap", ()),
-    ("hierarchical, CNN high level", "quadruped-walls-cnn", ()),
-    ("hierarchical, blind high level", "quadruped-walls-blind", ()),
-)
+# per course: its BENCHMARKS.md section, its heading's name for it, and (label, preset, overrides)
+# of every program; the one labelled BASELINE is the ratios' denominator
+COURSES = {
+    "walls": (
+        "hierarchy",
+        "the course",
+        (
+            ("low level alone, flat", "quadruped-flat-pmtg", ()),
+            (BASELINE, "quadruped-flat-pmtg", ("env.name=quadruped-walls",)),
+            ("hierarchical, IAP high level", "quadruped-walls-iap", ()),
+            ("hierarchical, CNN high level", "quadruped-walls-cnn", ()),
+            ("hierarchical, blind high level", "quadruped-walls-blind", ()),
+        ),
+    ),
+    "gates": (
+        "hierarchy-gates",
+        "the gates corridor",
+        (
+            (BASELINE, "quadruped-flat-pmtg", ("env.name=quadruped-gates",)),
+            ("hierarchical, IAP high level (depth)", "quadruped-gates-iap", ()),
+            ("hierarchical, blind high level", "quadruped-gates-blind", ()),
+        ),
+    ),
+}
 
 
 def work(job: dict) -> dict:
@@ -101,6 +123,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--iterations", type=int, default=4, help="ES iterations per program (>= 2)")
+    parser.add_argument("--course", choices=sorted(COURSES), default="walls", help="the course the programs run on")
     parser.add_argument("--output", type=Path, default=report.ROOT / "BENCHMARKS.md")
     parser.add_argument("--no-write", action="store_true")
     args = parser.parse_args()
@@ -113,12 +136,13 @@ def main() -> int:
     from iap_mjx import runtime
 
     runtime.set_host_device_count()  # as the workers do, so that machine_line() names their devices
+    section, course_name, programs = COURSES[args.course]
     common = (f"run.iterations={args.iterations}", "run.checkpoint_every=0", "run.tensorboard=false")
     started = time.perf_counter()
     load_before = os.getloadavg()[0]
     rows = [
         (label, preset, run_job({"preset": preset, "overrides": [*overrides, *common]}))
-        for label, preset, overrides in PROGRAMS
+        for label, preset, overrides in programs
     ]
     total_s = time.perf_counter() - started
     body = table(rows)
@@ -127,12 +151,13 @@ def main() -> int:
     if args.no_write:
         return 0
     command = "python benchmarks/hierarchy.py" + (f" --iterations {args.iterations}" if args.iterations != 4 else "")
+    command += f" --course {args.course}" if args.course != "walls" else ""
     first = rows[0][2]
     report.write_section(
         args.output,
-        "hierarchy",
+        section,
         (
-            "## The hierarchical quadruped policies on the course vs the PMTG low level alone\n\n"
+            f"## The hierarchical quadruped policies on {course_name} vs the PMTG low level alone\n\n"
             f"Measured on {report.machine_line()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
             f"{total_s / 60:.0f} min in all, the machine otherwise idle (1-min load average "
             f"{load_before:.1f} before, {os.getloadavg()[0]:.1f} after). Command: `{command}`.\n\n"
@@ -141,7 +166,7 @@ def main() -> int:
             "s / iteration and env steps/s are the medians over the iterations after the first (every "
             "simulated control step: the population's episodes and the centre's evaluation); compile is "
             "the first iteration's with the persistent compilation cache off. Flat episodes last 500 "
-            "control steps, the course's 1,000, so env steps/s is the figure that compares.\n\n" + body
+            "control steps, the courses' 1,000, so env steps/s is the figure that compares.\n\n" + body
         ),
     )
     return 0
