@@ -129,6 +129,8 @@ if step fig11-400; then
         [ -e "$OUT/fig11-400/$(basename "$d")" ] || cp -r "$d" "$OUT/fig11-400/"
     done
     run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400" --export "$EXPORT/quadruped-400"
+    # the bars' reading (RESULTS.md, fig11-400-analysis): the same runs on the 200-iteration report's courses
+    run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400" --courses-of 200 --report-only
 fi
 # beyond the paper (issue 24): the gates corridor seen through depth, IAP and the blind control,
 # one seed each, evaluated on 20 unseen corridors (IAP also eyes closed), and IAP's strip of depth

@@ -44,13 +44,16 @@ def evaluations(monkeypatch):
     """Recorded calls; run (policy, seed) of ``RUNS`` gives per episode returns ``base -+ 2``,
     walls passed ``w + 1, w`` alternately, one fall in four, ``3 + seed`` wall contacts and
     ``base / 2`` metres; with its eyes closed (``policy.blind=true``) ``base - 4 - seed``
-    and ``w - seed``."""
+    and ``w - seed``; on another iteration's episodes (``episodes_of``, recorded as a fifth
+    entry), ``base + 100``."""
     calls = []
 
-    def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=()):
-        calls.append((run_dir.name, episodes, seed, tuple(overrides)))
+    def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=(), episodes_of=None):
+        call = (run_dir.name, episodes, seed, tuple(overrides))
+        calls.append(call if episodes_of is None else (*call, episodes_of))
         policy, run_seed = run_dir.name.split("-")[2], int(run_dir.name[-1])
         base, walls = RUNS[policy, run_seed]
+        base += 0.0 if episodes_of is None else 100.0
         if tuple(overrides) == EYES_CLOSED_OVERRIDES:
             base, walls = base - 4.0 - run_seed, walls - run_seed
         alternate = np.arange(episodes) % 2
@@ -79,9 +82,14 @@ def test_bad_input_fails_before_anything_runs(tmp_path, capsys):
         fig11.reproduce_fig11(tmp_path, seeds=0)
     with pytest.raises(ValueError, match="section = 'Fig 11' must be lower-case letters"):
         fig11.reproduce_fig11(tmp_path, section="Fig 11")
+    with pytest.raises(ValueError, match="courses_of must be an int >= 0"):
+        fig11.reproduce_fig11(tmp_path, courses_of=-1)
     assert not list(tmp_path.iterdir())
     assert cli.main(["reproduce", "fig11", "policy.kernl=relu", "--out", str(tmp_path)]) == 2
     assert "kernl" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["reproduce", "fig11", "--courses-of", "-1", "--out", str(tmp_path)])
+    assert "--courses-of: must be >= 0, got -1" in capsys.readouterr().err
 
 
 def test_finished_runs_are_evaluated_once_and_reported_with_the_bars(tmp_path, evaluations):
@@ -225,3 +233,48 @@ def test_a_second_experiment_writes_its_own_section_beside_the_first(tmp_path, e
     assert "![fig11-turn](experiments/fig11-turn/fig11.png)" in text and "--section fig11-turn --out" in text
     assert (tmp_path / "experiments" / "fig11-turn" / "fig11.png").stat().st_size > 0
     assert not (tmp_path / "experiments" / "fig11").exists()
+
+
+def test_courses_of_another_iteration_plays_the_runs_on_that_reports_courses(tmp_path, evaluations):
+    """``--courses-of 2``: every finished run (3 iterations) is evaluated on iteration 2's
+    episodes, eyes open and closed, stored under its own ``eval.json`` keys beside the run's own
+    courses, reported in ``fig11-courses-of-2.json`` and a section whose command says so; the
+    report on the runs' own courses is left as it was. ``--courses-of 3``, the checkpoint's own
+    iteration, is the plain report."""
+    out = tmp_path / "out"
+    for policy in POLICIES_RUN:
+        _run(out, policy, 0)
+    args = ["reproduce", "fig11", *ITERATIONS, "--seeds", "1", "--episodes", "2", "--report-only", "--out", str(out)]
+    assert cli.main(args) == 0
+    own = (out / "fig11.json").read_text()
+    assert len(evaluations) == 5 and all(len(call) == 4 for call in evaluations)
+
+    results = tmp_path / "RESULTS.md"
+    results.write_text("# Results\n")
+    section = ["--results", str(results), "--section", "fig11-on-2"]
+    assert cli.main([*args, "--courses-of", "2", *section]) == 0
+    assert sorted(evaluations[5:]) == [
+        (f"quadruped-walls-{policy}-seed0", 2, EVAL_SEED, condition, 2)
+        for policy, conditions in (
+            ("blind", ((),)),
+            ("cnn", ((), EYES_CLOSED_OVERRIDES)),
+            ("iap", ((), EYES_CLOSED_OVERRIDES)),
+        )
+        for condition in conditions
+    ]
+    stored = json.loads((out / "quadruped-walls-iap-seed0" / EVAL_FILE).read_text())
+    assert stored["course-of2@3x2s2021"]["return"] == [118.0, 122.0]  # base 20 + 100, -+ 2
+    assert stored["course@3x2s2021"]["return"] == [18.0, 22.0]
+    assert stored["course-eyes-closed-of2@3x2s2021"]["return"] == [114.0, 118.0]
+    assert (out / "fig11.json").read_text() == own
+    other = json.loads((out / "fig11-courses-of-2.json").read_text())
+    assert other["summaries"]["IAP"]["return"] == [120.0] and other["summaries"]["blind"]["return"] == [108.0]
+    assert (out / "fig11-courses-of-2.png").stat().st_size > 0
+    text = results.read_text()
+    assert "--courses-of 2 --section fig11-on-2 --out" in text
+    assert "keys of seed 2021 and iteration 2: the courses of a 2-iteration checkpoint's report" in text
+    assert "![fig11-on-2](experiments/fig11-on-2/fig11-courses-of-2.png)" in text
+
+    assert cli.main([*args, "--courses-of", "2"]) == 0
+    assert cli.main([*args, "--courses-of", "3"]) == 0
+    assert len(evaluations) == 10  # both read back from eval.json: iteration 3's courses are the runs' own

@@ -227,6 +227,7 @@ def _fig11(args: argparse.Namespace) -> str:
         results=args.results,
         export=args.export,
         section=args.section,
+        courses_of=args.courses_of,
     )
 
 
@@ -245,6 +246,14 @@ def _add_fig11(figures: Any) -> None:
     _add_export(parser, "DIR/<preset>-seed<k> (e.g. pretrained/quadruped)")
     _add_section(parser, "fig11", "", "fig11-turn")
     _add_report_only(parser)
+    parser.add_argument(
+        "--courses-of",
+        type=arguments.index,
+        default=None,
+        metavar="ITERATION",
+        help="evaluate on the courses of an ITERATION-iteration checkpoint (e.g. 200: another budget's report), "
+        "not each checkpoint's own; writes fig11-courses-of-ITERATION.json/.png",
+    )
 
 
 def _table2(args: argparse.Namespace) -> str:

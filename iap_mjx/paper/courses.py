@@ -53,16 +53,28 @@ def report(
     train: bool,
     episodes: int,
     export: Path | None,
+    courses_of: int | None = None,
 ) -> tuple[list[dict[str, Any]], dict[str, dict[str, Any]]]:
     """Report ``name``'s runs (:func:`course_rows`) and its per-policy summaries
     (:func:`summaries` of ``statistics``, each policy's parameter count counted from its built
     policy), also written to ``<out_dir>/<name>.json``; ``ValueError`` if no run has anything
-    to report yet."""
+    to report yet. ``courses_of``: the iteration whose evaluation courses every finished run
+    plays (default: its own checkpoint's)."""
     from iap_mjx import policies
 
     parameters = {label: policies.init_param_count(policy) for label, policy in built_policies(checked).items()}
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = course_rows(checked, presets, seeing, out_dir, seeds=seeds, train=train, episodes=episodes, export=export)
+    rows = course_rows(
+        checked,
+        presets,
+        seeing,
+        out_dir,
+        seeds=seeds,
+        train=train,
+        episodes=episodes,
+        export=export,
+        courses_of=courses_of,
+    )
     if not rows:
         raise ValueError(f"no {name} runs in {out_dir} to report")
     summarised = summaries(rows, parameters, statistics)
@@ -81,18 +93,21 @@ def _course_row(
     train: bool,
     episodes: int,
     export: Path | None = None,
+    courses_of: int | None = None,
 ) -> dict[str, Any] | None:
     """Policy ``label``'s run of ``config`` (``preset`` with the report's overrides) with
     ``seed`` in ``out_dir/<preset>-seed<k>``: its curve, env steps, seconds and (finished) its
     evaluation on ``episodes`` fresh courses (``"course"``), with ``seeing`` also with its eyes
-    closed (``"eyes_closed"``); with ``export``, its newest checkpoint and files are copied to
+    closed (``"eyes_closed"``), on iteration ``courses_of``'s courses if given; with ``export``, its newest checkpoint and files are copied to
     ``export/<preset>-seed<k>``. ``None`` while the run has no iteration to report."""
     name = f"{preset}-seed{seed}"
 
     def evaluate(run_dir: Path, step: int) -> dict[str, Any]:
-        courses = {"course": evaluate_course(run_dir, step, episodes=episodes)}
+        courses = {"course": evaluate_course(run_dir, step, episodes=episodes, courses_of=courses_of)}
         if seeing:
-            courses["eyes_closed"] = evaluate_course(run_dir, step, episodes=episodes, eyes_closed=True)
+            courses["eyes_closed"] = evaluate_course(
+                run_dir, step, episodes=episodes, eyes_closed=True, courses_of=courses_of
+            )
         return courses
 
     reported = reported_run(
@@ -111,6 +126,7 @@ def course_rows(
     train: bool,
     episodes: int,
     export: Path | None,
+    courses_of: int | None = None,
 ) -> list[dict[str, Any]]:
     """:func:`_course_row` of every policy (``checked``: :func:`check`'s) on seeds
     ``0..seeds-1``, seed by seed so that the policies compare early; the runs with nothing to
@@ -128,6 +144,7 @@ def course_rows(
                 train=train,
                 episodes=episodes,
                 export=export,
+                courses_of=courses_of,
             )
             if row is not None:
                 rows.append(row)

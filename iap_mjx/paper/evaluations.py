@@ -77,20 +77,29 @@ def evaluate_conditions(
     }
 
 
-def evaluate_course(run_dir: Path, step: int, *, episodes: int, eyes_closed: bool = False) -> dict[str, list[float]]:
+def evaluate_course(
+    run_dir: Path, step: int, *, episodes: int, eyes_closed: bool = False, courses_of: int | None = None
+) -> dict[str, list[float]]:
     """``{"return": (episodes,), statistic: (episodes,) ...}`` (lists) of the quadruped run's
     checkpoint ``step`` on fresh courses (with ``eyes_closed``, the same courses, its high level
-    given a zeroed image), ``episodes`` episodes drawn from :data:`EVAL_SEED`; read from
-    ``eval.json`` where stored, evaluated (and stored) otherwise. Figure 11's and Table 2's."""
+    given a zeroed image), ``episodes`` episodes drawn from :data:`EVAL_SEED` and the checkpoint's
+    iteration, or with ``courses_of`` from iteration ``courses_of``'s (the courses another budget's
+    report played: ``es.evaluate_run_episodes(..., episodes_of=...)``); read from ``eval.json``
+    where stored (under its own key when ``courses_of`` is another iteration), evaluated (and
+    stored) otherwise. Figure 11's and Table 2's."""
     from iap_mjx import es
 
     condition = EYES_CLOSED_OVERRIDES if eyes_closed else ()
+    other = courses_of is not None and courses_of != step
 
     def evaluate() -> dict[str, list[float]]:
-        results = es.evaluate_run_episodes(run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition)
+        results = es.evaluate_run_episodes(
+            run_dir, episodes=episodes, seed=EVAL_SEED, overrides=condition, episodes_of=courses_of if other else None
+        )
         return {name: [float(value) for value in values] for name, values in results.items()}
 
-    key = eval_key(EYES_CLOSED_KEY if eyes_closed else COURSE_KEY, step, episodes)
+    name = EYES_CLOSED_KEY if eyes_closed else COURSE_KEY
+    key = eval_key(f"{name}-of{courses_of}" if other else name, step, episodes)
     return stored_evaluation(run_dir, key, episodes, evaluate)
 
 

@@ -16,10 +16,11 @@ sides and gaps) are drawn per episode from the episode's reset key
 continuous positions, so none of them is, but for probability zero, a course trained on.
 The keys also fold in the checkpoint's iteration, as the training's own evaluations do: runs of
 one budget share their courses, and two budgets' reports (``run.iterations=200`` and ``400``)
-are on different ones; ``iap_mjx.es.evaluate_run_episodes(..., episodes_of=200)`` plays a later
-checkpoint on the earlier courses (``experiments/fig11_same_courses.py``). Evaluations are stored in the run directory (``eval.json``,
-:func:`iap_mjx.paper.evaluations.evaluate_course`), so a report reads them instead of evaluating
-again.
+are on different ones; ``courses_of=200`` (``--courses-of 200``) plays the later checkpoints on the
+earlier courses (``iap_mjx.es.evaluate_run_episodes(..., episodes_of=200)``) and writes
+``fig11-courses-of-200.json`` / ``.png`` beside the report on the runs' own courses. Evaluations are
+stored in the run directory (``eval.json``, :func:`iap_mjx.paper.evaluations.evaluate_course`),
+so a report reads them instead of evaluating again.
 
 The seeing policies (IAP, CNN) are also evaluated with their eyes closed: the same checkpoint on
 the same courses, its high level given a zeroed image (``policy.blind=true``, as the blind
@@ -72,6 +73,7 @@ def reproduce_fig11(
     results: str | Path | None = None,
     export: str | Path | None = None,
     section: str = SECTION,
+    courses_of: int | None = None,
 ) -> str:
     """Trains (``train=False``: only reads) every policy on ``seeds`` seeds, seed by seed so that
     the policies compare early, evaluates the finished runs on ``episodes`` fresh courses each,
@@ -80,14 +82,19 @@ def reproduce_fig11(
     name keeps a second experiment, e.g. from another low level, beside the first) is rewritten
     with it, its figure copied to ``experiments/<section>/``;
     ``export``: a folder (e.g. ``pretrained/quadruped``, tracked by git) that receives each run's
-    newest checkpoint, config and metrics as ``<preset>-seed<k>``, finished or not."""
+    newest checkpoint, config and metrics as ``<preset>-seed<k>``, finished or not;
+    ``courses_of``: the iteration whose evaluation courses the finished runs play (default: their
+    own checkpoint's), to compare two budgets on the same courses; the JSON and PNG are then
+    ``fig11-courses-of-<k>.*``."""
     require_int("episodes", episodes)
     require_int("seeds", seeds)
+    require_int("courses_of", courses_of, minimum=0, none_ok=True)
     check_section_name(section, "fig11-turn")
     checked = check(tuple(overrides))
     out_dir = Path(out_dir)
+    stem = "fig11" if courses_of is None else f"fig11-courses-of-{courses_of}"
     rows, summaries = courses.report(
-        "fig11",
+        stem,
         checked,
         POLICIES,
         SEEING,
@@ -97,12 +104,20 @@ def reproduce_fig11(
         train=train,
         episodes=episodes,
         export=None if export is None else Path(export),
+        courses_of=courses_of,
     )
-    png = plot(rows, summaries, out_dir / "fig11.png")
+    png = plot(rows, summaries, out_dir / f"{stem}.png")
     markdown = table(summaries, seeds=seeds)
     if results is not None:
         write_results(
-            Path(results), markdown, png, seeds=seeds, overrides=tuple(overrides), episodes=episodes, section=section
+            Path(results),
+            markdown,
+            png,
+            seeds=seeds,
+            overrides=tuple(overrides),
+            episodes=episodes,
+            section=section,
+            courses_of=courses_of,
         )
     return markdown
 
@@ -183,18 +198,27 @@ def write_results(
     overrides: tuple[str, ...],
     episodes: int,
     section: str = SECTION,
+    courses_of: int | None = None,
 ) -> None:
     """Section ``section`` of ``path``: the command, the figure and the table."""
     options = [*overrides, f"--seeds {seeds}", f"--episodes {episodes}"]
+    options += [f"--courses-of {courses_of}"] if courses_of is not None else []
     command = reproduce_command(
         "fig11", options + ([f"--section {section}"] if section != SECTION else []), out=png.parent, results=path
+    )
+    drawn = (
+        f"seed {EVAL_SEED} and the checkpoint's iteration"
+        if courses_of is None
+        else (
+            f"seed {EVAL_SEED} and iteration {courses_of}: the courses of a {courses_of}-iteration checkpoint's report"
+        )
     )
     title = "Figure 11" if section == SECTION else f"Figure 11 (`{section}`)"
     body = (
         f"## {title}: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
         f"Command: `{command}`. Curves: the centre's evaluation return at each ES iteration's start, mean "
         f"and std over seeds. Table: each finished run's final centre on {episodes} evaluation episodes of "
-        f"courses not seen in training (walls drawn per episode from keys of seed {EVAL_SEED}); per policy "
+        f"courses not seen in training (walls drawn per episode from keys of {drawn}); per policy "
         f"the mean ± std over seeds of the per-seed means.\n\n![{section}]({tracked_copy(png, path, section)})\n\n"
         f"{markdown}\n"
     )
