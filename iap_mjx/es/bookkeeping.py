@@ -18,6 +18,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from iap_mjx.compiling import lower_afresh
 from iap_mjx.configs.training import OPEN_ES, ESConfig, RunConfig, TrainConfig
 from iap_mjx.es import checkpoint, distributed
 from iap_mjx.es.components import Components, TrainState, init_state
@@ -110,7 +111,7 @@ class CompiledCalls:
             )
             start = time.perf_counter()
             call = jax.jit(make_train_call(self.parts, count), out_shardings=self.parts.replicated)
-            self.programs[count] = call.lower(state).compile()
+            self.programs[count] = lower_afresh(call, state).compile()
             seconds = time.perf_counter() - start
             logger.info("compiled in %.0f s", seconds)
             self.seconds += seconds

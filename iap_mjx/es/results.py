@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from iap_mjx.checks import require_int
+from iap_mjx.compiling import lower_afresh
 from iap_mjx.configs.overrides import apply_condition, check_condition
 from iap_mjx.configs.training import EVAL_SEED, TrainConfig
 from iap_mjx.es import checkpoint, distributed
@@ -219,5 +220,6 @@ def evaluate_run_episodes(
         state = state.replace(iteration=jnp.asarray(episodes_of, state.iteration.dtype))
     # replicated out: the episodes are sharded over the devices, and ``distributed.to_host`` reads one
     # device's copy, which would otherwise hold only that device's share of the episodes
-    results = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=parts.replicated)(state)
+    evaluate = jax.jit(make_centre_evaluation(parts, episodes), out_shardings=parts.replicated)
+    results = lower_afresh(evaluate, state).compile()(state)
     return distributed.to_host(results)

@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from iap_mjx.compiling import lower_afresh
+
 if TYPE_CHECKING:  # viz is handed envs and policies built: it imports neither package at load
     from iap_mjx.envs.base import Env
     from iap_mjx.policies.base import Policy
@@ -131,7 +133,7 @@ def compile_episode_program(env: Env, policy: Policy, *, steps: int, obs_stats: 
     from a background thread while something else compiles or trains."""
     params = jax.eval_shape(policy.init, jax.random.PRNGKey(0))
     stats = None if obs_stats is None else jax.eval_shape(lambda: obs_stats)
-    return episode_program(env, policy, steps=steps).lower(params, stats, jax.random.PRNGKey(0)).compile()
+    return lower_afresh(episode_program(env, policy, steps=steps), params, stats, jax.random.PRNGKey(0)).compile()
 
 
 def record_episode(
