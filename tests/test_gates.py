@@ -38,7 +38,8 @@ def evaluations(monkeypatch):
     passed ``g - 1`` on the first corridor of every pair, ``g`` on the second, return ``base - 2``."""
     calls = []
 
-    def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=()):
+    def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=(), episodes_of=None):
+        assert episodes_of is None  # every run is evaluated on its own checkpoint's episodes
         calls.append((run_dir.name, episodes, seed, tuple(overrides)))
         policy, run_seed = run_dir.name.split("-")[2], int(run_dir.name[-1])
         base, passed = RUNS[policy, run_seed]

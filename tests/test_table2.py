@@ -33,7 +33,8 @@ def evaluations(monkeypatch):
     and returns 3 m a wall passed, 1 m more on odd courses."""
     calls = []
 
-    def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=()):
+    def evaluate_run_episodes(run_dir, *, episodes, seed, overrides=(), episodes_of=None):
+        assert episodes_of is None  # every run is evaluated on its own checkpoint's episodes
         calls.append((run_dir.name, episodes, seed, tuple(overrides)))
         alternate = np.arange(episodes) % 2
         walls = WALLS[run_dir.name.rsplit("-", 1)[0]] - 0.5 + alternate
