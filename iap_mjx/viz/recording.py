@@ -155,7 +155,7 @@ def record_episode(
       counts (up to the one that ends it); the program runs all ``steps``, ended or not.
     """
     if program is None:
-        program = episode_program(env, policy, steps=steps)
+        program = compile_episode_program(env, policy, steps=steps, obs_stats=obs_stats)
     record = jax.tree_util.tree_map(np.asarray, program(params, obs_stats, key))
     return {**record, "alive": record["alive"] > 0}
 
