@@ -98,8 +98,9 @@ def _course_row(
     """Policy ``label``'s run of ``config`` (``preset`` with the report's overrides) with
     ``seed`` in ``out_dir/<preset>-seed<k>``: its curve, env steps, seconds and (finished) its
     evaluation on ``episodes`` fresh courses (``"course"``), with ``seeing`` also with its eyes
-    closed (``"eyes_closed"``), on iteration ``courses_of``'s courses if given; with ``export``, its newest checkpoint and files are copied to
-    ``export/<preset>-seed<k>``. ``None`` while the run has no iteration to report."""
+    closed (``"eyes_closed"``), on iteration ``courses_of``'s courses if given; with ``export``,
+    its newest checkpoint and files are copied to ``export/<preset>-seed<k>``. ``None`` while
+    the run has no iteration to report."""
     name = f"{preset}-seed{seed}"
 
     def evaluate(run_dir: Path, step: int) -> dict[str, Any]:

@@ -206,13 +206,11 @@ def write_results(
     command = reproduce_command(
         "fig11", options + ([f"--section {section}"] if section != SECTION else []), out=png.parent, results=path
     )
-    drawn = (
-        f"seed {EVAL_SEED} and the checkpoint's iteration"
-        if courses_of is None
-        else (
+    drawn = f"seed {EVAL_SEED} and the checkpoint's iteration"
+    if courses_of is not None:
+        drawn = (
             f"seed {EVAL_SEED} and iteration {courses_of}: the courses of a {courses_of}-iteration checkpoint's report"
         )
-    )
     title = "Figure 11" if section == SECTION else f"Figure 11 (`{section}`)"
     body = (
         f"## {title}: the quadruped on the walled course, IAP against a CNN and a blind high level\n\n"
