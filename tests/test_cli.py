@@ -226,6 +226,44 @@ def test_an_unknown_option_is_refused_by_its_commands_parser_naming_the_options_
     assert "error: unrecognized arguments: --tasks cartpole-swingup\n" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["eval", "run", "--episodes", "20", "env.distraction=none"], ["env.distraction=none"]),
+        (
+            ["eval", "run", "env.dynamic=true", "--seed", "3", "env.background_videos=val"],
+            ["env.dynamic=true", "env.background_videos=val"],
+        ),
+        (
+            ["train", "p", "--run-dir", "d", "run.iterations=3", "--no-progress", "es.sigma=0.1"],
+            ["run.iterations=3", "es.sigma=0.1"],
+        ),
+        (["reproduce", "table1", "a=1", "--seeds", "2", "b=2", "--report-only", "a=3"], ["a=1", "b=2", "a=3"]),
+    ],
+)
+def test_overrides_typed_after_an_option_join_the_others_in_the_order_typed(argv, expected):
+    args, unknown = cli.parse(cli.build_parser(), argv)
+    assert unknown == [] and args.overrides == expected
+
+
+def test_an_evaluation_condition_typed_after_the_episodes_reaches_the_evaluation(monkeypatch, capsys):
+    from iap_mjx import es
+
+    seen = {}
+
+    def evaluate(run_dir, *, episodes, seed, overrides):
+        seen.update(run_dir=run_dir, episodes=episodes, overrides=overrides)
+        raise FileNotFoundError("stop here")
+
+    monkeypatch.setattr(es, "evaluate_run_episodes", evaluate)
+    assert cli.main(["eval", "some-run", "--episodes", "20", "env.background_videos=val"]) == 2
+    assert seen == {"run_dir": "some-run", "episodes": 20, "overrides": ("env.background_videos=val",)}
+    # an unknown option among them is still refused, by the command's own parser
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["eval", "some-run", "--episodes", "20", "--bogus", "env.background_videos=val"])
+    assert exit_.value.code == 2 and "unrecognized arguments: --bogus" in capsys.readouterr().err
+
+
 def test_reproduce_parses_each_figures_options_and_overrides_before_or_after_them():
     parser = cli.build_parser()
     args = parser.parse_args(["reproduce", "table1", "--seeds", "2", "run.iterations=3", "--tasks", "a, b"])

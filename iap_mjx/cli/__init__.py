@@ -34,11 +34,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def is_override(word: str) -> bool:
+    """Whether a command-line word is a ``key=value`` override (not an option, which starts with ``-``)."""
+    return "=" in word and not word.startswith("-")
+
+
+def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> tuple[argparse.Namespace, list[str]]:
+    """``parser.parse_known_args(argv)``, with overrides taken wherever they stand among the
+    options: argparse fills a command's trailing ``key=value ...`` list from its first run of
+    words only (``eval RUN --episodes 20 env.distraction=none`` leaves the override over), so
+    the ``key=value`` words it leaves join that list, in the order typed. Returns the parsed
+    arguments and the words still not understood."""
+    args, unknown = parser.parse_known_args(argv)
+    overrides = getattr(args, "overrides", None)
+    if overrides is not None and unknown and all(is_override(word) for word in unknown):
+        args.overrides = [*overrides, *unknown]
+        unknown = []
+    return args, unknown
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: sets up devices and the compilation cache, then runs the command."""
     runtime.setup()
     parser = build_parser()
-    args, unknown = parser.parse_known_args(argv)
+    args, unknown = parse(parser, argv)
     if unknown:  # refused by the command's own parser, whose usage lists the options it takes
         # an unknown option's value lands among the overrides: named with it, as the user typed it
         stray = [item for item in getattr(args, "overrides", None) or () if "=" not in item]
