@@ -131,6 +131,8 @@ if step fig11-400; then
     run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400" --export "$EXPORT/quadruped-400"
     # the bars' reading (RESULTS.md, fig11-400-analysis): the same runs on the 200-iteration report's courses
     run reproduce fig11 run.iterations=400 --seeds 3 --episodes 20 --out "$OUT/fig11-400" --courses-of 200 --report-only
+    # the same runs on 100 courses (RESULTS.md, fig11-400-100-reading), exported beside the others
+    run reproduce fig11 run.iterations=400 --seeds 3 --episodes 100 --out "$OUT/fig11-400" --section fig11-400-100 --export "$EXPORT/quadruped-400" --report-only
 fi
 # beyond the paper (issue 24): the gates corridor seen through depth, IAP and the blind control,
 # one seed each, evaluated on 20 unseen corridors (IAP also eyes closed), and IAP's strip of depth
