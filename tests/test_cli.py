@@ -258,10 +258,14 @@ def test_an_evaluation_condition_typed_after_the_episodes_reaches_the_evaluation
     monkeypatch.setattr(es, "evaluate_run_episodes", evaluate)
     assert cli.main(["eval", "some-run", "--episodes", "20", "env.background_videos=val"]) == 2
     assert seen == {"run_dir": "some-run", "episodes": 20, "overrides": ("env.background_videos=val",)}
-    # an unknown option among them is still refused, by the command's own parser
+    # an unknown option among them is still refused, by the command's own parser, named alone
     with pytest.raises(SystemExit) as exit_:
         cli.main(["eval", "some-run", "--episodes", "20", "--bogus", "env.background_videos=val"])
-    assert exit_.value.code == 2 and "unrecognized arguments: --bogus" in capsys.readouterr().err
+    assert exit_.value.code == 2 and "error: unrecognized arguments: --bogus\n" in capsys.readouterr().err
+    # a command without overrides takes none, wherever typed: fig10 draws trained runs as they are
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["reproduce", "fig10", "--frames", "4", "run.iterations=3"])
+    assert exit_.value.code == 2 and "error: unrecognized arguments: run.iterations=3\n" in capsys.readouterr().err
 
 
 def test_reproduce_parses_each_figures_options_and_overrides_before_or_after_them():

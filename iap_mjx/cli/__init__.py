@@ -43,13 +43,14 @@ def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> tuple[argp
     """``parser.parse_known_args(argv)``, with overrides taken wherever they stand among the
     options: argparse fills a command's trailing ``key=value ...`` list from its first run of
     words only (``eval RUN --episodes 20 env.distraction=none`` leaves the override over), so
-    the ``key=value`` words it leaves join that list, in the order typed. Returns the parsed
-    arguments and the words still not understood."""
+    in a command that takes overrides the ``key=value`` words it leaves join that list, in the
+    order typed. Returns the parsed arguments and the words still not understood (an unknown
+    option, without the overrides around it)."""
     args, unknown = parser.parse_known_args(argv)
     overrides = getattr(args, "overrides", None)
-    if overrides is not None and unknown and all(is_override(word) for word in unknown):
-        args.overrides = [*overrides, *unknown]
-        unknown = []
+    if overrides is not None:
+        args.overrides = [*overrides, *(word for word in unknown if is_override(word))]
+        unknown = [word for word in unknown if not is_override(word)]
     return args, unknown
 
 
