@@ -278,3 +278,5 @@ def test_courses_of_another_iteration_plays_the_runs_on_that_reports_courses(tmp
     assert cli.main([*args, "--courses-of", "2"]) == 0
     assert cli.main([*args, "--courses-of", "3"]) == 0
     assert len(evaluations) == 10  # both read back from eval.json: iteration 3's courses are the runs' own
+    plain = json.loads((out / "fig11-courses-of-3.json").read_text())
+    assert plain["summaries"] == json.loads(own)["summaries"]  # the runs' own courses: the plain report's numbers
