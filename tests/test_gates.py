@@ -8,6 +8,7 @@ written by hand, the evaluation is a recorder and the strip a stand-in PNG."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -151,6 +152,29 @@ def test_finished_runs_are_evaluated_once_and_reported_with_the_paired_differenc
     stored = json.loads((tmp_path / "gates.json").read_text())
     assert stored["parameters"] == {"IAP": 617, "blind": 617} and len(stored["rows"]) == 3
     assert (tmp_path / "gates.png").stat().st_size > 0
+
+    # both seeds finished (the fixture's RUNS): means and seed-stds over two seeds, a paired line a seed
+    shutil.rmtree(tmp_path / "quadruped-gates-iap-seed1")
+    _run(tmp_path, "iap", 1)
+    _run(tmp_path, "blind", 1)
+    lines = gates.reproduce_gates(tmp_path, seeds=2, overrides=ITERATIONS, episodes=4, frames=3, train=False)
+    lines = lines.splitlines()
+    # IAP: returns 6 and 8, gates 1.5 and 2.5, contact steps 2 and 3, distance 6 and 8
+    assert lines[2] == (
+        "| IAP (`quadruped-gates-iap`) | 617 | 7.0 ± 1.0 | 2.00 ± 0.50 | 2.5 ± 0.5 | 0.25 ± 0.00 | 0.50 ± 0.00 | "
+        "7.00 ± 1.00 | 2 of 2 | 3 | 3,000 |"
+    )
+    assert lines[3] == (
+        "| blind (`quadruped-gates-blind`) | 617 | 3.5 ± 0.5 | 0.50 ± 0.00 | 2.5 ± 0.5 | 0.25 ± 0.00 | "
+        "0.50 ± 0.00 | 3.50 ± 0.50 | 2 of 2 | 3 | 3,000 |"
+    )
+    # eyes closed: returns 4 and 6, gates 0.5 and 1.5; each seed's differences 2, 0, 2, 0
+    assert lines[9] == "| IAP | 7.0 ± 1.0 | 5.0 ± 1.0 | 2.00 ± 0.50 | 1.00 ± 0.50 | +1.00, +1.00 |"
+    assert lines[-2:] == [
+        f"- IAP seed {seed}: gates passed per corridor, eyes open minus closed on the same 4 corridors: +1.00 "
+        "(SE 0.58; +1.7 SE)."
+        for seed in (0, 1)
+    ]
 
 
 def test_no_strip_until_iap_seed_0_has_finished(tmp_path, evaluations, strips):

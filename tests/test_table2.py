@@ -115,10 +115,13 @@ def test_table_reports_maximum_returns_unseen_courses_patches_and_commands(tmp_p
     _run(tmp_path, (4, 4), [5.0, 9.0, 7.0])
     markdown = table2.reproduce_table2(tmp_path, overrides=ITERATIONS, train=False, episodes=4)
     lines = markdown.splitlines()
+    # parameters: 873 at 4x4 (worked out in test_hierarchical), less W_Q's and W_K's 4 columns
+    # for each of the 3 * (16 - p^2) inputs a smaller patch drops
+    p1, p2 = (873 - 2 * 4 * 3 * (16 - p * p) for p in (1, 2))
     assert lines[2:5] == [
-        f"| 1 | 1 | 768 | 513 | 12.0 | 3.0 | 0.50 | 2.00 | 3 | 36 | `iap-mjx train quadruped-walls-iap "
+        f"| 1 | 1 | 768 | {p1} | 12.0 | 3.0 | 0.50 | 2.00 | 3 | 36 | `iap-mjx train quadruped-walls-iap "
         f"run.iterations=3 policy.patch_size=1 policy.stride=1 run.seed=0 --run-dir {tmp_path}/table2-p1-s1-seed0` |",
-        f"| 2 | 2 | 192 | 585 | 6.0 | 2.0 |  |  | 2 (running) | 34 | `iap-mjx train quadruped-walls-iap "
+        f"| 2 | 2 | 192 | {p2} | 6.0 | 2.0 |  |  | 2 (running) | 34 | `iap-mjx train quadruped-walls-iap "
         f"run.iterations=3 policy.patch_size=2 policy.stride=2 run.seed=0 --run-dir {tmp_path}/table2-p2-s2-seed0` |",
         f"| 4 | 4 | 48 | 873 | 9.0 | 3.0 | 1.00 | 3.50 | 3 | 36 | `iap-mjx train quadruped-walls-iap "
         f"run.iterations=3 run.seed=0 --run-dir {tmp_path}/quadruped-walls-iap-seed0` |",
