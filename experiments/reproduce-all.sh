@@ -8,7 +8,9 @@
 #   bash experiments/reproduce-all.sh            # from the repository's root, in its venv
 #
 # On a new machine, `bash experiments/restore-runs.sh` first puts the exported runs (pretrained/)
-# back under OUT, so that the finished ones are skipped and the unfinished ones resume.
+# back under OUT, so that the finished ones are skipped and the unfinished ones resume. A step
+# exports a run when it finishes; before leaving a machine, export the open one too: the running
+# step's command with --report-only (its --export copies unfinished runs as well), then commit.
 #
 # Settings (environment variables):
 #   OUT      where the runs go (default results/; git ignores it)
